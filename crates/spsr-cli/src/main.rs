@@ -1,0 +1,2 @@
+//! The `spsr` command line. (Being implemented.)
+fn main() {}

@@ -1,0 +1,72 @@
+//! Errors reported by the library. Every failure a user can cause (bad files, bad parameters,
+//! unusable point clouds) is a variant here; the library never panics on user input.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong in spsr, one variant per stage or validation failure.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// The operating system refused a read or write.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// File concerned.
+        path: PathBuf,
+        /// Underlying error.
+        source: std::io::Error,
+    },
+    /// The file's content is malformed (bad header, truncated body, unparsable number, ...).
+    #[error("{}: {message}", path.display())]
+    Parse {
+        /// File concerned.
+        path: PathBuf,
+        /// What is wrong, with the line or element where known.
+        message: String,
+    },
+    /// The point file has positions but no normals.
+    #[error("{}: the points have no normals (nx, ny, nz); spsr needs oriented points", path.display())]
+    MissingNormals {
+        /// File concerned.
+        path: PathBuf,
+    },
+    /// A parameter is out of its allowed range.
+    #[error("invalid parameter {name}: {message}")]
+    InvalidParameter {
+        /// Parameter name as the command line spells it (e.g. `--depth`).
+        name: &'static str,
+        /// What is wrong and what is allowed.
+        message: String,
+    },
+    /// Positions and normals (or other per-point arrays) differ in length.
+    #[error("length mismatch: {positions} positions but {normals} normals")]
+    LengthMismatch {
+        /// Number of positions.
+        positions: usize,
+        /// Number of normals.
+        normals: usize,
+    },
+    /// Not enough usable points to reconstruct anything.
+    #[error("too few usable points: {usable} usable, {dropped} dropped (non-finite values or zero-length normals); at least {required} are needed")]
+    TooFewPoints {
+        /// Points that passed the validity filter.
+        usable: usize,
+        /// Points that were dropped.
+        dropped: usize,
+        /// Minimum number of points required.
+        required: usize,
+    },
+    /// The usable points span no volume along any axis (all identical).
+    #[error("degenerate input: {0}")]
+    Degenerate(String),
+    /// The output path cannot be used.
+    #[error("{}: {message}", path.display())]
+    Output {
+        /// File concerned.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// Result alias used throughout the library.
+pub type Result<T, E = Error> = std::result::Result<T, E>;

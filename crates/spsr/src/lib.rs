@@ -1,0 +1,29 @@
+//! # spsr — Screened Poisson Surface Reconstruction
+//!
+//! Turns an oriented point cloud into a watertight, manifold triangle mesh by the method of
+//! Kazhdan & Hoppe (ACM TOG 2013), as specified in the project's `ALGORITHM.md`.
+//!
+//! ```no_run
+//! use spsr::{io, reconstruct, Params};
+//! let cloud = io::read_points("scan.ply".as_ref())?;
+//! let result = reconstruct(&cloud, &Params::default())?;
+//! io::write_mesh("mesh.ply".as_ref(), &result.mesh, &io::WriteOptions::default())?;
+//! # Ok::<(), spsr::Error>(())
+//! ```
+#![deny(missing_docs)]
+
+pub mod bspline;
+mod error;
+pub mod extract;
+pub mod io;
+pub mod mesh;
+mod params;
+pub mod points;
+mod reconstruct;
+
+pub use error::{Error, Result};
+pub use mesh::Mesh;
+pub use params::{Params, MAX_DEPTH};
+pub use points::PointCloud;
+pub use reconstruct::{reconstruct, reconstruct_with_progress, Reconstruction, Stats};
+pub use bspline::Boundary;

@@ -1,0 +1,115 @@
+//! Reconstruction parameters. Each default says where it comes from (ALGORITHM.md §14).
+
+use crate::bspline::Boundary;
+use crate::{Error, Result};
+
+/// Deepest octree depth spsr accepts. Node keys are 64-bit Morton codes over a tree two levels
+/// deeper than the unit cube (the outer ring of ALGORITHM.md §4.2), so 3 × (depth + 2) bits must
+/// fit in 63 bits; 18 leaves headroom.
+pub const MAX_DEPTH: u32 = 18;
+
+/// Parameters of [`crate::reconstruct`]. Build with `Params::default()` and change fields.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Params {
+    /// Maximum octree depth `D`; the finest cells are `1/2^D` of the bounding cube.
+    /// Default 8, as PoissonRecon 6 and 18.
+    pub depth: u32,
+    /// The octree is complete (all cells present) down to this depth, and the coarse
+    /// multigrid solve happens there. Default 5, as PoissonRecon 6 and 18.
+    pub full_depth: u32,
+    /// Target number of samples per octree node, which sets the splat depth of each sample
+    /// (ALGORITHM.md §3.5). Default 1.5, as PoissonRecon 18 (1.0 in version 6).
+    pub samples_per_node: f64,
+    /// Screening weight α; 0 gives the unscreened 2006 method. `None` means 2 × degree, the
+    /// PoissonRecon 18 default (4 for degree 2, the paper's value).
+    pub point_weight: Option<f64>,
+    /// B-spline degree of the finite elements: 1 or 2. Default 1, as PoissonRecon 18
+    /// (the paper and PoissonRecon 6 use 2).
+    pub degree: u8,
+    /// Boundary condition on the bounding cube. Default Neumann, as PoissonRecon 6 and 18.
+    pub boundary: Boundary,
+    /// The bounding cube is the points' bounding box's largest side times this factor.
+    /// Default 1.1, as PoissonRecon 6 and 18.
+    pub scale: f64,
+    /// Gauss–Seidel sweeps per depth. Default 8, as PoissonRecon 6 and 18 and the paper.
+    pub iters: u32,
+    /// Use each normal's length as the point's confidence weight. Default off.
+    pub confidence: bool,
+    /// Compute per-vertex density (estimated sampling depth, ALGORITHM.md §9.5). Default off.
+    pub density: bool,
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Self {
+            depth: 8,
+            full_depth: 5,
+            samples_per_node: 1.5,
+            point_weight: None,
+            degree: 1,
+            boundary: Boundary::Neumann,
+            scale: 1.1,
+            iters: 8,
+            confidence: false,
+            density: false,
+        }
+    }
+}
+
+impl Params {
+    /// The screening weight α actually used.
+    pub fn alpha(&self) -> f64 {
+        self.point_weight.unwrap_or(2.0 * f64::from(self.degree))
+    }
+
+    /// Kernel depth of the density estimator, `max(D − 2, 0)` as PoissonRecon.
+    pub fn kernel_depth(&self) -> u32 {
+        self.depth.saturating_sub(2)
+    }
+
+    /// Depth of the coarse (base) solve: the full depth, clamped to the maximum depth.
+    pub fn base_depth(&self) -> u32 {
+        self.full_depth.min(self.depth)
+    }
+
+    /// Checks every parameter; the message names the command-line flag.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |name, message: String| Err(Error::InvalidParameter { name, message });
+        if self.depth == 0 || self.depth > MAX_DEPTH {
+            return bad("--depth", format!("{} is outside 1..={MAX_DEPTH}", self.depth));
+        }
+        if self.full_depth > self.depth {
+            return bad(
+                "--full-depth",
+                format!("{} is deeper than --depth {}", self.full_depth, self.depth),
+            );
+        }
+        if !(self.samples_per_node.is_finite() && self.samples_per_node > 0.0) {
+            return bad(
+                "--samples-per-node",
+                format!("{} must be a positive number", self.samples_per_node),
+            );
+        }
+        if let Some(a) = self.point_weight {
+            if !(a.is_finite() && a >= 0.0) {
+                return bad(
+                    "--point-weight",
+                    format!("{a} must be zero or a positive number"),
+                );
+            }
+        }
+        if self.degree != 1 && self.degree != 2 {
+            return bad("--degree", format!("{} is not supported; use 1 or 2", self.degree));
+        }
+        if !(self.scale.is_finite() && self.scale >= 1.0 && self.scale <= 1000.0) {
+            return bad(
+                "--scale",
+                format!("{} must be at least 1 (points must lie inside the cube)", self.scale),
+            );
+        }
+        if self.iters == 0 || self.iters > 10_000 {
+            return bad("--iters", format!("{} is outside 1..=10000", self.iters));
+        }
+        Ok(())
+    }
+}
