@@ -17,6 +17,7 @@ mod error;
 pub mod extract;
 pub mod io;
 pub mod mesh;
+mod octree;
 mod params;
 pub mod points;
 mod reconstruct;

@@ -1,0 +1,523 @@
+//! The adaptive, conforming octree (ALGORITHM.md §4).
+//!
+//! Layout. The unit cube `[0,1]^3` is embedded in a virtual root that covers `[-1,3]^3`, so
+//! the tree depth `t` of a node is its unit-cube depth `d` plus [`DEPTH_OFFSET`]. This gives
+//! every B-spline index just outside the cube (degree-1 functions at index `2^d`, free-boundary
+//! degree-2 functions at `-1` and `2^d`) a real node, as PoissonRecon's virtual root does
+//! (`_depthOffset`). Node creation is limited to the *ring* of unit offsets `-1..=2^d`:
+//! no basis function lives farther out.
+//!
+//! Storage. Each tree depth is a [`Level`] whose nodes come in broods of 8 siblings stored
+//! consecutively (node `8b + c` is child `c` of brood `b`, child bit 0 = x, 1 = y, 2 = z).
+//! Broods are ordered by their parent, so every level is in Morton order. Each brood stores
+//! the 27 broods around it (the children of its parent's 3×3×3 neighbours), which gives any
+//! node's 5×5×5 same-depth window in O(1) without hashing.
+//!
+//! Invariants after [`Octree::build`]:
+//! - levels with unit depth `≤ full_depth` contain every ring node;
+//! - conforming (§4.2 step 5): if a node at unit depth `d ≥ base` has children, every node of
+//!   the ring within its 5×5×5 window exists;
+//! - the level of tree depth 0 is the virtual root alone; level 1 is its single brood.
+
+use rustc_hash::FxHashSet;
+
+/// Tree depth of the unit cube.
+pub const DEPTH_OFFSET: u32 = 2;
+
+/// Marker for "no node / no brood".
+pub const NONE: u32 = u32::MAX;
+
+/// One depth of the tree.
+#[derive(Debug, Default, Clone)]
+pub struct Level {
+    /// Integer offsets of the nodes in tree coordinates (`0..2^t` per axis).
+    pub keys: Vec<[u32; 3]>,
+    /// Brood index of each node's children at the next level, or [`NONE`].
+    pub child: Vec<u32>,
+    /// Parent node (at the previous level) of each brood.
+    pub brood_parent: Vec<u32>,
+    /// The 27 broods around each brood, slot `(dx+1) + 3(dy+1) + 9(dz+1)`, [`NONE`] if absent.
+    pub brood_nbrs: Vec<[u32; 27]>,
+}
+
+impl Level {
+    /// Number of nodes.
+    pub fn len(&self) -> usize {
+        self.keys.len()
+    }
+
+    /// True when the level has no node.
+    pub fn is_empty(&self) -> bool {
+        self.keys.is_empty()
+    }
+}
+
+/// The octree: one [`Level`] per tree depth.
+#[derive(Debug, Default, Clone)]
+pub struct Octree {
+    /// Levels by tree depth.
+    pub levels: Vec<Level>,
+}
+
+/// Offset lookup table for same-level windows: for child position `c` and window offset
+/// `δ ∈ [-2,2]^3` (index `(δx+2) + 5(δy+2) + 25(δz+2)`), the brood slot and the child bits.
+pub struct WindowTable {
+    slot: [[u8; 125]; 8],
+    bits: [[u8; 125]; 8],
+}
+
+/// The window table, computed at compile time.
+pub static WINDOW: WindowTable = {
+    let mut slot = [[0u8; 125]; 8];
+    let mut bits = [[0u8; 125]; 8];
+    let mut c = 0;
+    while c < 8 {
+        let mut w = 0;
+        while w < 125 {
+            let d = [(w % 5) as i32 - 2, ((w / 5) % 5) as i32 - 2, (w / 25) as i32 - 2];
+            let mut s = 0usize;
+            let mut b = 0u8;
+            let mut mul = 1usize;
+            let mut a = 0;
+            while a < 3 {
+                let cb = ((c >> a) & 1) as i32;
+                let v = cb + d[a] + 2; // 0..=5
+                s += (v as usize >> 1) * mul;
+                b |= ((v & 1) as u8) << a;
+                mul *= 3;
+                a += 1;
+            }
+            slot[c][w] = s as u8;
+            bits[c][w] = b;
+            w += 1;
+        }
+        c += 1;
+    }
+    WindowTable { slot, bits }
+};
+
+/// Window index of an offset in `[-2,2]^3`.
+#[inline]
+pub fn window_index(d: [i64; 3]) -> usize {
+    ((d[0] + 2) + 5 * (d[1] + 2) + 25 * (d[2] + 2)) as usize
+}
+
+/// Range of ring offsets (tree coordinates, inclusive) at tree depth `t`.
+pub fn ring(t: u32) -> (i64, i64) {
+    if t < DEPTH_OFFSET {
+        (0, (1i64 << t) - 1)
+    } else {
+        let n = 1i64 << (t - DEPTH_OFFSET);
+        (n - 1, 2 * n)
+    }
+}
+
+#[inline]
+fn pack(k: [i64; 3]) -> u64 {
+    (k[0] as u64) | ((k[1] as u64) << 21) | ((k[2] as u64) << 42)
+}
+
+#[inline]
+fn unpack(p: u64) -> [u32; 3] {
+    let m = (1u64 << 21) - 1;
+    [(p & m) as u32, ((p >> 21) & m) as u32, ((p >> 42) & m) as u32]
+}
+
+/// Interleaves the bits of a key (x lowest) into a Morton code.
+fn morton(k: [u32; 3]) -> u64 {
+    fn spread(v: u32) -> u64 {
+        let mut x = u64::from(v) & 0x1f_ffff;
+        x = (x | (x << 32)) & 0x001f_0000_0000_ffff;
+        x = (x | (x << 16)) & 0x001f_0000_ff00_00ff;
+        x = (x | (x << 8)) & 0x100f_00f0_0f00_f00f;
+        x = (x | (x << 4)) & 0x10c3_0c30_c30c_30c3;
+        x = (x | (x << 2)) & 0x1249_2492_4924_9249;
+        x
+    }
+    spread(k[0]) | (spread(k[1]) << 1) | (spread(k[2]) << 2)
+}
+
+/// Requests gathered before building: nodes that must exist, by tree depth.
+#[derive(Debug, Default)]
+pub struct TreeRequest {
+    /// `refined[t]`: keys (packed) of nodes at tree depth `t` that must have children.
+    refined: Vec<FxHashSet<u64>>,
+}
+
+impl TreeRequest {
+    /// An empty request for a tree of maximal tree depth `max_t`.
+    pub fn new(max_t: u32) -> Self {
+        Self {
+            refined: (0..=max_t).map(|_| FxHashSet::default()).collect(),
+        }
+    }
+
+    /// Requires the node at tree depth `t` with tree key `k` (inside the ring) to exist.
+    pub fn require(&mut self, t: u32, k: [i64; 3]) {
+        if t == 0 {
+            return;
+        }
+        let (lo, hi) = ring(t);
+        if k.iter().any(|&c| c < lo || c > hi) {
+            return;
+        }
+        self.refined[t as usize - 1].insert(pack([k[0] >> 1, k[1] >> 1, k[2] >> 1]));
+    }
+
+    /// Requires the `(2r+1)^3` window of nodes around `k` at tree depth `t` (clipped to the ring).
+    pub fn require_window(&mut self, t: u32, k: [i64; 3], r: i64) {
+        if t == 0 {
+            return;
+        }
+        let (lo, hi) = ring(t);
+        let lo3: [i64; 3] = std::array::from_fn(|a| ((k[a] - r).max(lo)) >> 1);
+        let hi3: [i64; 3] = std::array::from_fn(|a| ((k[a] + r).min(hi)) >> 1);
+        let set = &mut self.refined[t as usize - 1];
+        for z in lo3[2]..=hi3[2] {
+            for y in lo3[1]..=hi3[1] {
+                for x in lo3[0]..=hi3[0] {
+                    set.insert(pack([x, y, z]));
+                }
+            }
+        }
+    }
+}
+
+impl Octree {
+    /// Builds the tree from the requested nodes: makes levels of unit depth `≤ full_depth`
+    /// complete, closes the request under ancestry, and enforces the conforming property at
+    /// unit depths `≥ conform_from` (ALGORITHM.md §4.2 steps 3 and 5).
+    pub fn build(mut req: TreeRequest, full_depth: u32, conform_from: u32) -> Octree {
+        let max_t = req.refined.len() as u32 - 1;
+        // Complete levels: every ring node at unit depth < full_depth has children.
+        for t in 0..(full_depth + DEPTH_OFFSET).min(max_t) {
+            let (lo, hi) = ring(t);
+            let set = &mut req.refined[t as usize];
+            for z in lo..=hi {
+                for y in lo..=hi {
+                    for x in lo..=hi {
+                        set.insert(pack([x, y, z]));
+                    }
+                }
+            }
+        }
+        // Fine to coarse: every refined node needs its parent refined; with conforming, the
+        // 5×5×5 window around a refined node must exist, which means the 3×3×3 parents around
+        // its parent must be refined.
+        for t in (1..max_t).rev() {
+            let cur: Vec<u64> = {
+                let mut v: Vec<u64> = req.refined[t as usize].iter().copied().collect();
+                v.sort_unstable();
+                v
+            };
+            let mut parents: Vec<u64> = cur
+                .iter()
+                .map(|&p| {
+                    let k = unpack(p);
+                    pack([
+                        i64::from(k[0] >> 1),
+                        i64::from(k[1] >> 1),
+                        i64::from(k[2] >> 1),
+                    ])
+                })
+                .collect();
+            parents.sort_unstable();
+            parents.dedup();
+            let conform = t >= conform_from + DEPTH_OFFSET;
+            let (lo, hi) = ring(t - 1);
+            let up = &mut req.refined[t as usize - 1];
+            for p in parents {
+                if conform {
+                    let k = unpack(p);
+                    for dz in -1..=1i64 {
+                        for dy in -1..=1i64 {
+                            for dx in -1..=1i64 {
+                                let q = [
+                                    i64::from(k[0]) + dx,
+                                    i64::from(k[1]) + dy,
+                                    i64::from(k[2]) + dz,
+                                ];
+                                if q.iter().all(|&c| c >= lo && c <= hi) {
+                                    up.insert(pack(q));
+                                }
+                            }
+                        }
+                    }
+                } else {
+                    up.insert(p);
+                }
+            }
+        }
+        // The root always exists and has children.
+        req.refined[0].insert(0);
+
+        // Materialise levels top-down.
+        let mut levels: Vec<Level> = Vec::with_capacity(max_t as usize + 1);
+        levels.push(Level {
+            keys: vec![[0, 0, 0]],
+            child: vec![NONE],
+            brood_parent: Vec::new(),
+            brood_nbrs: Vec::new(),
+        });
+        for t in 1..=max_t {
+            let prev = &levels[t as usize - 1];
+            // Refined nodes of the previous level, in its (Morton) order.
+            let refined = &req.refined[t as usize - 1];
+            let parents: Vec<u32> = (0..prev.keys.len() as u32)
+                .filter(|&n| refined.contains(&pack_u(prev.keys[n as usize])))
+                .collect();
+            if parents.is_empty() {
+                break;
+            }
+            let mut keys = Vec::with_capacity(parents.len() * 8);
+            for &p in &parents {
+                let k = prev.keys[p as usize];
+                for c in 0..8u32 {
+                    keys.push([
+                        2 * k[0] + (c & 1),
+                        2 * k[1] + ((c >> 1) & 1),
+                        2 * k[2] + ((c >> 2) & 1),
+                    ]);
+                }
+            }
+            let prev = &mut levels[t as usize - 1];
+            for (b, &p) in parents.iter().enumerate() {
+                prev.child[p as usize] = b as u32;
+            }
+            let n = keys.len();
+            levels.push(Level {
+                keys,
+                child: vec![NONE; n],
+                brood_parent: parents,
+                brood_nbrs: Vec::new(),
+            });
+            // Brood neighbours: the broods of the parent's 3×3×3 neighbours.
+            let nbrs: Vec<[u32; 27]> = {
+                let prev = &levels[t as usize - 1];
+                let cur = &levels[t as usize];
+                cur.brood_parent
+                    .iter()
+                    .map(|&p| {
+                        let mut out = [NONE; 27];
+                        for (s, o) in out.iter_mut().enumerate() {
+                            let d = [(s % 3) as i64 - 1, ((s / 3) % 3) as i64 - 1, (s / 9) as i64 - 1];
+                            let q = if t == 1 {
+                                if d == [0, 0, 0] {
+                                    0
+                                } else {
+                                    NONE
+                                }
+                            } else {
+                                prev_neighbor(prev, p, d)
+                            };
+                            if q != NONE {
+                                *o = prev.child[q as usize];
+                            }
+                        }
+                        out
+                    })
+                    .collect()
+            };
+            levels[t as usize].brood_nbrs = nbrs;
+        }
+        Octree { levels }
+    }
+
+    /// Number of tree levels.
+    pub fn depth_count(&self) -> u32 {
+        self.levels.len() as u32
+    }
+
+    /// The same-level neighbour of node `n` at tree depth `t ≥ 1` by offset `d ∈ [-2,2]^3`.
+    #[inline]
+    pub fn neighbor(&self, t: u32, n: u32, d: [i64; 3]) -> u32 {
+        neighbor_in(&self.levels[t as usize], n, window_index(d))
+    }
+
+    /// The parent of node `n` at tree depth `t ≥ 1`.
+    #[inline]
+    pub fn parent(&self, t: u32, n: u32) -> u32 {
+        self.levels[t as usize].brood_parent[(n / 8) as usize]
+    }
+
+    /// Deepest node containing the tree-coordinate point `key` given at tree depth `t_key`,
+    /// descending at most to tree depth `t_max`. Returns `(tree depth, node)`.
+    pub fn descend(&self, key: [u64; 3], t_key: u32, t_max: u32) -> (u32, u32) {
+        let mut n = 0u32;
+        let mut t = 0u32;
+        while t < t_max && (t as usize + 1) < self.levels.len() {
+            let b = self.levels[t as usize].child[n as usize];
+            if b == NONE {
+                break;
+            }
+            let shift = t_key - (t + 1);
+            let c = ((key[0] >> shift) & 1) | (((key[1] >> shift) & 1) << 1) | (((key[2] >> shift) & 1) << 2);
+            n = b * 8 + c as u32;
+            t += 1;
+        }
+        (t, n)
+    }
+}
+
+#[inline]
+fn pack_u(k: [u32; 3]) -> u64 {
+    pack([i64::from(k[0]), i64::from(k[1]), i64::from(k[2])])
+}
+
+/// Same-level neighbour of node `n` by window index `w` (see [`window_index`]).
+#[inline]
+pub fn neighbor_in(level: &Level, n: u32, w: usize) -> u32 {
+    let c = (n & 7) as usize;
+    let b = level.brood_nbrs[(n >> 3) as usize][WINDOW.slot[c][w] as usize];
+    if b == NONE {
+        NONE
+    } else {
+        b * 8 + u32::from(WINDOW.bits[c][w])
+    }
+}
+
+fn prev_neighbor(level: &Level, n: u32, d: [i64; 3]) -> u32 {
+    neighbor_in(level, n, window_index(d))
+}
+
+/// Sorts keys in Morton order (used by tests and callers that gather keys).
+pub fn sort_morton(keys: &mut [[u32; 3]]) {
+    keys.sort_unstable_by_key(|&k| morton(k));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn splitmix(s: &mut u64) -> u64 {
+        *s = s.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = *s;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    #[test]
+    fn morton_interleaves_bits() {
+        assert_eq!(morton([1, 0, 0]), 1);
+        assert_eq!(morton([0, 1, 0]), 2);
+        assert_eq!(morton([0, 0, 1]), 4);
+        assert_eq!(morton([3, 0, 0]), 0b1001);
+        assert_eq!(morton([0x1f_ffff, 0, 0]) >> 60, 1);
+        let mut s = 7;
+        for _ in 0..1000 {
+            let k = [
+                (splitmix(&mut s) & 0xfffff) as u32,
+                (splitmix(&mut s) & 0xfffff) as u32,
+                (splitmix(&mut s) & 0xfffff) as u32,
+            ];
+            let m = morton(k);
+            let mut back = [0u32; 3];
+            for bit in 0..21 {
+                for (a, b) in back.iter_mut().enumerate() {
+                    *b |= (((m >> (3 * bit + a)) & 1) as u32) << bit;
+                }
+            }
+            assert_eq!(back, k);
+        }
+    }
+
+    fn random_tree(seed: u64, full: u32, max_d: u32) -> Octree {
+        let max_t = max_d + DEPTH_OFFSET;
+        let mut req = TreeRequest::new(max_t);
+        let mut s = seed;
+        for _ in 0..40 {
+            let d = full + 1 + (splitmix(&mut s) % u64::from(max_d - full)) as u32;
+            let n = 1u64 << d;
+            let k: [i64; 3] = std::array::from_fn(|_| (splitmix(&mut s) % n) as i64 + n as i64);
+            req.require_window(d + DEPTH_OFFSET, k, 1);
+        }
+        Octree::build(req, full, full)
+    }
+
+    #[test]
+    fn levels_are_complete_to_full_depth() {
+        let tree = random_tree(1, 3, 6);
+        for d in 0..=3u32 {
+            let t = d + DEPTH_OFFSET;
+            let (lo, hi) = ring(t);
+            let keys: FxHashSet<u64> = tree.levels[t as usize].keys.iter().map(|&k| pack_u(k)).collect();
+            for z in lo..=hi {
+                for y in lo..=hi {
+                    for x in lo..=hi {
+                        assert!(keys.contains(&pack([x, y, z])), "missing ring node at depth {d}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn tree_is_conforming_and_neighbours_are_right() {
+        for seed in 0..4 {
+            let tree = random_tree(seed, 2, 7);
+            for t in 1..tree.depth_count() {
+                let level = &tree.levels[t as usize];
+                let index: rustc_hash::FxHashMap<u64, u32> = level
+                    .keys
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &k)| (pack_u(k), i as u32))
+                    .collect();
+                let (lo, hi) = ring(t);
+                for (n, &k) in level.keys.iter().enumerate() {
+                    // Children keys are consistent.
+                    if level.child[n] != NONE {
+                        let next = &tree.levels[t as usize + 1];
+                        for c in 0..8u32 {
+                            let ck = next.keys[(level.child[n] * 8 + c) as usize];
+                            assert_eq!(ck[0], 2 * k[0] + (c & 1));
+                            assert_eq!(ck[2], 2 * k[2] + (c >> 2));
+                        }
+                    }
+                    // Neighbour lookups agree with a hash lookup.
+                    for w in 0..125 {
+                        let d = [(w % 5) as i64 - 2, ((w / 5) % 5) as i64 - 2, (w / 25) as i64 - 2];
+                        let q = [k[0] as i64 + d[0], k[1] as i64 + d[1], k[2] as i64 + d[2]];
+                        let expect = if q.iter().all(|&c| c >= 0 && c < (1 << t)) {
+                            index.get(&pack(q)).copied().unwrap_or(NONE)
+                        } else {
+                            NONE
+                        };
+                        assert_eq!(tree.neighbor(t, n as u32, d), expect);
+                        // Conforming: around a refined node at unit depth >= 2, the ring window exists.
+                        if level.child[n] != NONE && t >= 2 + DEPTH_OFFSET && q.iter().all(|&c| c >= lo && c <= hi) {
+                            assert_ne!(expect, NONE, "conforming window broken at t={t}");
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn levels_are_in_morton_order() {
+        let tree = random_tree(9, 2, 6);
+        for level in &tree.levels {
+            let m: Vec<u64> = level.keys.iter().map(|&k| morton(k)).collect();
+            assert!(m.windows(2).all(|w| w[0] < w[1]));
+        }
+    }
+
+    #[test]
+    fn descend_finds_the_containing_leaf() {
+        let tree = random_tree(3, 2, 6);
+        let t_key = tree.depth_count() - 1;
+        let mut s = 11;
+        for _ in 0..500 {
+            let n = 1u64 << (t_key - DEPTH_OFFSET);
+            let key: [u64; 3] = std::array::from_fn(|_| splitmix(&mut s) % n + n);
+            let (t, node) = tree.descend(key, t_key, t_key);
+            let k = tree.levels[t as usize].keys[node as usize];
+            for a in 0..3 {
+                assert_eq!(u64::from(k[a]), key[a] >> (t_key - t));
+            }
+            assert_eq!(tree.levels[t as usize].child[node as usize], NONE);
+        }
+    }
+}
