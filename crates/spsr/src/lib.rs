@@ -17,8 +17,11 @@ mod error;
 pub mod extract;
 pub mod io;
 pub mod mesh;
+mod density;
 mod octree;
 mod params;
+mod solver;
+mod system;
 pub mod points;
 mod reconstruct;
 
