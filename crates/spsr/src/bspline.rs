@@ -145,8 +145,15 @@ impl Basis {
     #[inline]
     pub fn window(self, depth: u32, x: f64) -> Window {
         let n = 1i64 << depth;
-        let nf = n as f64;
         let (c, t) = locate(n, x);
+        self.window_cell(n, c, t)
+    }
+
+    /// [`Basis::window`] for the point at local coordinate `t ∈ [0, 1]` of cell `c` of a grid
+    /// of `n = 2^depth` cells.
+    #[inline(always)]
+    fn window_cell(self, n: i64, c: i64, t: f64) -> Window {
+        let nf = n as f64;
         match self.degree {
             1 => {
                 let mut values = [1.0 - t, t, 0.0];
@@ -393,29 +400,34 @@ impl Spec {
             Integrand::DerivDeriv => (true, true),
             Integrand::DerivValue => (true, false),
         };
+        let nb = if self.b_coarser { n >> 1 } else { n };
         for c in c0..=c1 {
             for (&xi, &w) in GAUSS_NODES.iter().zip(GAUSS_WEIGHTS.iter()) {
-                let x = (c as f64 + xi) * h;
-                let fa = if da {
-                    self.a.derivative(self.depth, i, x)
-                } else {
-                    self.a.value(self.depth, i, x)
-                };
+                // Evaluate through local cell coordinates (not x) so that deep levels keep
+                // full relative precision.
+                let wa = self.a.window_cell(n, c, xi);
+                let ka = i - wa.first;
+                if !(0..=self.a.degree as i64).contains(&ka) {
+                    continue;
+                }
+                let fa = if da { wa.derivs } else { wa.values }[ka as usize];
                 if fa == 0.0 {
                     continue;
                 }
-                let wa = w * h * fa;
+                let wb = if self.b_coarser {
+                    self.b.window_cell(nb, c >> 1, 0.5 * ((c & 1) as f64 + xi))
+                } else {
+                    self.b.window_cell(nb, c, xi)
+                };
+                let fbs = if dbv { wb.derivs } else { wb.values };
+                let wfa = w * h * fa;
                 for (slot, off) in (-Table1D::RADIUS..=Table1D::RADIUS).enumerate() {
                     let j = base + off;
-                    if j < blo || j > bhi {
+                    let kb = j - wb.first;
+                    if j < blo || j > bhi || !(0..=self.b.degree as i64).contains(&kb) {
                         continue;
                     }
-                    let fb = if dbv {
-                        self.b.derivative(db, j, x)
-                    } else {
-                        self.b.value(db, j, x)
-                    };
-                    row[slot] += wa * fb;
+                    row[slot] += wfa * fbs[kb as usize];
                 }
             }
         }
@@ -472,4 +484,703 @@ fn build_table(
         t.interior[(i & 1) as usize] = spec.row(i);
     }
     t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const ALL: [Basis; 6] = [
+        Basis::new(1, Boundary::Free),
+        Basis::new(1, Boundary::Neumann),
+        Basis::new(1, Boundary::Dirichlet),
+        Basis::new(2, Boundary::Free),
+        Basis::new(2, Boundary::Neumann),
+        Basis::new(2, Boundary::Dirichlet),
+    ];
+    const INTEGRANDS: [Integrand; 3] = [
+        Integrand::ValueValue,
+        Integrand::DerivDeriv,
+        Integrand::DerivValue,
+    ];
+
+    /// Deterministic xorshift64* generator.
+    struct Rng(u64);
+    impl Rng {
+        fn next_u64(&mut self) -> u64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
+        }
+        /// Uniform in [0, 1).
+        fn unit(&mut self) -> f64 {
+            (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+        }
+        fn range(&mut self, a: f64, b: f64) -> f64 {
+            a + (b - a) * self.unit()
+        }
+    }
+
+    /// Test points: uniform ones plus ones within one cell of either end, plus the ends.
+    fn points(rng: &mut Rng, depth: u32, count: usize) -> Vec<f64> {
+        let h = 1.0 / (1u64 << depth) as f64;
+        let mut v = vec![0.0, 1.0, h.min(1.0), 1.0 - h];
+        for k in 0..count {
+            v.push(match k % 3 {
+                0 => rng.unit(),
+                1 => rng.range(0.0, h),
+                _ => rng.range(1.0 - h, 1.0),
+            });
+        }
+        v
+    }
+
+    /// Independent definitions of the centred cardinal B-splines and their derivatives.
+    fn beta(n: u8, t: f64) -> f64 {
+        let a = t.abs();
+        match n {
+            1 => (1.0 - a).max(0.0),
+            2 => {
+                if a <= 0.5 {
+                    0.75 - a * a
+                } else if a <= 1.5 {
+                    0.5 * (1.5 - a) * (1.5 - a)
+                } else {
+                    0.0
+                }
+            }
+            _ => unreachable!(),
+        }
+    }
+    fn beta_prime(n: u8, t: f64) -> f64 {
+        let a = t.abs();
+        let s = t.signum();
+        match n {
+            1 => {
+                if a < 1.0 {
+                    -s
+                } else {
+                    0.0
+                }
+            }
+            2 => {
+                if a <= 0.5 {
+                    -2.0 * t
+                } else if a <= 1.5 {
+                    -s * (1.5 - a)
+                } else {
+                    0.0
+                }
+            }
+            _ => unreachable!(),
+        }
+    }
+
+    /// Brute-force folded value (`deriv = false`) or derivative, straight from the definition:
+    /// sum over the reflection group `x ↦ x + 2k`, `x ↦ 2k − x` (sign −1 for reflections under
+    /// Dirichlet), divided by the size of the index's stabiliser (2 for the degree-1 boundary
+    /// hats, which are their own mirror images).
+    fn brute(b: Basis, depth: u32, i: i64, x: f64, deriv: bool) -> f64 {
+        let (lo, hi) = b.index_range(depth);
+        if i < lo || i > hi || !(0.0..=1.0).contains(&x) {
+            return 0.0;
+        }
+        let nf = (1u64 << depth) as f64;
+        let shift = if b.degree == 2 { 0.5 } else { 0.0 };
+        let unfolded = |y: f64| -> f64 {
+            let t = y * nf - i as f64 - shift;
+            if deriv {
+                nf * beta_prime(b.degree, t)
+            } else {
+                beta(b.degree, t)
+            }
+        };
+        if b.boundary == Boundary::Free {
+            return unfolded(x);
+        }
+        let sign = if b.boundary == Boundary::Neumann {
+            1.0
+        } else {
+            -1.0
+        };
+        // d/dx of f(2k − x) is −f'(2k − x).
+        let dsign = if deriv { -1.0 } else { 1.0 };
+        let mut sum = 0.0;
+        for k in -4..=4 {
+            let k2 = 2.0 * k as f64;
+            sum += unfolded(x + k2) + sign * dsign * unfolded(k2 - x);
+        }
+        let fixed = b.degree == 1 && (i == 0 || i == 1i64 << depth);
+        if fixed {
+            sum * 0.5
+        } else {
+            sum
+        }
+    }
+
+    fn near_knot(depth: u32, x: f64) -> bool {
+        let u = x * (1u64 << depth) as f64;
+        (u - u.round()).abs() < 1e-9
+    }
+
+    /// Natural magnitude of an entry: mass ~ h, stiffness ~ 1/h, mixed ~ 1.
+    fn scale(integrand: Integrand, depth: u32) -> f64 {
+        let h = 1.0 / (1u64 << depth) as f64;
+        match integrand {
+            Integrand::ValueValue => h,
+            Integrand::DerivDeriv => 1.0 / h,
+            Integrand::DerivValue => 1.0,
+        }
+    }
+
+    #[test]
+    fn beta_values_unit_integrals_and_partition_of_unity() {
+        // β2(0) = 3/4, β2(±1) = 1/8 through the library (free degree-2 function (3, 3),
+        // centred at 3.5/8), and hat values.
+        let b2 = Basis::new(2, Boundary::Free);
+        assert_eq!(b2.value(3, 3, 3.5 / 8.0), 0.75);
+        assert_eq!(b2.value(3, 3, 2.5 / 8.0), 0.125);
+        assert_eq!(b2.value(3, 3, 4.5 / 8.0), 0.125);
+        assert_eq!(b2.value(3, 3, 2.0 / 8.0), 0.0);
+        assert_eq!(b2.value(3, 3, 5.0 / 8.0), 0.0);
+        assert_eq!(b2.value(3, 3, 3.0 / 8.0), 0.5);
+        let b1 = Basis::new(1, Boundary::Free);
+        assert_eq!(b1.value(3, 3, 3.0 / 8.0), 1.0);
+        assert_eq!(b1.value(3, 3, 3.5 / 8.0), 0.5);
+        assert_eq!(b1.value(3, 3, 4.0 / 8.0), 0.0);
+        // Unit integrals (times h) of interior functions, by fine Simpson quadrature of
+        // `value`: ∫ β_n = 1. The integrands are piecewise polynomials of degree ≤ 2 with
+        // knots on the Simpson panel boundaries, so Simpson is exact.
+        for b in [b1, b2] {
+            let panels = 4096;
+            let d = 1.0 / panels as f64;
+            let mut s = 0.0;
+            for p in 0..panels {
+                let x0 = p as f64 * d;
+                s += d / 6.0
+                    * (b.value(3, 3, x0)
+                        + 4.0 * b.value(3, 3, x0 + 0.5 * d)
+                        + b.value(3, 3, x0 + d));
+            }
+            assert!((s * 8.0 - 1.0).abs() < 1e-13, "{b:?}: {s}");
+        }
+        // Partition of unity for free and Neumann bases of both degrees.
+        let mut rng = Rng(0x1234_5678);
+        for b in ALL.iter().filter(|b| b.boundary != Boundary::Dirichlet) {
+            for depth in [0, 1, 2, 3, 5, 9] {
+                let (lo, hi) = b.index_range(depth);
+                for x in points(&mut rng, depth, 300) {
+                    let sum: f64 = (lo..=hi).map(|i| b.value(depth, i, x)).sum();
+                    let dsum: f64 = (lo..=hi).map(|i| b.derivative(depth, i, x)).sum();
+                    assert!((sum - 1.0).abs() < 1e-13, "{b:?} d{depth} x{x}: {sum}");
+                    assert!(dsum.abs() < 1e-9 * (1u64 << depth) as f64, "{b:?}: {dsum}");
+                }
+            }
+        }
+        // Dirichlet destroys it; its functions vanish at the ends.
+        let d2 = Basis::new(2, Boundary::Dirichlet);
+        for depth in 0..6 {
+            let (lo, hi) = d2.index_range(depth);
+            for i in lo..=hi {
+                assert!(d2.value(depth, i, 0.0).abs() < 1e-15);
+                assert!(d2.value(depth, i, 1.0).abs() < 1e-15);
+            }
+        }
+        // Neumann degree 2: zero derivative at the ends; at depth 0 the single function is 1.
+        let n2 = Basis::new(2, Boundary::Neumann);
+        assert_eq!(n2.index_range(0), (0, 0));
+        for depth in 0..6 {
+            let (lo, hi) = n2.index_range(depth);
+            for i in lo..=hi {
+                assert!(n2.derivative(depth, i, 0.0).abs() < 1e-12);
+                assert!(n2.derivative(depth, i, 1.0).abs() < 1e-12);
+            }
+        }
+        for x in points(&mut rng, 0, 100) {
+            assert!((n2.value(0, 0, x) - 1.0).abs() < 1e-15);
+            assert!(n2.derivative(0, 0, x).abs() < 1e-15);
+        }
+        // Index ranges of §5.2.
+        assert_eq!(Basis::new(1, Boundary::Neumann).index_range(3), (0, 8));
+        assert_eq!(Basis::new(1, Boundary::Free).index_range(3), (0, 8));
+        assert_eq!(Basis::new(1, Boundary::Dirichlet).index_range(3), (1, 7));
+        assert_eq!(Basis::new(1, Boundary::Dirichlet).index_range(0), (1, 0));
+        assert_eq!(Basis::new(2, Boundary::Neumann).index_range(3), (0, 7));
+        assert_eq!(Basis::new(2, Boundary::Dirichlet).index_range(3), (0, 7));
+        assert_eq!(Basis::new(2, Boundary::Free).index_range(3), (-1, 8));
+    }
+
+    fn assert_row(t: &Table1D, i: i64, expect: [f64; 5], scale: f64, what: &str) {
+        for (k, e) in expect.iter().enumerate() {
+            let off = k as i64 - 2;
+            let v = t.get(i, off) / scale;
+            assert!((v - e).abs() < 1e-13, "{what} off {off}: {v} vs {e}");
+        }
+    }
+
+    #[test]
+    fn interior_tables_match_exact_fractions() {
+        let depth = 5;
+        let h = 1.0 / 32.0;
+        let i = 13;
+        for bd in [Boundary::Neumann, Boundary::Dirichlet, Boundary::Free] {
+            let b1 = Basis::new(1, bd);
+            let b2 = Basis::new(2, bd);
+            let m1 = table(b1, b1, depth, false, Integrand::ValueValue);
+            let k1 = table(b1, b1, depth, false, Integrand::DerivDeriv);
+            let d1 = table(b1, b1, depth, false, Integrand::DerivValue);
+            assert_row(&m1, i, [0.0, 1.0 / 6.0, 2.0 / 3.0, 1.0 / 6.0, 0.0], h, "M1");
+            assert_row(&k1, i, [0.0, -1.0, 2.0, -1.0, 0.0], 1.0 / h, "K1");
+            // D(k) = ∫ B_i' B_j = −G(k): D(−1) = +1/2, D(+1) = −1/2.
+            assert_row(&d1, i, [0.0, 0.5, 0.0, -0.5, 0.0], 1.0, "D1");
+            let m2 = table(b2, b2, depth, false, Integrand::ValueValue);
+            let k2 = table(b2, b2, depth, false, Integrand::DerivDeriv);
+            let d2 = table(b2, b2, depth, false, Integrand::DerivValue);
+            assert_row(
+                &m2,
+                i,
+                [
+                    1.0 / 120.0,
+                    13.0 / 60.0,
+                    11.0 / 20.0,
+                    13.0 / 60.0,
+                    1.0 / 120.0,
+                ],
+                h,
+                "M2",
+            );
+            assert_row(
+                &k2,
+                i,
+                [-1.0 / 6.0, -1.0 / 3.0, 1.0, -1.0 / 3.0, -1.0 / 6.0],
+                1.0 / h,
+                "K2",
+            );
+            assert_row(
+                &d2,
+                i,
+                [1.0 / 24.0, 5.0 / 12.0, 0.0, -5.0 / 12.0, -1.0 / 24.0],
+                1.0,
+                "D2",
+            );
+            // Cross-degree (hat i against degree-2 j centred at c = j − i + ½ cell units).
+            let mx = table(b1, b2, depth, false, Integrand::ValueValue);
+            let dx = table(b1, b2, depth, false, Integrand::DerivValue);
+            assert_row(
+                &mx,
+                i,
+                [1.0 / 24.0, 11.0 / 24.0, 11.0 / 24.0, 1.0 / 24.0, 0.0],
+                h,
+                "M12",
+            );
+            assert_row(&dx, i, [1.0 / 6.0, 0.5, -0.5, -1.0 / 6.0, 0.0], 1.0, "D12");
+            // Sum rules.
+            let sum = |t: &Table1D| -> f64 { (-2..=2).map(|o| t.get(i, o)).sum() };
+            for (t, s, e) in [
+                (&m1, h, 1.0),
+                (&m2, h, 1.0),
+                (&mx, h, 1.0),
+                (&k1, 1.0 / h, 0.0),
+                (&k2, 1.0 / h, 0.0),
+                (&d1, 1.0, 0.0),
+                (&d2, 1.0, 0.0),
+                (&dx, 1.0, 0.0),
+            ] {
+                assert!((sum(t) / s - e).abs() < 1e-13);
+            }
+        }
+        // A few exact boundary rows. Degree-1 Neumann half-hat at 0: ∫ = h/3, h/6; K = 1/h, −1/h.
+        let n1 = Basis::new(1, Boundary::Neumann);
+        let m = table(n1, n1, depth, false, Integrand::ValueValue);
+        let k = table(n1, n1, depth, false, Integrand::DerivDeriv);
+        assert_row(&m, 0, [0.0, 0.0, 1.0 / 3.0, 1.0 / 6.0, 0.0], h, "M1 row 0");
+        assert_row(&k, 0, [0.0, 0.0, 1.0, -1.0, 0.0], 1.0 / h, "K1 row 0");
+        assert_row(&m, 32, [0.0, 1.0 / 6.0, 1.0 / 3.0, 0.0, 0.0], h, "M1 row N");
+        // Degree-2 Neumann at depth 0 is the constant 1: M = 1, K = 0.
+        let n2 = Basis::new(2, Boundary::Neumann);
+        let m0 = table(n2, n2, 0, false, Integrand::ValueValue);
+        let k0 = table(n2, n2, 0, false, Integrand::DerivDeriv);
+        assert_row(&m0, 0, [0.0, 0.0, 1.0, 0.0, 0.0], 1.0, "M2 depth 0");
+        assert_row(&k0, 0, [0.0; 5], 1.0, "K2 depth 0");
+        // Out-of-range indices and offsets read as 0.
+        assert_eq!(m0.get(1, 0), 0.0);
+        assert_eq!(m0.get(-1, 0), 0.0);
+        assert_eq!(m.get(13, 3), 0.0);
+        assert_eq!(m.get(13, -3), 0.0);
+        // Empty range (degree-1 Dirichlet at depth 0).
+        let d1 = Basis::new(1, Boundary::Dirichlet);
+        let e = table(d1, d1, 0, false, Integrand::ValueValue);
+        assert_eq!(e.get(0, 0), 0.0);
+        assert_eq!(e.get(1, 0), 0.0);
+    }
+
+    #[test]
+    fn same_depth_tables_are_symmetric() {
+        for b in ALL {
+            for depth in 0..=7 {
+                for integrand in [Integrand::ValueValue, Integrand::DerivDeriv] {
+                    let t = table(b, b, depth, false, integrand);
+                    let s = scale(integrand, depth);
+                    let (lo, hi) = b.index_range(depth);
+                    for i in lo..=hi {
+                        for off in -2..=2 {
+                            let j = i + off;
+                            let d = (t.get(i, off) - t.get(j, -off)).abs();
+                            assert!(d < 1e-13 * s, "{b:?} d{depth} {integrand:?} ({i},{j})");
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn constants_are_in_the_kernel_for_neumann_and_free() {
+        for b in ALL
+            .iter()
+            .copied()
+            .filter(|b| b.boundary != Boundary::Dirichlet)
+        {
+            for depth in 0..=6 {
+                let k = table(b, b, depth, false, Integrand::DerivDeriv);
+                let d = table(b, b, depth, false, Integrand::DerivValue);
+                let m = table(b, b, depth, false, Integrand::ValueValue);
+                let (lo, hi) = b.index_range(depth);
+                let h = 1.0 / (1u64 << depth) as f64;
+                let mut total_mass = 0.0;
+                for i in lo..=hi {
+                    let ks: f64 = (-2..=2).map(|o| k.get(i, o)).sum();
+                    assert!(ks.abs() < 1e-12 / h, "{b:?} d{depth} row {i}: {ks}");
+                    // Σ_j ∫ B_i' B_j = ∫ B_i' = B_i(1) − B_i(0).
+                    let ds: f64 = (-2..=2).map(|o| d.get(i, o)).sum();
+                    let e = b.value(depth, i, 1.0) - b.value(depth, i, 0.0);
+                    assert!(
+                        (ds - e).abs() < 1e-12,
+                        "{b:?} d{depth} row {i}: {ds} vs {e}"
+                    );
+                    total_mass += (-2..=2).map(|o| m.get(i, o)).sum::<f64>();
+                }
+                // Σ_i Σ_j ∫ B_i B_j = ∫ 1 = 1.
+                assert!(
+                    (total_mass - 1.0).abs() < 1e-12,
+                    "{b:?} d{depth}: {total_mass}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn two_scale_relation_holds_pointwise() {
+        let mut rng = Rng(0xdead_beef_cafe);
+        let mut out = [(0i64, 0.0f64); 4];
+        for b in ALL {
+            for depth in 0..=6u32 {
+                let (lo, hi) = b.index_range(depth);
+                let (flo, fhi) = b.index_range(depth + 1);
+                // Each function separately.
+                for i in lo..=hi {
+                    let n = b.children(depth, i, &mut out);
+                    assert!(n >= 1 && n <= b.degree as usize + 2);
+                    for w in out[..n].windows(2) {
+                        assert!(w[0].0 < w[1].0, "children not increasing");
+                    }
+                    for &(j, w) in &out[..n] {
+                        assert!(j >= flo && j <= fhi && w != 0.0);
+                    }
+                    for x in points(&mut rng, depth + 1, 60) {
+                        let lhs = b.value(depth, i, x);
+                        let rhs: f64 = out[..n]
+                            .iter()
+                            .map(|&(j, w)| w * b.value(depth + 1, j, x))
+                            .sum();
+                        assert!((lhs - rhs).abs() < 1e-12, "{b:?} d{depth} i{i} x{x}");
+                        if !near_knot(depth + 1, x) {
+                            let lhs = b.derivative(depth, i, x);
+                            let rhs: f64 = out[..n]
+                                .iter()
+                                .map(|&(j, w)| w * b.derivative(depth + 1, j, x))
+                                .sum();
+                            let tol = 1e-12 * (1u64 << (depth + 1)) as f64;
+                            assert!((lhs - rhs).abs() < tol, "{b:?} d{depth} i{i} x{x}");
+                        }
+                    }
+                }
+                // Prolongation of random coefficients.
+                let coarse: Vec<f64> = (lo..=hi).map(|_| rng.range(-1.0, 1.0)).collect();
+                let mut fine = vec![0.0; (fhi - flo + 1) as usize];
+                for i in lo..=hi {
+                    let n = b.children(depth, i, &mut out);
+                    for &(j, w) in &out[..n] {
+                        fine[(j - flo) as usize] += w * coarse[(i - lo) as usize];
+                    }
+                }
+                for x in points(&mut rng, depth + 1, 300) {
+                    let lhs: f64 = (lo..=hi)
+                        .map(|i| coarse[(i - lo) as usize] * b.value(depth, i, x))
+                        .sum();
+                    let rhs: f64 = (flo..=fhi)
+                        .map(|j| fine[(j - flo) as usize] * b.value(depth + 1, j, x))
+                        .sum();
+                    assert!(
+                        (lhs - rhs).abs() < 1e-12,
+                        "{b:?} d{depth} x{x}: {lhs} vs {rhs}"
+                    );
+                }
+            }
+            // Out-of-range parents have no children.
+            let (lo, hi) = b.index_range(3);
+            assert_eq!(b.children(3, lo - 1, &mut out), 0);
+            assert_eq!(b.children(3, hi + 1, &mut out), 0);
+        }
+        // Worked examples of §5.3.
+        let n = Basis::new(2, Boundary::Neumann).children(3, 0, &mut out);
+        assert_eq!(&out[..n], &[(0, 1.0), (1, 0.75), (2, 0.25)]);
+        let n = Basis::new(2, Boundary::Dirichlet).children(3, 0, &mut out);
+        assert_eq!(&out[..n], &[(0, 0.5), (1, 0.75), (2, 0.25)]);
+        let n = Basis::new(2, Boundary::Neumann).children(0, 0, &mut out);
+        assert_eq!(&out[..n], &[(0, 1.0), (1, 1.0)]);
+        let n = Basis::new(2, Boundary::Neumann).children(3, 7, &mut out);
+        assert_eq!(&out[..n], &[(13, 0.25), (14, 0.75), (15, 1.0)]);
+        let n = Basis::new(1, Boundary::Neumann).children(3, 0, &mut out);
+        assert_eq!(&out[..n], &[(0, 1.0), (1, 0.5)]);
+        let n = Basis::new(1, Boundary::Neumann).children(3, 8, &mut out);
+        assert_eq!(&out[..n], &[(15, 0.5), (16, 1.0)]);
+        let n = Basis::new(1, Boundary::Dirichlet).children(3, 1, &mut out);
+        assert_eq!(&out[..n], &[(1, 0.5), (2, 1.0), (3, 0.5)]);
+        let n = Basis::new(2, Boundary::Free).children(3, -1, &mut out);
+        assert_eq!(&out[..n], &[(-1, 0.75), (0, 0.25)]);
+        let n = Basis::new(2, Boundary::Free).children(3, 5, &mut out);
+        assert_eq!(&out[..n], &[(9, 0.25), (10, 0.75), (11, 0.75), (12, 0.25)]);
+    }
+
+    #[test]
+    fn parent_tables_agree_with_two_scale_relation() {
+        let mut out = [(0i64, 0.0f64); 4];
+        for a in ALL {
+            for b in ALL {
+                for integrand in INTEGRANDS {
+                    for depth in 1..=6u32 {
+                        let parent = table(a, b, depth, true, integrand);
+                        let same = table(a, b, depth, false, integrand);
+                        let s = scale(integrand, depth);
+                        let (lo, hi) = a.index_range(depth);
+                        for i in lo..=hi {
+                            for off in -3..=3 {
+                                let jc = (i >> 1) + off;
+                                let n = b.children(depth - 1, jc, &mut out);
+                                let rhs: f64 =
+                                    out[..n].iter().map(|&(k, w)| w * same.get(i, k - i)).sum();
+                                let lhs = parent.get(i, off);
+                                assert!(
+                                    (lhs - rhs).abs() < 1e-13 * s,
+                                    "a {a:?} b {b:?} {integrand:?} d{depth} i{i} off{off}: \
+                                     {lhs} vs {rhs}"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn window_value_and_derivative_agree_with_brute_force() {
+        let mut rng = Rng(0x5eed_0001);
+        for b in ALL {
+            for depth in 0..=8u32 {
+                let (lo, hi) = b.index_range(depth);
+                let n = 1i64 << depth;
+                for x in points(&mut rng, depth, 200) {
+                    let w = b.window(depth, x);
+                    let c = ((x * n as f64).floor() as i64).clamp(0, n - 1);
+                    assert_eq!(w.first, if b.degree == 1 { c } else { c - 1 });
+                    for k in 0..3 {
+                        let i = w.first + k as i64;
+                        if k > b.degree as usize || i < lo || i > hi {
+                            assert_eq!(w.values[k], 0.0);
+                            assert_eq!(w.derivs[k], 0.0);
+                        } else {
+                            assert_eq!(w.values[k], b.value(depth, i, x));
+                            assert_eq!(w.derivs[k], b.derivative(depth, i, x));
+                        }
+                    }
+                    // Functions outside the window vanish at x (value and derivative), and
+                    // every function matches the folding definition.
+                    for i in lo - 2..=hi + 2 {
+                        let inside = i >= w.first && i <= w.first + b.degree as i64;
+                        let v = b.value(depth, i, x);
+                        let bv = brute(b, depth, i, x, false);
+                        assert!(
+                            (v - bv).abs() < 1e-13,
+                            "{b:?} d{depth} i{i} x{x}: {v} vs {bv}"
+                        );
+                        if !inside {
+                            assert_eq!(v, 0.0);
+                            assert_eq!(b.derivative(depth, i, x), 0.0);
+                        }
+                        if !near_knot(depth, x) {
+                            let d = b.derivative(depth, i, x);
+                            let bd = brute(b, depth, i, x, true);
+                            assert!(
+                                (d - bd).abs() < 1e-12 * n as f64,
+                                "{b:?} d{depth} i{i} x{x}: {d} vs {bd}"
+                            );
+                        }
+                    }
+                }
+                // Outside [0, 1] every function is 0.
+                assert_eq!(b.value(depth, lo.max(0), -1e-9), 0.0);
+                assert_eq!(b.value(depth, hi.min(n - 1), 1.0 + 1e-9), 0.0);
+            }
+        }
+    }
+
+    /// Brute-force integral by composite Simpson with `panels` panels. Panel end values are
+    /// taken just inside the panel so that jumps of degree-1 derivatives at knots (which lie on
+    /// panel boundaries) are handled as one-sided limits.
+    fn simpson(f: impl Fn(f64) -> f64, panels: usize) -> f64 {
+        let d = 1.0 / panels as f64;
+        let eps = 1e-9 * d;
+        let mut s = 0.0;
+        for p in 0..panels {
+            let x0 = p as f64 * d;
+            s += f(x0 + eps) + 4.0 * f(x0 + 0.5 * d) + f(x0 + d - eps);
+        }
+        s * d / 6.0
+    }
+
+    #[test]
+    fn tables_agree_with_fine_quadrature() {
+        let depth = 3u32;
+        let pairs: Vec<(Basis, Basis)> = ALL
+            .iter()
+            .map(|&b| (b, b))
+            .chain([
+                (ALL[1], ALL[5]),
+                (ALL[4], ALL[5]),
+                (ALL[2], ALL[4]),
+                (ALL[0], ALL[3]),
+                (ALL[5], ALL[1]),
+                (ALL[3], ALL[0]),
+            ])
+            .collect();
+        for (a, b) in pairs {
+            for integrand in INTEGRANDS {
+                for coarser in [false, true] {
+                    let t = table(a, b, depth, coarser, integrand);
+                    let db = if coarser { depth - 1 } else { depth };
+                    let (lo, hi) = a.index_range(depth);
+                    let (blo, bhi) = b.index_range(db);
+                    let (da, dbv) = match integrand {
+                        Integrand::ValueValue => (false, false),
+                        Integrand::DerivDeriv => (true, true),
+                        Integrand::DerivValue => (true, false),
+                    };
+                    let s = scale(integrand, depth);
+                    for i in lo..=hi {
+                        for off in -2..=2 {
+                            let j = if coarser { (i >> 1) + off } else { i + off };
+                            let f = |x: f64| {
+                                let fa = if da {
+                                    a.derivative(depth, i, x)
+                                } else {
+                                    a.value(depth, i, x)
+                                };
+                                let fb = if dbv {
+                                    b.derivative(db, j, x)
+                                } else {
+                                    b.value(db, j, x)
+                                };
+                                fa * fb
+                            };
+                            let reference = if j < blo || j > bhi {
+                                0.0
+                            } else {
+                                simpson(f, 20000)
+                            };
+                            let v = t.get(i, off);
+                            assert!(
+                                (v - reference).abs() <= 1e-9 * (reference.abs() + s),
+                                "a {a:?} b {b:?} {integrand:?} coarser {coarser} i{i} off{off}: \
+                                 {v} vs {reference}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn compact_tables_equal_explicit_rows() {
+        for a in ALL {
+            for b in ALL {
+                for integrand in INTEGRANDS {
+                    for depth in 0..=9u32 {
+                        for coarser in [false, true] {
+                            let t = table(a, b, depth, coarser, integrand);
+                            let e = build_table(a, b, depth, coarser, integrand, i64::MAX / 4);
+                            let s = scale(integrand, depth);
+                            let (lo, hi) = a.index_range(depth);
+                            for i in lo - 1..=hi + 1 {
+                                for off in -3..=3 {
+                                    assert!(
+                                        (t.get(i, off) - e.get(i, off)).abs() < 1e-13 * s,
+                                        "a {a:?} b {b:?} {integrand:?} d{depth} i{i} off{off}"
+                                    );
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn depth_18_tables_build_compactly() {
+        let depth = 18u32;
+        let h = 1.0 / (1u64 << depth) as f64;
+        for a in ALL {
+            for b in ALL {
+                for integrand in INTEGRANDS {
+                    for coarser in [false, true] {
+                        let t = table(a, b, depth, coarser, integrand);
+                        assert!(t.head.len() + t.tail.len() <= 2 * EDGE_ROWS as usize);
+                        // Boundary and interior rows match a direct computation.
+                        let spec = Spec {
+                            a,
+                            b,
+                            depth,
+                            b_coarser: coarser,
+                            integrand,
+                        };
+                        let (lo, hi) = a.index_range(depth);
+                        let s = scale(integrand, depth);
+                        for i in [lo, lo + 1, lo + 20, 77_777, 77_778, hi - 9, hi] {
+                            let r = spec.row(i);
+                            for off in -2..=2 {
+                                let d = (t.get(i, off) - r[(off + 2) as usize]).abs();
+                                assert!(d < 1e-12 * s, "{a:?} {b:?} {integrand:?} i{i}");
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        let b2 = Basis::new(2, Boundary::Neumann);
+        let m = table(b2, b2, depth, false, Integrand::ValueValue);
+        assert!((m.get(100_000, 0) / h - 11.0 / 20.0).abs() < 1e-14);
+        assert!((m.get(100_001, 2) / h - 1.0 / 120.0).abs() < 1e-14);
+        let k = table(b2, b2, depth, false, Integrand::DerivDeriv);
+        assert!((k.get(123_457, -2) * h + 1.0 / 6.0).abs() < 1e-14);
+        let b1 = Basis::new(1, Boundary::Neumann);
+        let m1 = table(b1, b1, depth, false, Integrand::ValueValue);
+        assert!((m1.get(1 << depth, 0) / h - 1.0 / 3.0).abs() < 1e-14);
+        assert!((m1.get((1 << depth) - 1, 0) / h - 2.0 / 3.0).abs() < 1e-14);
+        let dx = table(b1, b2, depth, false, Integrand::DerivValue);
+        assert!((dx.get(200_000, -2) - 1.0 / 6.0).abs() < 1e-14);
+    }
 }
