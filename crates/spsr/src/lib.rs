@@ -14,6 +14,7 @@
 
 pub mod bspline;
 mod error;
+mod evaluate;
 pub mod extract;
 pub mod io;
 pub mod mesh;
