@@ -615,8 +615,12 @@ impl<R: BufRead> PlyReader<R> {
             };
             for (p, prop) in el.props.iter().enumerate() {
                 match prop.kind {
-                    Kind::Scalar(_) => {
-                        let v = next(&format!("property '{}'", prop.name))?;
+                    Kind::Scalar(t) => {
+                        let mut v = next(&format!("property '{}'", prop.name))?;
+                        if t == Scalar::F32 {
+                            // Same value as the binary encoding of the declared type would give.
+                            v = v as f32 as f64;
+                        }
                         if let Some(k) = slot[p] {
                             vals[k] = v;
                         }
