@@ -718,7 +718,7 @@ fn mesh_reading_polygons_names_and_errors() {
     let p = write_file(
         dir.path(),
         "nofaces.ply",
-        &encode_ply(Enc::Le, false, false, &[verts.clone()]),
+        &encode_ply(Enc::Le, false, false, std::slice::from_ref(&verts)),
     );
     assert_parse(read_mesh(&p).unwrap_err(), &["'face'"]);
 }
