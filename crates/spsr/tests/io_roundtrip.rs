@@ -777,6 +777,26 @@ fn writing_into_a_read_only_directory_fails_cleanly() {
     fs::set_permissions(&ro, fs::Permissions::from_mode(0o755)).unwrap();
 }
 
+/// A directory nobody can create files in, even root: `/proc` on Linux.
+#[cfg(target_os = "linux")]
+#[test]
+fn writing_into_an_unwritable_system_directory_fails() {
+    let proc_dir = Path::new("/proc");
+    if !proc_dir.is_dir() {
+        return;
+    }
+    let p = proc_dir.join("spsr-io-test.ply");
+    let e = write_mesh(&p, &test_mesh(false), &WriteOptions::default()).unwrap_err();
+    assert!(
+        matches!(e, Error::Output { .. } | Error::Io { .. }),
+        "{e:?}"
+    );
+    assert!(!p.exists());
+    let e = check_output_path(&p, Path::new("in.ply")).unwrap_err();
+    assert!(matches!(e, Error::Output { .. }), "{e:?}");
+    assert!(e.to_string().contains("not writable"), "{e}");
+}
+
 #[test]
 fn existing_output_is_replaced_only_on_success() {
     let dir = tempfile::tempdir().unwrap();
