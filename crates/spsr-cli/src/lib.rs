@@ -97,7 +97,12 @@ pub struct ReconstructArgs {
 
     /// Maximum octree depth; the finest cells are 1/2^depth of the bounding cube. Default as
     /// PoissonRecon 6 and 18.
-    #[arg(long, value_name = "D", default_value_t = 8, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "D",
+        default_value_t = 8,
+        allow_negative_numbers = true
+    )]
     pub depth: u32,
 
     /// Depth down to which the octree is complete; the coarse solve happens there. Default as
@@ -107,7 +112,12 @@ pub struct ReconstructArgs {
 
     /// Target number of samples per octree node (sets each sample's splat depth). Default as
     /// PoissonRecon 18 (version 6 used 1.0).
-    #[arg(long, value_name = "N", default_value_t = 1.5, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 1.5,
+        allow_negative_numbers = true
+    )]
     pub samples_per_node: f64,
 
     /// Screening weight alpha; 0 gives the unscreened 2006 method. Default as PoissonRecon 18
@@ -126,11 +136,21 @@ pub struct ReconstructArgs {
 
     /// The bounding cube's side is the points' bounding box's largest side times this factor.
     /// Default as PoissonRecon 6 and 18.
-    #[arg(long, value_name = "S", default_value_t = 1.1, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "S",
+        default_value_t = 1.1,
+        allow_negative_numbers = true
+    )]
     pub scale: f64,
 
     /// Gauss-Seidel sweeps per depth. Default as PoissonRecon 6 and 18 and the 2013 paper.
-    #[arg(long, value_name = "N", default_value_t = 8, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 8,
+        allow_negative_numbers = true
+    )]
     pub iters: u32,
 
     /// Use each normal's length as the point's confidence weight. Off by default, as PoissonRecon
@@ -243,7 +263,10 @@ struct Progress {
 
 impl Progress {
     fn new(enabled: bool) -> Self {
-        Progress { enabled, step: AtomicUsize::new(0) }
+        Progress {
+            enabled,
+            step: AtomicUsize::new(0),
+        }
     }
 
     fn stage(&self, name: &str) {
@@ -278,10 +301,13 @@ fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     let params = args.params();
     params.validate().map_err(fail)?;
     if let Some(n) = args.threads {
-        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().map_err(|e| Failure {
-            code: exit::RESOURCE,
-            error: anyhow::anyhow!("cannot start {n} worker threads: {e}"),
-        })?;
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build_global()
+            .map_err(|e| Failure {
+                code: exit::RESOURCE,
+                error: anyhow::anyhow!("cannot start {n} worker threads: {e}"),
+            })?;
     }
     spsr::io::check_output_path(output, input).map_err(fail)?;
 
@@ -291,8 +317,8 @@ fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     let cloud = spsr::io::read_points(input).map_err(fail)?;
     let reading = t.elapsed();
 
-    let result = spsr::reconstruct_with_progress(&cloud, &params, &|s| progress.stage(s))
-        .map_err(fail)?;
+    let result =
+        spsr::reconstruct_with_progress(&cloud, &params, &|s| progress.stage(s)).map_err(fail)?;
 
     progress.stage("writing");
     let t = Instant::now();
@@ -334,7 +360,11 @@ fn print_details(
     let stats = &result.stats;
     let mut err = std::io::stderr().lock();
     let _ = writeln!(err, "input       {}", args.input.display());
-    let _ = writeln!(err, "points      {} read, {} dropped", stats.points, stats.dropped);
+    let _ = writeln!(
+        err,
+        "points      {} read, {} dropped",
+        stats.points, stats.dropped
+    );
     let _ = writeln!(err, "samples     {}", stats.samples);
     let nodes: usize = stats.nodes_per_depth.iter().sum();
     let _ = writeln!(err, "octree      {nodes} nodes; per depth:");
