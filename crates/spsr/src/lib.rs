@@ -14,11 +14,15 @@
 
 pub mod bspline;
 mod error;
+mod evaluate;
 pub mod extract;
 pub mod io;
 pub mod mesh;
+mod density;
 mod octree;
 mod params;
+mod solver;
+mod system;
 pub mod points;
 mod reconstruct;
 

@@ -1,8 +1,21 @@
 //! The front door: the whole pipeline of ALGORITHM.md §2, stage by stage.
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
-use crate::{Mesh, Params, PointCloud, Result};
+use rayon::prelude::*;
+
+use crate::bspline::{Basis, Boundary};
+use crate::density::{cell_of, merge_samples, quadratic_weights, Density};
+use crate::evaluate::{CornerField, Evaluator};
+use crate::extract::{extract, ExtractOptions, Leaf};
+use crate::octree::{Octree, TreeRequest, DEPTH_OFFSET, NONE};
+use crate::points::is_valid;
+use crate::solver::{solve, Problem};
+use crate::system::{build_clusters, func_index, DepthTables};
+use crate::{Error, Mesh, Params, PointCloud, Result};
+
+/// Fewest usable points `reconstruct` accepts.
+pub const MIN_POINTS: usize = 4;
 
 /// The output of [`reconstruct`].
 #[derive(Debug, Clone)]
@@ -26,6 +39,8 @@ pub struct Stats {
     pub nodes_per_depth: Vec<usize>,
     /// The iso-value γ.
     pub iso_value: f64,
+    /// Weighted mean of the samples' estimated depths.
+    pub mean_sample_depth: f64,
     /// Wall time of each stage, in order.
     pub stages: Vec<(&'static str, Duration)>,
 }
@@ -35,12 +50,427 @@ pub fn reconstruct(points: &PointCloud, params: &Params) -> Result<Reconstructio
     reconstruct_with_progress(points, params, &|_| {})
 }
 
+struct Timer<'a> {
+    stats: Vec<(&'static str, Duration)>,
+    last: Instant,
+    progress: &'a (dyn Fn(&str) + Sync),
+}
+
+impl Timer<'_> {
+    fn start(&mut self, name: &'static str) {
+        (self.progress)(name);
+        self.last = Instant::now();
+    }
+    fn stop(&mut self, name: &'static str) {
+        self.stats.push((name, self.last.elapsed()));
+    }
+}
+
+/// The solved implicit function, before extraction.
+pub(crate) struct Implicit {
+    pub tree: Octree,
+    pub sol: crate::solver::Solution,
+    pub fem: Basis,
+    pub density: Density,
+    pub iso: f64,
+    pub width: f64,
+    pub origin: [f64; 3],
+    pub stats: Stats,
+}
+
+impl Implicit {
+    /// χ and its gradient at a world-space point.
+    #[cfg(test)]
+    pub fn value_grad_world(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
+        let u: [f64; 3] = std::array::from_fn(|a| (p[a] - self.origin[a]) / self.width);
+        let (v, g) = Evaluator::new(&self.tree, self.fem, &self.sol).value_grad(u);
+        (v, [g[0] / self.width, g[1] / self.width, g[2] / self.width])
+    }
+}
+
 /// As [`reconstruct`], calling `progress` with the name of each stage as it starts.
 pub fn reconstruct_with_progress(
     points: &PointCloud,
     params: &Params,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<Reconstruction> {
-    let _ = (points, params, progress);
-    unimplemented!()
+    let imp = solve_implicit(points, params, progress)?;
+    let Implicit {
+        tree,
+        sol,
+        fem,
+        density,
+        iso,
+        width,
+        origin,
+        mut stats,
+    } = imp;
+    let mut timer = Timer {
+        stats: std::mem::take(&mut stats.stages),
+        last: Instant::now(),
+        progress,
+    };
+    let eval = Evaluator::new(&tree, fem, &sol);
+    let t_max = tree.depth_count() - 1;
+    // 8. Extraction (§9).
+    timer.start("extraction");
+    let mut leaves = Vec::new();
+    for t in DEPTH_OFFSET..=t_max {
+        let d = t - DEPTH_OFFSET;
+        let level = &tree.levels[t as usize];
+        let n = 1i64 << d;
+        for (i, &k) in level.keys.iter().enumerate() {
+            if level.child[i] != NONE {
+                continue;
+            }
+            let o = func_index(k, d);
+            if o.iter().all(|&c| c >= 0 && c < n) {
+                leaves.push(Leaf {
+                    depth: d,
+                    offset: [o[0] as u32, o[1] as u32, o[2] as u32],
+                });
+            }
+        }
+    }
+    let max_leaf_depth = leaves.iter().map(|l| l.depth).max().unwrap_or(0);
+    let field = CornerField {
+        eval: &eval,
+        depth: max_leaf_depth,
+    };
+    let mut mesh = extract(&leaves, max_leaf_depth, &field, iso, &ExtractOptions::default())?;
+    drop(leaves);
+    if params.density {
+        mesh.density = Some(
+            mesh.vertices
+                .par_iter()
+                .map(|p| density.query(*p).depth as f32)
+                .collect(),
+        );
+    }
+    for p in &mut mesh.vertices {
+        for a in 0..3 {
+            p[a] = p[a] * width + origin[a];
+        }
+    }
+    timer.stop("extraction");
+
+    stats.stages = timer.stats;
+    Ok(Reconstruction { mesh, stats })
+}
+
+/// Stages 1–7 of the pipeline: everything up to and including the iso-value.
+pub(crate) fn solve_implicit(
+    points: &PointCloud,
+    params: &Params,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<Implicit> {
+    params.validate()?;
+    if points.positions.len() != points.normals.len() {
+        return Err(Error::LengthMismatch {
+            positions: points.positions.len(),
+            normals: points.normals.len(),
+        });
+    }
+    let mut timer = Timer {
+        stats: Vec::new(),
+        last: Instant::now(),
+        progress,
+    };
+    let depth = params.depth;
+    // The base depth must be at least 1 so that it has a parent for prolongation tables.
+    let base = params.base_depth().max(1).min(depth);
+    let fem = Basis::new(params.degree, params.boundary);
+    let vb = Basis::new(2, params.boundary.derivative());
+
+    // 1. Filter, bounding cube, unit-cube transform (§3.1, §3.2).
+    timer.start("preparing points");
+    let valid: Vec<usize> = (0..points.len())
+        .filter(|&i| is_valid(&points.positions[i], &points.normals[i]))
+        .collect();
+    let dropped = points.len() - valid.len();
+    if valid.len() < MIN_POINTS {
+        return Err(Error::TooFewPoints {
+            usable: valid.len(),
+            dropped,
+            required: MIN_POINTS,
+        });
+    }
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for &i in &valid {
+        for a in 0..3 {
+            lo[a] = lo[a].min(points.positions[i][a]);
+            hi[a] = hi[a].max(points.positions[i][a]);
+        }
+    }
+    let side = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+    if !(side.is_finite() && side > 0.0) {
+        return Err(Error::Degenerate(if side == 0.0 {
+            "all usable points are identical; there is no surface to reconstruct".into()
+        } else {
+            "the points' extent is not finite (coordinates too large)".into()
+        }));
+    }
+    let width = side * params.scale;
+    let origin: [f64; 3] = std::array::from_fn(|a| 0.5 * (lo[a] + hi[a]) - 0.5 * width);
+    if !(width.is_finite() && origin.iter().all(|o| o.is_finite())) {
+        return Err(Error::Degenerate("the bounding cube is not finite".into()));
+    }
+    let unit: Vec<([f64; 3], [f64; 3], f64)> = valid
+        .par_iter()
+        .map(|&i| {
+            let p = points.positions[i];
+            let n = points.normals[i];
+            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            let w = if params.confidence { len } else { 1.0 };
+            (
+                std::array::from_fn(|a| ((p[a] - origin[a]) / width).clamp(0.0, 1.0)),
+                [n[0] / len, n[1] / len, n[2] / len],
+                w,
+            )
+        })
+        .collect();
+    timer.stop("preparing points");
+
+    // 2. Samples and density (§3.3, §3.5).
+    timer.start("density");
+    let samples = merge_samples(&unit, depth);
+    drop(unit);
+    let density = Density::build(&samples, params.kernel_depth(), params.samples_per_node);
+    let queries: Vec<_> = samples.par_iter().map(|s| density.query(s.pos)).collect();
+    timer.stop("density");
+
+    // 3. Splat depths, tree (§3.6, §4.2).
+    timer.start("octree");
+    struct Splat {
+        levels: [(u32, f64); 2],
+    }
+    let splats: Vec<Option<Splat>> = samples
+        .iter()
+        .zip(&queries)
+        .map(|(s, q)| {
+            if s.normal == [0.0; 3] {
+                return None;
+            }
+            let ds = q.depth.clamp(f64::from(base), f64::from(depth));
+            let mut dp = ds.ceil() as u32;
+            let mut f = 1.0 - (f64::from(dp) - ds);
+            if dp <= base {
+                dp = base;
+                f = 1.0;
+            }
+            if dp > depth {
+                dp = depth;
+                f = 1.0;
+            }
+            Some(Splat {
+                levels: [(dp, f), (dp - 1, 1.0 - f)],
+            })
+        })
+        .collect();
+    let max_t = depth + DEPTH_OFFSET;
+    let mut req = TreeRequest::new(max_t);
+    for (s, sp) in samples.iter().zip(&splats) {
+        let Some(sp) = sp else { continue };
+        for &(d, f) in &sp.levels {
+            if f > 0.0 {
+                let c = cell_of(s.pos, d);
+                let n = 1i64 << d;
+                req.require_window(d + DEPTH_OFFSET, [c[0] + n, c[1] + n, c[2] + n], 1);
+            }
+        }
+    }
+    let tree = Octree::build(req, base, base);
+    timer.stop("octree");
+
+    // 4. Splat V and measure Ā (§3.6).
+    timer.start("splatting");
+    let nlev = tree.levels.len();
+    let tb = (base + DEPTH_OFFSET) as usize;
+    let mut v: Vec<Vec<[f32; 3]>> = (0..nlev)
+        .map(|t| if t >= tb { vec![[0.0; 3]; tree.levels[t].len()] } else { Vec::new() })
+        .collect();
+    let mut sum_wa = 0.0;
+    let mut sum_w = 0.0;
+    let mut sum_depth = 0.0;
+    for ((s, sp), q) in samples.iter().zip(&splats).zip(&queries) {
+        let Some(sp) = sp else { continue };
+        sum_wa += s.weight * q.area;
+        sum_w += s.weight;
+        sum_depth += s.weight * q.depth;
+        for &(d, f) in &sp.levels {
+            if f <= 0.0 {
+                continue;
+            }
+            let t = d + DEPTH_OFFSET;
+            let h = 1.0 / (1i64 << d) as f64;
+            let c = cell_of(s.pos, d);
+            let n = 1u64 << d;
+            let key = [c[0] as u64 + n, c[1] as u64 + n, c[2] as u64 + n];
+            let (tt, node) = tree.descend(key, t, t);
+            debug_assert_eq!(tt, t);
+            let scale = -s.weight * q.area / (h * h * h) * f;
+            let rel: [f64; 3] = std::array::from_fn(|a| (s.pos[a] / h - c[a] as f64).clamp(0.0, 1.0));
+            let wx = quadratic_weights(rel[0]);
+            let wy = quadratic_weights(rel[1]);
+            let wz = quadratic_weights(rel[2]);
+            for (k, wzk) in wz.iter().enumerate() {
+                for (j, wyj) in wy.iter().enumerate() {
+                    for (i, wxi) in wx.iter().enumerate() {
+                        let m = tree.neighbor(t, node, [i as i64 - 1, j as i64 - 1, k as i64 - 1]);
+                        if m == NONE {
+                            continue;
+                        }
+                        let w = scale * wxi * wyj * wzk;
+                        let cell = &mut v[t as usize][m as usize];
+                        for a in 0..3 {
+                            cell[a] += (w * s.normal[a]) as f32;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    if sum_w <= 0.0 {
+        return Err(Error::Degenerate(
+            "the normals cancel everywhere (opposite normals at the same places)".into(),
+        ));
+    }
+    let mean_area = sum_wa / sum_w;
+    timer.stop("splatting");
+
+    // 5. Screening clusters (§3.7).
+    timer.start("clusters");
+    let t_max = tree.depth_count() - 1;
+    let positions: Vec<[f64; 3]> = samples.iter().map(|s| s.pos).collect();
+    let weights: Vec<f64> = samples.iter().map(|s| s.weight).collect();
+    let leaf_of: Vec<(u32, u32)> = positions
+        .par_iter()
+        .map(|p| {
+            let dm = t_max - DEPTH_OFFSET;
+            let c = cell_of(*p, dm);
+            let n = 1i64 << dm;
+            tree.descend(
+                [(c[0] + n) as u64, (c[1] + n) as u64, (c[2] + n) as u64],
+                t_max,
+                t_max,
+            )
+        })
+        .collect();
+    let alpha = params.alpha();
+    let clusters = if alpha > 0.0 {
+        build_clusters(&tree, fem, tb as u32, &leaf_of, &positions, &weights, alpha * mean_area)
+    } else {
+        (0..nlev).map(|_| Default::default()).collect()
+    };
+    timer.stop("clusters");
+
+    // 6. Solve (§6, §7).
+    timer.start("solving");
+    let tables: Vec<Option<DepthTables>> = (0..nlev)
+        .into_par_iter()
+        .map(|t| (t >= tb).then(|| DepthTables::new(fem, vb, t as u32 - DEPTH_OFFSET)))
+        .collect();
+    let singular = alpha == 0.0 && params.boundary != Boundary::Dirichlet;
+    let sol = solve(&Problem {
+        tree: &tree,
+        fem,
+        tables: &tables,
+        v: &v,
+        clusters: &clusters,
+        base_level: tb as u32,
+        iters: params.iters,
+        singular,
+        progress,
+    });
+    drop(v);
+    drop(clusters);
+    timer.stop("solving");
+
+    // 7. Iso-value (§1.5).
+    timer.start("iso-value");
+    let eval = Evaluator::new(&tree, fem, &sol);
+    let values: Vec<f64> = positions.par_iter().map(|p| eval.value_grad(*p).0).collect();
+    let iso = values.iter().zip(&weights).map(|(v, w)| v * w).sum::<f64>() / weights.iter().sum::<f64>();
+    timer.stop("iso-value");
+    drop(eval);
+    let nodes_per_depth = tree.levels[DEPTH_OFFSET as usize..].iter().map(|l| l.len()).collect();
+    Ok(Implicit {
+        tree,
+        sol,
+        fem,
+        density,
+        iso,
+        width,
+        origin,
+        stats: Stats {
+            points: points.len(),
+            dropped,
+            samples: samples.len(),
+            nodes_per_depth,
+            iso_value: iso,
+            mean_sample_depth: sum_depth / sum_w,
+            stages: timer.stats,
+        },
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points on a sphere by the golden-angle spiral, with exact outward normals.
+    fn sphere(n: usize, c: [f64; 3], r: f64) -> PointCloud {
+        let mut pos = Vec::with_capacity(n);
+        let mut nor = Vec::with_capacity(n);
+        let ga = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        for i in 0..n {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let rho = (1.0 - z * z).sqrt();
+            let th = ga * i as f64;
+            let u = [rho * th.cos(), rho * th.sin(), z];
+            pos.push([c[0] + r * u[0], c[1] + r * u[1], c[2] + r * u[2]]);
+            nor.push(u);
+        }
+        PointCloud::new(pos, nor).unwrap()
+    }
+
+    fn radial_crossing(imp: &Implicit, c: [f64; 3], r: f64, dir: [f64; 3]) -> f64 {
+        // Bisection on χ − γ along the ray, between 0.5 r and 1.05 r.
+        let f = |s: f64| imp.value_grad_world([c[0] + s * dir[0], c[1] + s * dir[1], c[2] + s * dir[2]]).0 - imp.iso;
+        let (mut a, mut b) = (0.5 * r, 1.05 * r);
+        assert!(f(a) > 0.0 && f(b) < 0.0, "no sign change: {} {}", f(a), f(b));
+        for _ in 0..60 {
+            let m = 0.5 * (a + b);
+            if f(m) > 0.0 {
+                a = m
+            } else {
+                b = m
+            }
+        }
+        0.5 * (a + b)
+    }
+
+    #[test]
+    fn sphere_implicit_function_crosses_the_iso_value_on_the_sphere() {
+        for degree in [1u8, 2] {
+            let c = [0.1, -0.2, 0.3];
+            let cloud = sphere(60_000, c, 1.0);
+            let params = Params { depth: 7, degree, ..Params::default() };
+            let imp = solve_implicit(&cloud, &params, &|_| {}).unwrap();
+            let cell = 2.2 / 128.0;
+            assert!((imp.iso - 0.5).abs() < 0.05, "iso {}", imp.iso);
+            let mut worst: f64 = 0.0;
+            for k in 0..50 {
+                let z = 1.0 - 2.0 * (k as f64 + 0.5) / 50.0;
+                let rho = (1.0 - z * z).sqrt();
+                let th = 2.39996 * k as f64;
+                let dir = [rho * th.cos(), rho * th.sin(), z];
+                let s = radial_crossing(&imp, c, 1.0, dir);
+                worst = worst.max((s - 1.0).abs());
+            }
+            eprintln!("degree {degree}: iso {} worst radial error {worst} ({} cells)", imp.iso, worst / cell);
+            assert!(worst < 0.1 * cell, "degree {degree}: radial error {worst}");
+        }
+    }
 }

@@ -1,0 +1,326 @@
+//! Samples and the sampling-density estimator (ALGORITHM.md §3.3 and §3.5).
+//!
+//! Points falling into the same finest cell are merged into one *sample* (§3.3). The density
+//! estimator splats every occupied cell of each depth `0..=K` into the 3×3×3 cells around it
+//! with quadratic B-spline weights; the splatted value at a position, `spn`, is the number of
+//! samples per node there, which gives each sample its splat depth and its area weight.
+
+use rayon::prelude::*;
+use rustc_hash::FxHashMap;
+
+/// A sample: the weighted merge of the points in one finest cell.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sample {
+    /// Weighted mean position, unit-cube coordinates.
+    pub pos: [f64; 3],
+    /// Total weight `W_s`.
+    pub weight: f64,
+    /// Unit normal direction of the summed normals; zero when they cancel.
+    pub normal: [f64; 3],
+}
+
+/// Cell of depth `d` containing unit-cube point `p` (clamped to the cube).
+#[inline]
+pub fn cell_of(p: [f64; 3], d: u32) -> [i64; 3] {
+    let n = (1i64 << d) as f64;
+    std::array::from_fn(|a| ((p[a] * n).floor() as i64).clamp(0, (1i64 << d) - 1))
+}
+
+/// Quadratic B-spline weights of the cells `o−1, o, o+1` at relative position `t ∈ [0,1]`.
+#[inline]
+pub fn quadratic_weights(t: f64) -> [f64; 3] {
+    [0.5 * (1.0 - t) * (1.0 - t), 0.5 + t - t * t, 0.5 * t * t]
+}
+
+/// The normaliser σ that makes a planar layer of one sample per cell read as one sample
+/// per node: the mean of `1 / Σ β_j(t)²` over `t = 0.05, 0.15, …, 0.95` (ALGORITHM.md §3.5).
+pub fn sigma() -> f64 {
+    (0..10)
+        .map(|i| {
+            let w = quadratic_weights(0.05 + 0.1 * f64::from(i));
+            1.0 / (w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+        })
+        .sum::<f64>()
+        / 10.0
+}
+
+#[inline]
+fn pack(c: [i64; 3]) -> u64 {
+    // Offsets run from -1; shift by one so they are non-negative.
+    ((c[0] + 1) as u64) | (((c[1] + 1) as u64) << 21) | (((c[2] + 1) as u64) << 42)
+}
+
+/// Merges points into samples, one per occupied cell at `depth` (ALGORITHM.md §3.3).
+/// `points` are unit-cube positions with unit normals and weights. Samples come out in the
+/// Morton order of their cells, whatever the thread count.
+pub fn merge_samples(points: &[([f64; 3], [f64; 3], f64)], depth: u32) -> Vec<Sample> {
+    let mut keyed: Vec<(u64, u32)> = points
+        .par_iter()
+        .enumerate()
+        .map(|(i, (p, _, _))| (morton_cell(cell_of(*p, depth)), i as u32))
+        .collect();
+    keyed.par_sort_unstable();
+    let mut samples = Vec::new();
+    let mut i = 0;
+    while i < keyed.len() {
+        let key = keyed[i].0;
+        let mut w = 0.0;
+        let mut wp = [0.0; 3];
+        let mut wn = [0.0; 3];
+        while i < keyed.len() && keyed[i].0 == key {
+            let (p, n, pw) = points[keyed[i].1 as usize];
+            w += pw;
+            for a in 0..3 {
+                wp[a] += pw * p[a];
+                wn[a] += pw * n[a];
+            }
+            i += 1;
+        }
+        if w <= 0.0 || !w.is_finite() {
+            continue;
+        }
+        let len = (wn[0] * wn[0] + wn[1] * wn[1] + wn[2] * wn[2]).sqrt();
+        let normal = if len > 1e-12 * w {
+            [wn[0] / len, wn[1] / len, wn[2] / len]
+        } else {
+            [0.0; 3]
+        };
+        samples.push(Sample {
+            pos: [wp[0] / w, wp[1] / w, wp[2] / w],
+            weight: w,
+            normal,
+        });
+    }
+    samples
+}
+
+fn morton_cell(c: [i64; 3]) -> u64 {
+    let mut m = 0u64;
+    for bit in 0..21 {
+        for (a, &v) in c.iter().enumerate() {
+            m |= (((v as u64) >> bit) & 1) << (3 * bit + a);
+        }
+    }
+    m
+}
+
+/// The density estimator: splatted sample weights at every depth `0..=K`.
+#[derive(Debug)]
+pub struct Density {
+    kernel_depth: u32,
+    samples_per_node: f64,
+    rho: Vec<FxHashMap<u64, f64>>,
+}
+
+/// Where a sample sits in the hierarchy: its fractional depth and its area weight.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthAndArea {
+    /// Estimated splat depth (may be fractional).
+    pub depth: f64,
+    /// Area of surface represented by one unit of sample weight, unit-cube units.
+    pub area: f64,
+}
+
+impl Density {
+    /// Splats the samples at depths `0..=kernel_depth` (ALGORITHM.md §3.5).
+    pub fn build(samples: &[Sample], kernel_depth: u32, samples_per_node: f64) -> Self {
+        let sigma = sigma();
+        // Occupied cells at the kernel depth, then merged upwards.
+        let mut cells: Vec<(u64, [i64; 3], f64, [f64; 3])> = samples
+            .par_iter()
+            .map(|s| {
+                let c = cell_of(s.pos, kernel_depth);
+                (morton_cell(c), c, s.weight, s.pos)
+            })
+            .collect();
+        cells.par_sort_by_key(|e| e.0);
+        let mut level: Vec<([i64; 3], f64, [f64; 3])> = Vec::new();
+        for (key, c, w, p) in cells.iter().copied() {
+            match level.last_mut() {
+                Some(last) if morton_cell(last.0) == key => {
+                    last.1 += w;
+                    for a in 0..3 {
+                        last.2[a] += w * p[a];
+                    }
+                }
+                _ => level.push((c, w, [w * p[0], w * p[1], w * p[2]])),
+            }
+        }
+        let mut rho: Vec<FxHashMap<u64, f64>> = (0..=kernel_depth).map(|_| FxHashMap::default()).collect();
+        let mut d = kernel_depth;
+        loop {
+            let h = (1i64 << d) as f64;
+            let map = &mut rho[d as usize];
+            for &(c, w, wp) in &level {
+                let t: [f64; 3] = std::array::from_fn(|a| (wp[a] / w * h - c[a] as f64).clamp(0.0, 1.0));
+                let wx = quadratic_weights(t[0]);
+                let wy = quadratic_weights(t[1]);
+                let wz = quadratic_weights(t[2]);
+                for (k, wzk) in wz.iter().enumerate() {
+                    for (j, wyj) in wy.iter().enumerate() {
+                        for (i, wxi) in wx.iter().enumerate() {
+                            let key = pack([c[0] + i as i64 - 1, c[1] + j as i64 - 1, c[2] + k as i64 - 1]);
+                            *map.entry(key).or_insert(0.0) += sigma * w * wxi * wyj * wzk;
+                        }
+                    }
+                }
+            }
+            if d == 0 {
+                break;
+            }
+            // Merge into parents; cells are in Morton order, so siblings are adjacent.
+            let mut up: Vec<([i64; 3], f64, [f64; 3])> = Vec::with_capacity(level.len() / 2);
+            for (c, w, wp) in level {
+                let pc = [c[0] >> 1, c[1] >> 1, c[2] >> 1];
+                match up.last_mut() {
+                    Some(last) if last.0 == pc => {
+                        last.1 += w;
+                        for a in 0..3 {
+                            last.2[a] += wp[a];
+                        }
+                    }
+                    _ => up.push((pc, w, wp)),
+                }
+            }
+            level = up;
+            d -= 1;
+        }
+        Self {
+            kernel_depth,
+            samples_per_node,
+            rho,
+        }
+    }
+
+    /// The kernel depth K.
+    pub fn kernel_depth(&self) -> u32 {
+        self.kernel_depth
+    }
+
+    /// Samples per node around `p`, evaluated with the 3×3×3 cells around `p`'s cell at `d`.
+    fn spn(&self, d: u32, p: [f64; 3]) -> f64 {
+        let c = cell_of(p, d);
+        let h = (1i64 << d) as f64;
+        let t: [f64; 3] = std::array::from_fn(|a| (p[a] * h - c[a] as f64).clamp(0.0, 1.0));
+        let wx = quadratic_weights(t[0]);
+        let wy = quadratic_weights(t[1]);
+        let wz = quadratic_weights(t[2]);
+        let map = &self.rho[d as usize];
+        let mut s = 0.0;
+        for (k, wzk) in wz.iter().enumerate() {
+            for (j, wyj) in wy.iter().enumerate() {
+                for (i, wxi) in wx.iter().enumerate() {
+                    let key = pack([c[0] + i as i64 - 1, c[1] + j as i64 - 1, c[2] + k as i64 - 1]);
+                    if let Some(r) = map.get(&key) {
+                        s += r * wxi * wyj * wzk;
+                    }
+                }
+            }
+        }
+        s
+    }
+
+    /// The estimated sampling depth and area weight at `p` (ALGORITHM.md §3.5). The query
+    /// descends to the kernel depth, or to the deepest depth whose cell at `p` received
+    /// density, and walks up while the density is below the target.
+    pub fn query(&self, p: [f64; 3]) -> DepthAndArea {
+        self.query_from(p, self.kernel_depth)
+    }
+
+    /// As [`Density::query`], starting no deeper than `max_depth`.
+    pub fn query_from(&self, p: [f64; 3], max_depth: u32) -> DepthAndArea {
+        let top = max_depth.min(self.kernel_depth);
+        let mut d = 0;
+        while d < top && self.rho[d as usize + 1].contains_key(&pack(cell_of(p, d + 1))) {
+            d += 1;
+        }
+        let s = self.samples_per_node;
+        let width2 = |d: u32| {
+            let h = 1.0 / (1i64 << d) as f64;
+            h * h
+        };
+        let mut fine = self.spn(d, p);
+        if fine >= s {
+            return DepthAndArea {
+                depth: f64::from(d) + 0.5 * (fine / s).log2(),
+                area: width2(d) / fine,
+            };
+        }
+        while d > 0 {
+            d -= 1;
+            let coarse = self.spn(d, p);
+            if coarse >= s || d == 0 {
+                let depth = f64::from(d) + (coarse / s).ln() / (coarse / fine).ln();
+                let depth = if depth.is_finite() { depth } else { f64::from(d) };
+                let area = if coarse > 0.0 { width2(d) / coarse } else { width2(d) };
+                return DepthAndArea { depth, area };
+            }
+            fine = coarse;
+        }
+        // Only reached with d == 0 from the start and too little density: far from the data.
+        DepthAndArea {
+            depth: 0.0,
+            area: if fine > 0.0 { 1.0 / fine } else { 1.0 },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sigma_matches_the_specification() {
+        assert!((sigma() - 1.82469).abs() < 1e-4, "{}", sigma());
+    }
+
+    #[test]
+    fn quadratic_weights_are_a_partition_of_unity() {
+        for i in 0..=20 {
+            let w = quadratic_weights(f64::from(i) / 20.0);
+            assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-15);
+        }
+    }
+
+    #[test]
+    fn a_planar_layer_of_one_sample_per_cell_reads_one_sample_per_node() {
+        // One sample per depth-K cell on the plane z = 0.5 + small offset.
+        let k = 6u32;
+        let n = 1 << k;
+        let h = 1.0 / f64::from(n);
+        let mut samples = Vec::new();
+        for j in 8..n - 8 {
+            for i in 8..n - 8 {
+                samples.push(Sample {
+                    pos: [(f64::from(i) + 0.37) * h, (f64::from(j) + 0.61) * h, 0.5 + 0.3 * h],
+                    weight: 1.0,
+                    normal: [0.0, 0.0, 1.0],
+                });
+            }
+        }
+        let s = 1.5;
+        let density = Density::build(&samples, k, s);
+        let q = density.query([0.5 + 0.37 * h, 0.5 + 0.61 * h, 0.5 + 0.3 * h]);
+        let spn = (h * h) / q.area;
+        assert!((spn - 1.0).abs() < 0.1, "spn = {spn}");
+        // depth ≈ K − ½ log2(S) (interpolated between levels).
+        let expect = f64::from(k) - 0.5 * s.log2();
+        assert!((q.depth - expect).abs() < 0.35, "depth {} vs {expect}", q.depth);
+    }
+
+    #[test]
+    fn duplicates_merge_into_one_sample() {
+        let pts = vec![
+            ([0.5, 0.5, 0.5], [0.0, 0.0, 1.0], 1.0),
+            ([0.5, 0.5, 0.5], [0.0, 0.0, 1.0], 1.0),
+            ([0.5, 0.5, 0.5], [0.0, 0.0, -1.0], 1.0),
+            ([0.1, 0.5, 0.5], [1.0, 0.0, 0.0], 2.0),
+        ];
+        let s = merge_samples(&pts, 8);
+        assert_eq!(s.len(), 2);
+        let total: f64 = s.iter().map(|s| s.weight).sum();
+        assert_eq!(total, 5.0);
+        let centre = s.iter().find(|s| s.weight == 3.0).unwrap();
+        assert_eq!(centre.normal, [0.0, 0.0, 1.0]);
+    }
+}

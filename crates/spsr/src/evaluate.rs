@@ -1,0 +1,152 @@
+//! Evaluating the implicit function χ and its gradient (ALGORITHM.md §8.1).
+//!
+//! At a point in leaf `t` of depth `d`, χ is the sum of three O(1) windows: the cumulative
+//! coarser solution `P_{d−1}` around `t`'s parent, the depth-`d` coefficients around `t`, and
+//! the depth-`d+1` coefficients of the children of `t`'s neighbours. Deeper functions cannot
+//! reach a leaf's closure because the tree is conforming.
+
+use crate::bspline::{Basis, Window};
+use crate::extract::Field;
+use crate::octree::{neighbor_in, window_index, Octree, DEPTH_OFFSET, NONE};
+use crate::solver::Solution;
+use crate::system::func_index;
+
+/// Evaluates χ from a solved hierarchy.
+pub struct Evaluator<'a> {
+    tree: &'a Octree,
+    fem: Basis,
+    sol: &'a Solution,
+    /// Deepest level.
+    t_max: u32,
+}
+
+impl<'a> Evaluator<'a> {
+    /// An evaluator over a solution.
+    pub fn new(tree: &'a Octree, fem: Basis, sol: &'a Solution) -> Self {
+        Self {
+            tree,
+            fem,
+            sol,
+            t_max: tree.depth_count() - 1,
+        }
+    }
+
+    /// Deepest unit depth of the tree.
+    pub fn max_depth(&self) -> u32 {
+        self.t_max - DEPTH_OFFSET
+    }
+
+    /// The leaf (level, node) containing unit-cube point `p` (lower cell on ties, clamped).
+    pub fn leaf(&self, p: [f64; 3]) -> (u32, u32) {
+        let dm = self.max_depth();
+        let n = 1i64 << dm;
+        let key: [u64; 3] = std::array::from_fn(|a| {
+            (((p[a] * n as f64).floor() as i64).clamp(0, n - 1) + n) as u64
+        });
+        self.tree.descend(key, self.t_max, self.t_max)
+    }
+
+    /// χ(p) and ∇χ(p) (unit-cube units).
+    pub fn value_grad(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
+        let (t, n) = self.leaf(p);
+        let mut acc = (0.0, [0.0; 3]);
+        let base = self.sol.base_level;
+        if t > base {
+            let par = self.tree.parent(t, n);
+            self.window_sum(t - 1, par, p, &self.sol.p[t as usize - 1], &mut acc);
+        }
+        if t >= base {
+            self.window_sum(t, n, p, &self.sol.x[t as usize], &mut acc);
+        }
+        if t < self.t_max && t >= base {
+            self.finer_sum(t, n, p, &mut acc);
+        }
+        acc
+    }
+
+    fn windows(&self, d: u32, p: [f64; 3]) -> [Window; 3] {
+        [self.fem.window(d, p[0]), self.fem.window(d, p[1]), self.fem.window(d, p[2])]
+    }
+
+    fn window_sum(&self, t: u32, node: u32, p: [f64; 3], coeff: &[f64], acc: &mut (f64, [f64; 3])) {
+        if coeff.is_empty() {
+            return;
+        }
+        let d = t - DEPTH_OFFSET;
+        let level = &self.tree.levels[t as usize];
+        let own = func_index(level.keys[node as usize], d);
+        let w = self.windows(d, p);
+        let k = i64::from(self.fem.degree);
+        for z in 0..=k {
+            for y in 0..=k {
+                for x in 0..=k {
+                    let o = [w[0].first + x - own[0], w[1].first + y - own[1], w[2].first + z - own[2]];
+                    let m = neighbor_in(level, node, window_index(o));
+                    if m == NONE {
+                        continue;
+                    }
+                    accumulate(&w, [x, y, z], coeff[m as usize], acc);
+                }
+            }
+        }
+    }
+
+    fn finer_sum(&self, t: u32, node: u32, p: [f64; 3], acc: &mut (f64, [f64; 3])) {
+        let coeff = &self.sol.x[t as usize + 1];
+        if coeff.is_empty() {
+            return;
+        }
+        let d = t - DEPTH_OFFSET;
+        let level = &self.tree.levels[t as usize];
+        let own = func_index(level.keys[node as usize], d);
+        let w = self.windows(d + 1, p);
+        let k = i64::from(self.fem.degree);
+        for z in 0..=k {
+            for y in 0..=k {
+                for x in 0..=k {
+                    let j = [w[0].first + x, w[1].first + y, w[2].first + z];
+                    let o = [(j[0] >> 1) - own[0], (j[1] >> 1) - own[1], (j[2] >> 1) - own[2]];
+                    let m = neighbor_in(level, node, window_index(o));
+                    if m == NONE {
+                        continue;
+                    }
+                    let b = level.child[m as usize];
+                    if b == NONE {
+                        continue;
+                    }
+                    let bits = (j[0] & 1) | ((j[1] & 1) << 1) | ((j[2] & 1) << 2);
+                    accumulate(&w, [x, y, z], coeff[(b * 8) as usize + bits as usize], acc);
+                }
+            }
+        }
+    }
+}
+
+#[inline]
+fn accumulate(w: &[Window; 3], k: [i64; 3], c: f64, acc: &mut (f64, [f64; 3])) {
+    if c == 0.0 {
+        return;
+    }
+    let (x, y, z) = (k[0] as usize, k[1] as usize, k[2] as usize);
+    let (vx, vy, vz) = (w[0].values[x], w[1].values[y], w[2].values[z]);
+    acc.0 += c * vx * vy * vz;
+    acc.1[0] += c * w[0].derivs[x] * vy * vz;
+    acc.1[1] += c * vx * w[1].derivs[y] * vz;
+    acc.1[2] += c * vx * vy * w[2].derivs[z];
+}
+
+/// χ sampled at corners of the finest grid, for extraction.
+pub struct CornerField<'a> {
+    /// The evaluator.
+    pub eval: &'a Evaluator<'a>,
+    /// Depth of the corner grid.
+    pub depth: u32,
+}
+
+impl Field for CornerField<'_> {
+    fn corner(&self, c: [u32; 3]) -> (f64, [f64; 3]) {
+        let s = 1.0 / (1u64 << self.depth) as f64;
+        self.eval
+            .value_grad([f64::from(c[0]) * s, f64::from(c[1]) * s, f64::from(c[2]) * s])
+    }
+}

@@ -1,0 +1,472 @@
+//! The cascadic coarse-to-fine solver (ALGORITHM.md §7).
+//!
+//! The base depth (complete) is solved with conjugate gradients. Each finer depth then solves
+//! `(L_d + S_d) x_d = b_d − A_{d,<d} x_{<d}` with Gauss–Seidel sweeps, where the coarser
+//! solution enters through the cumulative prolonged coefficients `P_{d−1}` and the parent
+//! stencils, so each depth costs O(nodes). Matrices are never stored: rows are rebuilt from
+//! the stencils, and the screening term goes through per-cluster running values
+//! `χ_d(p_c)`, updated as each unknown changes.
+
+use rayon::prelude::*;
+
+use crate::bspline::Basis;
+use crate::octree::{neighbor_in, window_index, Level, Octree, DEPTH_OFFSET, NONE};
+use crate::system::{cluster_offsets, divergence_constraints, func_index, prolong, Clusters, DepthTables};
+
+/// The screening target τ at the samples (PR18 convention: χ ≈ 1 inside, 0 outside).
+pub const TAU: f64 = 0.5;
+
+/// Solved coefficients, per level.
+#[derive(Debug, Default)]
+pub struct Solution {
+    /// Coefficients solved at each level (empty below the base level).
+    pub x: Vec<Vec<f64>>,
+    /// Cumulative solution of all levels up to and including this one, prolonged to it.
+    pub p: Vec<Vec<f64>>,
+    /// Level of the base solve.
+    pub base_level: u32,
+}
+
+/// Everything the solver reads.
+pub struct Problem<'a> {
+    /// The tree.
+    pub tree: &'a Octree,
+    /// FEM basis.
+    pub fem: Basis,
+    /// Tables per level (present at levels ≥ base).
+    pub tables: &'a [Option<DepthTables>],
+    /// V per level (may be empty).
+    pub v: &'a [Vec<[f32; 3]>],
+    /// Clusters per level.
+    pub clusters: &'a [Clusters],
+    /// Base level.
+    pub base_level: u32,
+    /// Gauss–Seidel sweeps per level.
+    pub iters: u32,
+    /// Whether constants are in the kernel (Neumann/free boundary without screening).
+    pub singular: bool,
+    /// Called with a stage name at each level.
+    pub progress: &'a (dyn Fn(&str) + Sync),
+}
+
+/// Operator of one level.
+struct Op<'a> {
+    level: &'a Level,
+    d: u32,
+    tab: &'a DepthTables,
+    cl: &'a Clusters,
+    degree: u8,
+    /// Same-level window offsets used by the stiffness stencil.
+    win: Vec<(usize, [i64; 3])>,
+    /// Offsets of cells whose clusters touch a function.
+    cwin: Vec<usize>,
+}
+
+impl<'a> Op<'a> {
+    fn new(p: &'a Problem, t: u32) -> Self {
+        let tab = p.tables[t as usize].as_ref().expect("tables exist at solved levels");
+        let r = i64::from(p.fem.degree);
+        let mut win = Vec::new();
+        for z in -r..=r {
+            for y in -r..=r {
+                for x in -r..=r {
+                    win.push((window_index([x, y, z]), [x, y, z]));
+                }
+            }
+        }
+        let co = cluster_offsets(p.fem.degree);
+        let mut cwin = Vec::new();
+        for &z in co {
+            for &y in co {
+                for &x in co {
+                    cwin.push(window_index([x, y, z]));
+                }
+            }
+        }
+        Op {
+            level: &p.tree.levels[t as usize],
+            d: t - DEPTH_OFFSET,
+            tab,
+            cl: &p.clusters[t as usize],
+            degree: p.fem.degree,
+            win,
+            cwin,
+        }
+    }
+
+    #[inline]
+    fn index(&self, n: u32) -> [i64; 3] {
+        func_index(self.level.keys[n as usize], self.d)
+    }
+
+    /// `Σ_j L_ij x_j` for row `n`.
+    #[inline]
+    fn stiffness_row(&self, n: u32, i: [i64; 3], x: &[f64]) -> f64 {
+        let mut s = 0.0;
+        if self.tab.range.interior(i, 3) {
+            for &(w, _) in &self.win {
+                let m = neighbor_in(self.level, n, w);
+                if m != NONE {
+                    s += self.tab.stencil[w] * x[m as usize];
+                }
+            }
+        } else {
+            for &(w, o) in &self.win {
+                let m = neighbor_in(self.level, n, w);
+                if m != NONE {
+                    let xm = x[m as usize];
+                    if xm != 0.0 {
+                        s += self.tab.stiffness(i, o) * xm;
+                    }
+                }
+            }
+        }
+        s
+    }
+
+    fn diagonal(&self) -> Vec<f64> {
+        (0..self.level.len() as u32)
+            .into_par_iter()
+            .map(|n| {
+                let i = self.index(n);
+                if !self.tab.range.contains(i) {
+                    return 0.0;
+                }
+                let mut dg = self.tab.stiffness(i, [0, 0, 0]);
+                for &w in &self.cwin {
+                    let m = neighbor_in(self.level, n, w);
+                    if m == NONE {
+                        continue;
+                    }
+                    let c = self.cl.of_node.get(m as usize).copied().unwrap_or(NONE);
+                    if c != NONE {
+                        let bv = self.cl.basis_value(c as usize, i, self.degree);
+                        dg += self.cl.omega[c as usize] * bv * bv;
+                    }
+                }
+                dg
+            })
+            .collect()
+    }
+
+    /// χ_d at every cluster from the level's coefficients.
+    fn cluster_values(&self, x: &[f64]) -> Vec<f64> {
+        (0..self.cl.pos.len())
+            .into_par_iter()
+            .map(|c| cluster_value(self.level, self.cl, c, self.d, self.degree, x))
+            .collect()
+    }
+
+    /// `y = (L + S) x`.
+    fn apply(&self, x: &[f64], valid: &[bool]) -> Vec<f64> {
+        let chi = self.cluster_values(x);
+        (0..self.level.len() as u32)
+            .into_par_iter()
+            .map(|n| {
+                if !valid[n as usize] {
+                    return 0.0;
+                }
+                let i = self.index(n);
+                let mut s = self.stiffness_row(n, i, x);
+                for &w in &self.cwin {
+                    let m = neighbor_in(self.level, n, w);
+                    if m == NONE {
+                        continue;
+                    }
+                    let c = self.cl.of_node.get(m as usize).copied().unwrap_or(NONE);
+                    if c != NONE {
+                        let bv = self.cl.basis_value(c as usize, i, self.degree);
+                        s += self.cl.omega[c as usize] * bv * chi[c as usize];
+                    }
+                }
+                s
+            })
+            .collect()
+    }
+
+    /// Sequential Gauss–Seidel sweeps in node (Morton) order.
+    fn gauss_seidel(&self, r: &[f64], x: &mut [f64], diag: &[f64], iters: u32) {
+        let mut chi = self.cluster_values(x);
+        let mut touched: [(u32, f64); 27] = [(0, 0.0); 27];
+        for _ in 0..iters {
+            for n in 0..self.level.len() as u32 {
+                let dg = diag[n as usize];
+                if dg <= 0.0 {
+                    continue;
+                }
+                let i = self.index(n);
+                let mut s = self.stiffness_row(n, i, x);
+                let mut k = 0;
+                for &w in &self.cwin {
+                    let m = neighbor_in(self.level, n, w);
+                    if m == NONE {
+                        continue;
+                    }
+                    let c = self.cl.of_node.get(m as usize).copied().unwrap_or(NONE);
+                    if c != NONE {
+                        let bv = self.cl.basis_value(c as usize, i, self.degree);
+                        s += self.cl.omega[c as usize] * bv * chi[c as usize];
+                        touched[k] = (c, bv);
+                        k += 1;
+                    }
+                }
+                let dx = (r[n as usize] - s) / dg;
+                x[n as usize] += dx;
+                for &(c, bv) in &touched[..k] {
+                    chi[c as usize] += dx * bv;
+                }
+            }
+        }
+    }
+}
+
+/// `Σ_j B_j(p_c) x_j` over the level's functions around cluster `c`.
+fn cluster_value(level: &Level, cl: &Clusters, c: usize, d: u32, degree: u8, x: &[f64]) -> f64 {
+    let node = cl.node[c];
+    let own = func_index(level.keys[node as usize], d);
+    let f = cl.first[c];
+    let v = &cl.vals[c];
+    let k = i64::from(degree);
+    let mut s = 0.0;
+    for z in 0..=k {
+        for y in 0..=k {
+            for xx in 0..=k {
+                let j = [f[0] + xx, f[1] + y, f[2] + z];
+                let m = neighbor_in(level, node, window_index([j[0] - own[0], j[1] - own[1], j[2] - own[2]]));
+                if m == NONE {
+                    continue;
+                }
+                s += v[0][xx as usize] * v[1][y as usize] * v[2][z as usize] * x[m as usize];
+            }
+        }
+    }
+    s
+}
+
+
+/// Deterministic dot product: fixed-size chunks summed in order.
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.par_chunks(4096)
+        .zip(b.par_chunks(4096))
+        .map(|(x, y)| x.iter().zip(y).map(|(p, q)| p * q).sum::<f64>())
+        .collect::<Vec<f64>>()
+        .iter()
+        .sum()
+}
+
+/// Conjugate gradients on `op` to relative residual `tol`.
+fn conjugate_gradients(op: &Op, b: &[f64], valid: &[bool], max_iter: usize, tol: f64) -> Vec<f64> {
+    let n = b.len();
+    let mut x = vec![0.0; n];
+    let mut r = b.to_vec();
+    let mut p = r.clone();
+    let mut rr = dot(&r, &r);
+    let target = tol * tol * rr;
+    if rr == 0.0 {
+        return x;
+    }
+    for _ in 0..max_iter {
+        let ap = op.apply(&p, valid);
+        let pap = dot(&p, &ap);
+        if pap <= 0.0 || !pap.is_finite() {
+            break;
+        }
+        let alpha = rr / pap;
+        x.par_iter_mut().zip(&p).for_each(|(xi, pi)| *xi += alpha * pi);
+        r.par_iter_mut().zip(&ap).for_each(|(ri, ai)| *ri -= alpha * ai);
+        let rr_new = dot(&r, &r);
+        if rr_new <= target {
+            break;
+        }
+        let beta = rr_new / rr;
+        rr = rr_new;
+        p.par_iter_mut().zip(&r).for_each(|(pi, ri)| *pi = ri + beta * *pi);
+    }
+    x
+}
+
+/// Right-hand side contributions from the clusters: `Σ_c ω_c B_i(p_c) (τ − coarse_c)`.
+fn add_screening_targets(op: &Op, coarse_chi: Option<&[f64]>, r: &mut [f64]) {
+    r.par_iter_mut().enumerate().for_each(|(n, rn)| {
+        let n = n as u32;
+        let i = op.index(n);
+        if !op.tab.range.contains(i) {
+            return;
+        }
+        for &w in &op.cwin {
+            let m = neighbor_in(op.level, n, w);
+            if m == NONE {
+                continue;
+            }
+            let c = op.cl.of_node.get(m as usize).copied().unwrap_or(NONE);
+            if c != NONE {
+                let bv = op.cl.basis_value(c as usize, i, op.degree);
+                let coarse = coarse_chi.map_or(0.0, |v| v[c as usize]);
+                *rn += op.cl.omega[c as usize] * bv * (TAU - coarse);
+            }
+        }
+    });
+}
+
+/// Solves the whole hierarchy.
+pub fn solve(p: &Problem) -> Solution {
+    let tree = p.tree;
+    let nlev = tree.levels.len();
+    let tb = p.base_level as usize;
+    let max_level = nlev - 1;
+
+    // Divergence constraints, fine to coarse.
+    (p.progress)("constraints");
+    let mut tcons: Vec<Vec<f64>> = vec![Vec::new(); nlev];
+    for t in (tb..=max_level).rev() {
+        let tab = p.tables[t].as_ref().expect("tables");
+        let finer = if t < max_level { Some(tcons[t + 1].as_slice()) } else { None };
+        let b = divergence_constraints(tree, t as u32, tab, p.fem, &p.v[t], finer);
+        tcons[t] = b;
+    }
+
+    let mut sol = Solution {
+        x: vec![Vec::new(); nlev],
+        p: vec![Vec::new(); nlev],
+        base_level: p.base_level,
+    };
+
+    // Base solve.
+    (p.progress)("solving base depth");
+    {
+        let op = Op::new(p, tb as u32);
+        let valid: Vec<bool> = (0..op.level.len() as u32)
+            .map(|n| op.tab.range.contains(op.index(n)))
+            .collect();
+        let mut b = std::mem::take(&mut tcons[tb]);
+        add_screening_targets(&op, None, &mut b);
+        if p.singular {
+            // Project out the constant null vector so the system is consistent.
+            let cnt = valid.iter().filter(|&&v| v).count().max(1) as f64;
+            let mean = b.iter().zip(&valid).filter(|(_, &v)| v).map(|(x, _)| *x).sum::<f64>() / cnt;
+            for (bi, &v) in b.iter_mut().zip(&valid) {
+                if v {
+                    *bi -= mean;
+                }
+            }
+        }
+        let x = conjugate_gradients(&op, &b, &valid, 3000, 1e-7);
+        sol.p[tb] = x.clone();
+        sol.x[tb] = x;
+    }
+
+    // Cumulative V, prolonged level by level.
+    let mut vc: Vec<[f64; 3]> = p.v[tb]
+        .iter()
+        .map(|v| [f64::from(v[0]), f64::from(v[1]), f64::from(v[2])])
+        .collect();
+    if vc.is_empty() {
+        vc = vec![[0.0; 3]; tree.levels[tb].len()];
+    }
+
+    for t in tb + 1..=max_level {
+        (p.progress)(&format!("solving depth {}", t as u32 - DEPTH_OFFSET));
+        let op = Op::new(p, t as u32);
+        let tab = op.tab;
+        let level = op.level;
+        let parent_level = &tree.levels[t - 1];
+        let pc = &sol.p[t - 1];
+        // Right-hand side: own constraints + coarser V − coarser solution coupling.
+        let mut r: Vec<f64> = (0..level.len() as u32)
+            .into_par_iter()
+            .map(|n| {
+                let i = op.index(n);
+                if !tab.range.contains(i) {
+                    return 0.0;
+                }
+                let mut s = tcons[t][n as usize];
+                let par = level.brood_parent[(n >> 3) as usize];
+                let mut pm = [[0.0; 5]; 3];
+                let mut ps = [[0.0; 5]; 3];
+                let mut vm = [[0.0; 5]; 3];
+                let mut vd = [[0.0; 5]; 3];
+                for a in 0..3 {
+                    for o in 0..5 {
+                        pm[a][o] = tab.pmass.get(i[a], o as i64 - 2);
+                        ps[a][o] = tab.pstiff.get(i[a], o as i64 - 2);
+                        vm[a][o] = tab.pvmass.get(i[a], o as i64 - 2);
+                        vd[a][o] = tab.pvderiv.get(i[a], o as i64 - 2);
+                    }
+                }
+                for w in 0..125usize {
+                    let (ox, oy, oz) = (w % 5, (w / 5) % 5, w / 25);
+                    let q = neighbor_in(parent_level, par, w);
+                    if q == NONE {
+                        continue;
+                    }
+                    let xq = pc[q as usize];
+                    if xq != 0.0 {
+                        let k = ps[0][ox] * pm[1][oy] * pm[2][oz]
+                            + pm[0][ox] * ps[1][oy] * pm[2][oz]
+                            + pm[0][ox] * pm[1][oy] * ps[2][oz];
+                        s -= k * xq;
+                    }
+                    let v = vc[q as usize];
+                    if v != [0.0; 3] {
+                        s += v[0] * vd[0][ox] * vm[1][oy] * vm[2][oz]
+                            + v[1] * vm[0][ox] * vd[1][oy] * vm[2][oz]
+                            + v[2] * vm[0][ox] * vm[1][oy] * vd[2][oz];
+                    }
+                }
+                s
+            })
+            .collect();
+        tcons[t] = Vec::new();
+        // Screening: the coarser solution at the clusters of this level.
+        let coarse_chi: Vec<f64> = (0..op.cl.pos.len())
+            .into_par_iter()
+            .map(|c| {
+                let node = op.cl.node[c];
+                let par = tree.parent(t as u32, node);
+                coarse_value(tree, p.fem, t as u32 - 1, par, op.cl.pos[c], pc)
+            })
+            .collect();
+        add_screening_targets(&op, Some(&coarse_chi), &mut r);
+        let diag = op.diagonal();
+        let mut x = vec![0.0; level.len()];
+        op.gauss_seidel(&r, &mut x, &diag, p.iters);
+        // Cumulative solution and V at this level.
+        let cum = prolong::<1>(tree, t as u32, &tab.prolong, tab.range, |q| [pc[q as usize]], |n| [x[n]]);
+        sol.p[t] = cum.into_iter().map(|v| v[0]).collect();
+        sol.x[t] = x;
+        if t < max_level {
+            let vt = &p.v[t];
+            let prev = std::mem::take(&mut vc);
+            vc = prolong::<3>(tree, t as u32, &tab.vprolong, tab.vrange, |q| prev[q as usize], |n| {
+                vt.get(n).map_or([0.0; 3], |v| [f64::from(v[0]), f64::from(v[1]), f64::from(v[2])])
+            });
+        }
+    }
+    sol
+}
+
+/// `Σ_J coeff_J B_{d,J}(pos)` over the functions of level `t` around node `node` (which
+/// contains `pos`).
+pub fn coarse_value(tree: &Octree, fem: Basis, t: u32, node: u32, pos: [f64; 3], coeff: &[f64]) -> f64 {
+    let d = t - DEPTH_OFFSET;
+    let level = &tree.levels[t as usize];
+    let own = func_index(level.keys[node as usize], d);
+    let wx = fem.window(d, pos[0]);
+    let wy = fem.window(d, pos[1]);
+    let wz = fem.window(d, pos[2]);
+    let k = i64::from(fem.degree);
+    let mut s = 0.0;
+    for z in 0..=k {
+        for y in 0..=k {
+            for x in 0..=k {
+                let o = [wx.first + x - own[0], wy.first + y - own[1], wz.first + z - own[2]];
+                let m = neighbor_in(level, node, window_index(o));
+                if m == NONE {
+                    continue;
+                }
+                s += wx.values[x as usize] * wy.values[y as usize] * wz.values[z as usize] * coeff[m as usize];
+            }
+        }
+    }
+    s
+}

@@ -1,0 +1,418 @@
+//! The linear system of each depth (ALGORITHM.md §5.5, §6): 1-D integral tables, the vector
+//! field V splatted into the tree (§3.6), the screening clusters (§3.7), the divergence
+//! constraints `∫∇B_i·V` gathered across depths, and the prolongation/restriction operators.
+//!
+//! Conventions: "level" `t` is a tree depth, "depth" `d = t − DEPTH_OFFSET` is the unit-cube
+//! depth. A node's function index along an axis is its unit offset (`key − 2^d`).
+
+use rayon::prelude::*;
+
+use crate::bspline::{table, Basis, Integrand, Table1D};
+use crate::octree::{neighbor_in, window_index, Octree, DEPTH_OFFSET, NONE};
+
+/// Function index (unit offset) of a tree key at unit depth `d`.
+#[inline]
+pub fn func_index(key: [u32; 3], d: u32) -> [i64; 3] {
+    let n = 1i64 << d;
+    [i64::from(key[0]) - n, i64::from(key[1]) - n, i64::from(key[2]) - n]
+}
+
+/// Inclusive index ranges of a basis at one depth, and range checks.
+#[derive(Debug, Clone, Copy)]
+pub struct Range {
+    /// Lowest index.
+    pub lo: i64,
+    /// Highest index.
+    pub hi: i64,
+}
+
+impl Range {
+    /// True when all three indices are in range.
+    #[inline]
+    pub fn contains(&self, i: [i64; 3]) -> bool {
+        i.iter().all(|&c| c >= self.lo && c <= self.hi)
+    }
+
+    /// True when every index is at least `m` away from both ends.
+    #[inline]
+    pub fn interior(&self, i: [i64; 3], m: i64) -> bool {
+        i.iter().all(|&c| c - self.lo >= m && self.hi - c >= m)
+    }
+}
+
+/// Prolongation weights: for a fine index `j`, the weights of coarse functions
+/// `(j >> 1) − 1 ..= (j >> 1) + 1` in the two-scale expansion.
+#[derive(Debug, Clone)]
+pub struct Prolong {
+    lo: i64,
+    w: Vec<[f64; 3]>,
+}
+
+impl Prolong {
+    /// Builds the weights from `basis.children` at coarse depth `d − 1`.
+    pub fn new(basis: Basis, d: u32) -> Self {
+        let (lo, hi) = basis.index_range(d);
+        let len = (hi - lo + 1).max(0) as usize;
+        let mut w = vec![[0.0; 3]; len];
+        let (clo, chi) = basis.index_range(d - 1);
+        let mut out = [(0i64, 0.0f64); 4];
+        for c in clo..=chi {
+            let k = basis.children(d - 1, c, &mut out);
+            for &(j, wt) in &out[..k] {
+                if j < lo || j > hi {
+                    continue;
+                }
+                let o = c - (j >> 1);
+                debug_assert!((-1..=1).contains(&o));
+                w[(j - lo) as usize][(o + 1) as usize] += wt;
+            }
+        }
+        Self { lo, w }
+    }
+
+    /// Weight of coarse `(j >> 1) + o` for fine `j`.
+    #[inline]
+    pub fn get(&self, j: i64, o: i64) -> f64 {
+        self.w
+            .get((j - self.lo) as usize)
+            .map_or(0.0, |r| r[(o + 1) as usize])
+    }
+}
+
+/// All 1-D tables needed at one depth.
+pub struct DepthTables {
+    /// FEM index range.
+    pub range: Range,
+    /// V index range.
+    pub vrange: Range,
+    /// ∫B_i B_j, same depth.
+    pub mass: Table1D,
+    /// ∫B_i' B_j', same depth.
+    pub stiff: Table1D,
+    /// FEM against the parent depth's FEM functions.
+    pub pmass: Table1D,
+    /// FEM derivatives against the parent depth's FEM derivatives.
+    pub pstiff: Table1D,
+    /// FEM values against V functions of the same depth.
+    pub vmass: Table1D,
+    /// FEM derivatives against V functions of the same depth.
+    pub vderiv: Table1D,
+    /// FEM values against V functions of the parent depth.
+    pub pvmass: Table1D,
+    /// FEM derivatives against V functions of the parent depth.
+    pub pvderiv: Table1D,
+    /// FEM prolongation from the parent depth.
+    pub prolong: Prolong,
+    /// V prolongation from the parent depth.
+    pub vprolong: Prolong,
+    /// The interior 3-D stiffness stencil, by window index.
+    pub stencil: [f64; 125],
+}
+
+impl DepthTables {
+    /// Builds the tables of unit depth `d ≥ 1`.
+    pub fn new(fem: Basis, vb: Basis, d: u32) -> Self {
+        let (lo, hi) = fem.index_range(d);
+        let (vlo, vhi) = vb.index_range(d);
+        let same = |a, b, i| table(a, b, d, false, i);
+        let par = |a, b, i| table(a, b, d, true, i);
+        let mass = same(fem, fem, Integrand::ValueValue);
+        let stiff = same(fem, fem, Integrand::DerivDeriv);
+        let mid = (lo + hi) / 2;
+        let mut stencil = [0.0; 125];
+        for (w, s) in stencil.iter_mut().enumerate() {
+            let o = [(w % 5) as i64 - 2, ((w / 5) % 5) as i64 - 2, (w / 25) as i64 - 2];
+            *s = stiffness_3d(&mass, &stiff, [mid; 3], o);
+        }
+        Self {
+            range: Range { lo, hi },
+            vrange: Range { lo: vlo, hi: vhi },
+            pmass: par(fem, fem, Integrand::ValueValue),
+            pstiff: par(fem, fem, Integrand::DerivDeriv),
+            vmass: same(fem, vb, Integrand::ValueValue),
+            vderiv: same(fem, vb, Integrand::DerivValue),
+            pvmass: par(fem, vb, Integrand::ValueValue),
+            pvderiv: par(fem, vb, Integrand::DerivValue),
+            prolong: Prolong::new(fem, d),
+            vprolong: Prolong::new(vb, d),
+            mass,
+            stiff,
+            stencil,
+        }
+    }
+
+    /// Stiffness entry `∫∇B_i·∇B_j` between function `i` and `i + o` (same depth).
+    #[inline]
+    pub fn stiffness(&self, i: [i64; 3], o: [i64; 3]) -> f64 {
+        stiffness_3d(&self.mass, &self.stiff, i, o)
+    }
+}
+
+#[inline]
+fn stiffness_3d(mass: &Table1D, stiff: &Table1D, i: [i64; 3], o: [i64; 3]) -> f64 {
+    let m = [mass.get(i[0], o[0]), mass.get(i[1], o[1]), mass.get(i[2], o[2])];
+    let k = [stiff.get(i[0], o[0]), stiff.get(i[1], o[1]), stiff.get(i[2], o[2])];
+    k[0] * m[1] * m[2] + m[0] * k[1] * m[2] + m[0] * m[1] * k[2]
+}
+
+/// Screening clusters of one level (ALGORITHM.md §3.7).
+#[derive(Debug, Default, Clone)]
+pub struct Clusters {
+    /// Cluster index of each node of the level, or [`NONE`].
+    pub of_node: Vec<u32>,
+    /// Node of each cluster.
+    pub node: Vec<u32>,
+    /// Weighted mean position, unit-cube coordinates.
+    pub pos: Vec<[f64; 3]>,
+    /// Screening weight ω = α Ā 2^d W.
+    pub omega: Vec<f64>,
+    /// Per axis, the first FEM index whose support contains the position, and the values of
+    /// the `degree + 1` functions from there.
+    pub first: Vec<[i64; 3]>,
+    /// Basis values per axis (see `first`).
+    pub vals: Vec<[[f64; 3]; 3]>,
+}
+
+impl Clusters {
+    /// Value of FEM function `i` at cluster `c`.
+    #[inline]
+    pub fn basis_value(&self, c: usize, i: [i64; 3], degree: u8) -> f64 {
+        let f = self.first[c];
+        let v = &self.vals[c];
+        let mut r = 1.0;
+        for a in 0..3 {
+            let k = i[a] - f[a];
+            if k < 0 || k > i64::from(degree) {
+                return 0.0;
+            }
+            r *= v[a][k as usize];
+        }
+        r
+    }
+}
+
+/// Builds the clusters of every level `≥ base level` from the samples' deepest nodes.
+/// `leaf_of` gives, per sample, its deepest node `(level, node)`; `weights`/`positions` the
+/// sample data. Output is indexed by level.
+pub fn build_clusters(
+    tree: &Octree,
+    fem: Basis,
+    base_level: u32,
+    leaf_of: &[(u32, u32)],
+    positions: &[[f64; 3]],
+    weights: &[f64],
+    omega_scale: f64,
+) -> Vec<Clusters> {
+    let nlev = tree.levels.len();
+    let mut out: Vec<Clusters> = (0..nlev).map(|_| Clusters::default()).collect();
+    // Entries (node, W, W·p) per level, filled from the samples, merged, then pushed up.
+    let mut pending: Vec<Vec<(u32, f64, [f64; 3])>> = (0..nlev).map(|_| Vec::new()).collect();
+    for (s, &(t, n)) in leaf_of.iter().enumerate() {
+        let w = weights[s];
+        let p = positions[s];
+        pending[t as usize].push((n, w, [w * p[0], w * p[1], w * p[2]]));
+    }
+    for t in (base_level as usize..nlev).rev() {
+        let mut entries = std::mem::take(&mut pending[t]);
+        entries.sort_by_key(|e| e.0);
+        let mut merged: Vec<(u32, f64, [f64; 3])> = Vec::new();
+        for (n, w, wp) in entries {
+            match merged.last_mut() {
+                Some(last) if last.0 == n => {
+                    last.1 += w;
+                    for a in 0..3 {
+                        last.2[a] += wp[a];
+                    }
+                }
+                _ => merged.push((n, w, wp)),
+            }
+        }
+        if t > base_level as usize {
+            for &(n, w, wp) in &merged {
+                let p = tree.parent(t as u32, n);
+                pending[t - 1].push((p, w, wp));
+            }
+        }
+        let d = t as u32 - DEPTH_OFFSET;
+        let scale = omega_scale * (1i64 << d) as f64;
+        let mut cl = Clusters {
+            of_node: vec![NONE; tree.levels[t].len()],
+            ..Default::default()
+        };
+        for (c, &(n, w, wp)) in merged.iter().enumerate() {
+            let p = [wp[0] / w, wp[1] / w, wp[2] / w];
+            cl.of_node[n as usize] = c as u32;
+            let mut first = [0i64; 3];
+            let mut vals = [[0.0; 3]; 3];
+            for a in 0..3 {
+                let win = fem.window(d, p[a]);
+                first[a] = win.first;
+                vals[a] = win.values;
+            }
+            cl.node.push(n);
+            cl.pos.push(p);
+            cl.omega.push(scale * w);
+            cl.first.push(first);
+            cl.vals.push(vals);
+        }
+        out[t] = cl;
+    }
+    out
+}
+
+/// Per-axis offsets (relative to a function's own cell) of the cells whose cluster can touch
+/// the function: `o ∈ i − {0,1}` for degree 1, `o ∈ i + {−1,0,1}` for degree 2.
+pub fn cluster_offsets(degree: u8) -> &'static [i64] {
+    if degree == 1 {
+        &[-1, 0]
+    } else {
+        &[-1, 0, 1]
+    }
+}
+
+/// `∫∇B_i·V` for every node of level `t` from the V coefficients of the same level,
+/// plus the restriction of `finer` (the same quantity one level down), ALGORITHM.md §6.
+pub fn divergence_constraints(
+    tree: &Octree,
+    t: u32,
+    tab: &DepthTables,
+    fem: Basis,
+    v: &[[f32; 3]],
+    finer: Option<&[f64]>,
+) -> Vec<f64> {
+    let d = t - DEPTH_OFFSET;
+    let level = &tree.levels[t as usize];
+    let next = tree.levels.get(t as usize + 1);
+    (0..level.len() as u32)
+        .into_par_iter()
+        .map(|n| {
+            let i = func_index(level.keys[n as usize], d);
+            if !tab.range.contains(i) {
+                return 0.0;
+            }
+            let mut b = 0.0;
+            if !v.is_empty() {
+                for w in 0..125 {
+                    let m = neighbor_in(level, n, w);
+                    if m == NONE {
+                        continue;
+                    }
+                    let vm = v[m as usize];
+                    if vm == [0.0; 3] {
+                        continue;
+                    }
+                    let o = [(w % 5) as i64 - 2, ((w / 5) % 5) as i64 - 2, (w / 25) as i64 - 2];
+                    let mx = tab.vmass.get(i[0], o[0]);
+                    let my = tab.vmass.get(i[1], o[1]);
+                    let mz = tab.vmass.get(i[2], o[2]);
+                    let dx = tab.vderiv.get(i[0], o[0]);
+                    let dy = tab.vderiv.get(i[1], o[1]);
+                    let dz = tab.vderiv.get(i[2], o[2]);
+                    b += f64::from(vm[0]) * dx * my * mz
+                        + f64::from(vm[1]) * mx * dy * mz
+                        + f64::from(vm[2]) * mx * my * dz;
+                }
+            }
+            if let (Some(f), Some(next)) = (finer, next) {
+                b += restrict_one(tree, level, next, fem, d, n, i, f);
+            }
+            b
+        })
+        .collect()
+}
+
+/// `Σ_j c_ij y_j` over the children `j` (at the next level) of function `i` (node `n`).
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn restrict_one(
+    _tree: &Octree,
+    level: &crate::octree::Level,
+    next: &crate::octree::Level,
+    basis: Basis,
+    d: u32,
+    n: u32,
+    i: [i64; 3],
+    y: &[f64],
+) -> f64 {
+    let mut ch = [[(0i64, 0.0f64); 4]; 3];
+    let mut cnt = [0usize; 3];
+    for a in 0..3 {
+        cnt[a] = basis.children(d, i[a], &mut ch[a]);
+    }
+    let mut s = 0.0;
+    for cz in &ch[2][..cnt[2]] {
+        for cy in &ch[1][..cnt[1]] {
+            for cx in &ch[0][..cnt[0]] {
+                let j = [cx.0, cy.0, cz.0];
+                let o = [(j[0] >> 1) - i[0], (j[1] >> 1) - i[1], (j[2] >> 1) - i[2]];
+                let m = neighbor_in(level, n, window_index(o));
+                if m == NONE {
+                    continue;
+                }
+                let b = level.child[m as usize];
+                if b == NONE {
+                    continue;
+                }
+                let bits = (j[0] & 1) | ((j[1] & 1) << 1) | ((j[2] & 1) << 2);
+                let f = b * 8 + bits as u32;
+                let _ = next;
+                s += cx.1 * cy.1 * cz.1 * y[f as usize];
+            }
+        }
+    }
+    s
+}
+
+/// Prolongs per-node coefficients `coarse` of level `t − 1` to level `t` (pull form),
+/// for functions in `range`; `add` (same level) is added on top.
+pub fn prolong<const K: usize>(
+    tree: &Octree,
+    t: u32,
+    weights: &Prolong,
+    range: Range,
+    coarse: impl Fn(u32) -> [f64; K] + Sync,
+    add: impl Fn(usize) -> [f64; K] + Sync,
+) -> Vec<[f64; K]> {
+    let d = t - DEPTH_OFFSET;
+    let level = &tree.levels[t as usize];
+    let parent_level = &tree.levels[t as usize - 1];
+    (0..level.len() as u32)
+        .into_par_iter()
+        .map(|n| {
+            let j = func_index(level.keys[n as usize], d);
+            if !range.contains(j) {
+                return [0.0; K];
+            }
+            let mut acc = add(n as usize);
+            let p = level.brood_parent[(n >> 3) as usize];
+            for oz in -1..=1i64 {
+                let wz = weights.get(j[2], oz);
+                if wz == 0.0 {
+                    continue;
+                }
+                for oy in -1..=1i64 {
+                    let wy = weights.get(j[1], oy);
+                    if wy == 0.0 {
+                        continue;
+                    }
+                    for ox in -1..=1i64 {
+                        let wx = weights.get(j[0], ox);
+                        if wx == 0.0 {
+                            continue;
+                        }
+                        let q = neighbor_in(parent_level, p, window_index([ox, oy, oz]));
+                        if q == NONE {
+                            continue;
+                        }
+                        let w = wx * wy * wz;
+                        let c = coarse(q);
+                        for k in 0..K {
+                            acc[k] += w * c[k];
+                        }
+                    }
+                }
+            }
+            acc
+        })
+        .collect()
+}
