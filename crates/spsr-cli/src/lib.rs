@@ -218,7 +218,7 @@ pub struct Failure {
 }
 
 impl Failure {
-    /// Classifies a library error. `data_file` is the file whose content is at fault for errors
+    /// Classifies a library error. `input` is the file whose content is at fault for errors
     /// that do not name one themselves (too few points, degenerate input, ...).
     fn from_spsr(e: spsr::Error, input: &Path) -> Self {
         use spsr::Error as E;
@@ -387,4 +387,90 @@ fn print_details(
         let _ = writeln!(err, "  {name:<24} {:>9.3} s", d.as_secs_f64());
     }
     let _ = writeln!(err, "  {:<24} {:>9.3} s", "total", total.as_secs_f64());
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(extra: &[&str]) -> ReconstructArgs {
+        let mut argv = vec!["spsr", "reconstruct", "in.ply", "-o", "out.ply"];
+        argv.extend_from_slice(extra);
+        match Cli::try_parse_from(argv).unwrap().command {
+            Command::Reconstruct(a) => a,
+        }
+    }
+
+    #[test]
+    fn defaults_match_the_library() {
+        assert_eq!(args(&[]).params(), spsr::Params::default());
+    }
+
+    #[test]
+    fn default_full_depth_follows_a_smaller_depth() {
+        assert_eq!(args(&["--depth", "3"]).params().full_depth, 3);
+        assert_eq!(
+            args(&["--depth", "3", "--full-depth", "4"])
+                .params()
+                .full_depth,
+            4
+        );
+        assert!(args(&["--depth", "3", "--full-depth", "4"])
+            .params()
+            .validate()
+            .is_err());
+    }
+
+    #[test]
+    fn flags_reach_the_params() {
+        let p = args(&[
+            "--point-weight",
+            "0",
+            "--degree",
+            "2",
+            "--boundary",
+            "dirichlet",
+            "--confidence",
+            "--density",
+        ])
+        .params();
+        assert_eq!(p.point_weight, Some(0.0));
+        assert_eq!(p.degree, 2);
+        assert_eq!(p.boundary, spsr::Boundary::Dirichlet);
+        assert!(p.confidence && p.density);
+    }
+
+    #[test]
+    fn errors_map_to_exit_codes_and_name_the_file() {
+        let input = Path::new("cloud.ply");
+        let io = |path: &str| spsr::Error::Io {
+            path: path.into(),
+            source: std::io::Error::from(std::io::ErrorKind::NotFound),
+        };
+        let f = Failure::from_spsr(io("cloud.ply"), input);
+        assert_eq!(f.code, exit::DATA);
+        assert!(f.error.to_string().starts_with("cloud.ply: "));
+
+        let f = Failure::from_spsr(io("out/mesh.ply"), input);
+        assert_eq!(f.code, exit::USAGE);
+
+        let few = spsr::Error::TooFewPoints {
+            usable: 2,
+            dropped: 0,
+            required: 4,
+        };
+        let f = Failure::from_spsr(few, input);
+        assert_eq!(f.code, exit::DATA);
+        let msg = f.error.to_string();
+        assert!(msg.starts_with("cloud.ply: too few usable points"), "{msg}");
+        assert!(f.error.downcast_ref::<spsr::Error>().is_some());
+
+        let bad = spsr::Error::InvalidParameter {
+            name: "--depth",
+            message: "40".into(),
+        };
+        let f = Failure::from_spsr(bad, input);
+        assert_eq!(f.code, exit::USAGE);
+        assert!(!f.error.to_string().contains("cloud.ply"));
+    }
 }
