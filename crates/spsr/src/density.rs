@@ -146,20 +146,26 @@ impl Density {
                 _ => level.push((c, w, [w * p[0], w * p[1], w * p[2]])),
             }
         }
-        let mut rho: Vec<FxHashMap<u64, f64>> = (0..=kernel_depth).map(|_| FxHashMap::default()).collect();
+        let mut rho: Vec<FxHashMap<u64, f64>> =
+            (0..=kernel_depth).map(|_| FxHashMap::default()).collect();
         let mut d = kernel_depth;
         loop {
             let h = (1i64 << d) as f64;
             let map = &mut rho[d as usize];
             for &(c, w, wp) in &level {
-                let t: [f64; 3] = std::array::from_fn(|a| (wp[a] / w * h - c[a] as f64).clamp(0.0, 1.0));
+                let t: [f64; 3] =
+                    std::array::from_fn(|a| (wp[a] / w * h - c[a] as f64).clamp(0.0, 1.0));
                 let wx = quadratic_weights(t[0]);
                 let wy = quadratic_weights(t[1]);
                 let wz = quadratic_weights(t[2]);
                 for (k, wzk) in wz.iter().enumerate() {
                     for (j, wyj) in wy.iter().enumerate() {
                         for (i, wxi) in wx.iter().enumerate() {
-                            let key = pack([c[0] + i as i64 - 1, c[1] + j as i64 - 1, c[2] + k as i64 - 1]);
+                            let key = pack([
+                                c[0] + i as i64 - 1,
+                                c[1] + j as i64 - 1,
+                                c[2] + k as i64 - 1,
+                            ]);
                             *map.entry(key).or_insert(0.0) += sigma * w * wxi * wyj * wzk;
                         }
                     }
@@ -210,7 +216,11 @@ impl Density {
         for (k, wzk) in wz.iter().enumerate() {
             for (j, wyj) in wy.iter().enumerate() {
                 for (i, wxi) in wx.iter().enumerate() {
-                    let key = pack([c[0] + i as i64 - 1, c[1] + j as i64 - 1, c[2] + k as i64 - 1]);
+                    let key = pack([
+                        c[0] + i as i64 - 1,
+                        c[1] + j as i64 - 1,
+                        c[2] + k as i64 - 1,
+                    ]);
                     if let Some(r) = map.get(&key) {
                         s += r * wxi * wyj * wzk;
                     }
@@ -251,8 +261,16 @@ impl Density {
             let coarse = self.spn(d, p);
             if coarse >= s || d == 0 {
                 let depth = f64::from(d) + (coarse / s).ln() / (coarse / fine).ln();
-                let depth = if depth.is_finite() { depth } else { f64::from(d) };
-                let area = if coarse > 0.0 { width2(d) / coarse } else { width2(d) };
+                let depth = if depth.is_finite() {
+                    depth
+                } else {
+                    f64::from(d)
+                };
+                let area = if coarse > 0.0 {
+                    width2(d) / coarse
+                } else {
+                    width2(d)
+                };
                 return DepthAndArea { depth, area };
             }
             fine = coarse;
@@ -292,7 +310,11 @@ mod tests {
         for j in 8..n - 8 {
             for i in 8..n - 8 {
                 samples.push(Sample {
-                    pos: [(f64::from(i) + 0.37) * h, (f64::from(j) + 0.61) * h, 0.5 + 0.3 * h],
+                    pos: [
+                        (f64::from(i) + 0.37) * h,
+                        (f64::from(j) + 0.61) * h,
+                        0.5 + 0.3 * h,
+                    ],
                     weight: 1.0,
                     normal: [0.0, 0.0, 1.0],
                 });
@@ -305,7 +327,11 @@ mod tests {
         assert!((spn - 1.0).abs() < 0.1, "spn = {spn}");
         // depth ≈ K − ½ log2(S) (interpolated between levels).
         let expect = f64::from(k) - 0.5 * s.log2();
-        assert!((q.depth - expect).abs() < 0.35, "depth {} vs {expect}", q.depth);
+        assert!(
+            (q.depth - expect).abs() < 0.35,
+            "depth {} vs {expect}",
+            q.depth
+        );
     }
 
     #[test]

@@ -65,7 +65,11 @@ impl<'a> Evaluator<'a> {
     }
 
     fn windows(&self, d: u32, p: [f64; 3]) -> [Window; 3] {
-        [self.fem.window(d, p[0]), self.fem.window(d, p[1]), self.fem.window(d, p[2])]
+        [
+            self.fem.window(d, p[0]),
+            self.fem.window(d, p[1]),
+            self.fem.window(d, p[2]),
+        ]
     }
 
     fn window_sum(&self, t: u32, node: u32, p: [f64; 3], coeff: &[f64], acc: &mut (f64, [f64; 3])) {
@@ -80,7 +84,11 @@ impl<'a> Evaluator<'a> {
         for z in 0..=k {
             for y in 0..=k {
                 for x in 0..=k {
-                    let o = [w[0].first + x - own[0], w[1].first + y - own[1], w[2].first + z - own[2]];
+                    let o = [
+                        w[0].first + x - own[0],
+                        w[1].first + y - own[1],
+                        w[2].first + z - own[2],
+                    ];
                     let m = neighbor_in(level, node, window_index(o));
                     if m == NONE {
                         continue;
@@ -105,7 +113,11 @@ impl<'a> Evaluator<'a> {
             for y in 0..=k {
                 for x in 0..=k {
                     let j = [w[0].first + x, w[1].first + y, w[2].first + z];
-                    let o = [(j[0] >> 1) - own[0], (j[1] >> 1) - own[1], (j[2] >> 1) - own[2]];
+                    let o = [
+                        (j[0] >> 1) - own[0],
+                        (j[1] >> 1) - own[1],
+                        (j[2] >> 1) - own[2],
+                    ];
                     let m = neighbor_in(level, node, window_index(o));
                     if m == NONE {
                         continue;
@@ -146,7 +158,10 @@ pub struct CornerField<'a> {
 impl Field for CornerField<'_> {
     fn corner(&self, c: [u32; 3]) -> (f64, [f64; 3]) {
         let s = 1.0 / (1u64 << self.depth) as f64;
-        self.eval
-            .value_grad([f64::from(c[0]) * s, f64::from(c[1]) * s, f64::from(c[2]) * s])
+        self.eval.value_grad([
+            f64::from(c[0]) * s,
+            f64::from(c[1]) * s,
+            f64::from(c[2]) * s,
+        ])
     }
 }

@@ -13,22 +13,22 @@
 #![deny(missing_docs)]
 
 pub mod bspline;
+mod density;
 mod error;
 mod evaluate;
 pub mod extract;
 pub mod io;
 pub mod mesh;
-mod density;
 mod octree;
 mod params;
-mod solver;
-mod system;
 pub mod points;
 mod reconstruct;
+mod solver;
+mod system;
 
+pub use bspline::Boundary;
 pub use error::{Error, Result};
 pub use mesh::Mesh;
 pub use params::{Params, MAX_DEPTH};
 pub use points::PointCloud;
 pub use reconstruct::{reconstruct, reconstruct_with_progress, Reconstruction, Stats};
-pub use bspline::Boundary;

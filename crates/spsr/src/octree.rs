@@ -74,7 +74,11 @@ pub static WINDOW: WindowTable = {
     while c < 8 {
         let mut w = 0;
         while w < 125 {
-            let d = [(w % 5) as i32 - 2, ((w / 5) % 5) as i32 - 2, (w / 25) as i32 - 2];
+            let d = [
+                (w % 5) as i32 - 2,
+                ((w / 5) % 5) as i32 - 2,
+                (w / 25) as i32 - 2,
+            ];
             let mut s = 0usize;
             let mut b = 0u8;
             let mut mul = 1usize;
@@ -120,7 +124,11 @@ fn pack(k: [i64; 3]) -> u64 {
 #[inline]
 fn unpack(p: u64) -> [u32; 3] {
     let m = (1u64 << 21) - 1;
-    [(p & m) as u32, ((p >> 21) & m) as u32, ((p >> 42) & m) as u32]
+    [
+        (p & m) as u32,
+        ((p >> 21) & m) as u32,
+        ((p >> 42) & m) as u32,
+    ]
 }
 
 /// Interleaves the bits of a key (x lowest) into a Morton code.
@@ -300,7 +308,11 @@ impl Octree {
                     .map(|&p| {
                         let mut out = [NONE; 27];
                         for (s, o) in out.iter_mut().enumerate() {
-                            let d = [(s % 3) as i64 - 1, ((s / 3) % 3) as i64 - 1, (s / 9) as i64 - 1];
+                            let d = [
+                                (s % 3) as i64 - 1,
+                                ((s / 3) % 3) as i64 - 1,
+                                (s / 9) as i64 - 1,
+                            ];
                             let q = if t == 1 {
                                 if d == [0, 0, 0] {
                                     0
@@ -351,7 +363,9 @@ impl Octree {
                 break;
             }
             let shift = t_key - (t + 1);
-            let c = ((key[0] >> shift) & 1) | (((key[1] >> shift) & 1) << 1) | (((key[2] >> shift) & 1) << 2);
+            let c = ((key[0] >> shift) & 1)
+                | (((key[1] >> shift) & 1) << 1)
+                | (((key[2] >> shift) & 1) << 2);
             n = b * 8 + c as u32;
             t += 1;
         }
@@ -441,11 +455,18 @@ mod tests {
         for d in 0..=3u32 {
             let t = d + DEPTH_OFFSET;
             let (lo, hi) = ring(t);
-            let keys: FxHashSet<u64> = tree.levels[t as usize].keys.iter().map(|&k| pack_u(k)).collect();
+            let keys: FxHashSet<u64> = tree.levels[t as usize]
+                .keys
+                .iter()
+                .map(|&k| pack_u(k))
+                .collect();
             for z in lo..=hi {
                 for y in lo..=hi {
                     for x in lo..=hi {
-                        assert!(keys.contains(&pack([x, y, z])), "missing ring node at depth {d}");
+                        assert!(
+                            keys.contains(&pack([x, y, z])),
+                            "missing ring node at depth {d}"
+                        );
                     }
                 }
             }
@@ -477,7 +498,11 @@ mod tests {
                     }
                     // Neighbour lookups agree with a hash lookup.
                     for w in 0..125 {
-                        let d = [(w % 5) as i64 - 2, ((w / 5) % 5) as i64 - 2, (w / 25) as i64 - 2];
+                        let d = [
+                            (w % 5) as i64 - 2,
+                            ((w / 5) % 5) as i64 - 2,
+                            (w / 25) as i64 - 2,
+                        ];
                         let q = [k[0] as i64 + d[0], k[1] as i64 + d[1], k[2] as i64 + d[2]];
                         let expect = if q.iter().all(|&c| c >= 0 && c < (1 << t)) {
                             index.get(&pack(q)).copied().unwrap_or(NONE)
@@ -486,7 +511,10 @@ mod tests {
                         };
                         assert_eq!(tree.neighbor(t, n as u32, d), expect);
                         // Conforming: around a refined node at unit depth >= 2, the ring window exists.
-                        if level.child[n] != NONE && t >= 2 + DEPTH_OFFSET && q.iter().all(|&c| c >= lo && c <= hi) {
+                        if level.child[n] != NONE
+                            && t >= 2 + DEPTH_OFFSET
+                            && q.iter().all(|&c| c >= lo && c <= hi)
+                        {
                             assert_ne!(expect, NONE, "conforming window broken at t={t}");
                         }
                     }

@@ -76,7 +76,10 @@ impl Params {
     pub fn validate(&self) -> Result<()> {
         let bad = |name, message: String| Err(Error::InvalidParameter { name, message });
         if self.depth == 0 || self.depth > MAX_DEPTH {
-            return bad("--depth", format!("{} is outside 1..={MAX_DEPTH}", self.depth));
+            return bad(
+                "--depth",
+                format!("{} is outside 1..={MAX_DEPTH}", self.depth),
+            );
         }
         if self.full_depth > self.depth {
             return bad(
@@ -99,12 +102,18 @@ impl Params {
             }
         }
         if self.degree != 1 && self.degree != 2 {
-            return bad("--degree", format!("{} is not supported; use 1 or 2", self.degree));
+            return bad(
+                "--degree",
+                format!("{} is not supported; use 1 or 2", self.degree),
+            );
         }
         if !(self.scale.is_finite() && self.scale >= 1.0 && self.scale <= 1000.0) {
             return bad(
                 "--scale",
-                format!("{} must be at least 1 (points must lie inside the cube)", self.scale),
+                format!(
+                    "{} must be at least 1 (points must lie inside the cube)",
+                    self.scale
+                ),
             );
         }
         if self.iters == 0 || self.iters > 10_000 {

@@ -137,7 +137,13 @@ pub fn reconstruct_with_progress(
         eval: &eval,
         depth: max_leaf_depth,
     };
-    let mut mesh = extract(&leaves, max_leaf_depth, &field, iso, &ExtractOptions::default())?;
+    let mut mesh = extract(
+        &leaves,
+        max_leaf_depth,
+        &field,
+        iso,
+        &ExtractOptions::default(),
+    )?;
     drop(leaves);
     if params.density {
         mesh.density = Some(
@@ -288,7 +294,13 @@ pub(crate) fn solve_implicit(
     let nlev = tree.levels.len();
     let tb = (base + DEPTH_OFFSET) as usize;
     let mut v: Vec<Vec<[f32; 3]>> = (0..nlev)
-        .map(|t| if t >= tb { vec![[0.0; 3]; tree.levels[t].len()] } else { Vec::new() })
+        .map(|t| {
+            if t >= tb {
+                vec![[0.0; 3]; tree.levels[t].len()]
+            } else {
+                Vec::new()
+            }
+        })
         .collect();
     let mut sum_wa = 0.0;
     let mut sum_w = 0.0;
@@ -310,7 +322,8 @@ pub(crate) fn solve_implicit(
             let (tt, node) = tree.descend(key, t, t);
             debug_assert_eq!(tt, t);
             let scale = -s.weight * q.area / (h * h * h) * f;
-            let rel: [f64; 3] = std::array::from_fn(|a| (s.pos[a] / h - c[a] as f64).clamp(0.0, 1.0));
+            let rel: [f64; 3] =
+                std::array::from_fn(|a| (s.pos[a] / h - c[a] as f64).clamp(0.0, 1.0));
             let wx = quadratic_weights(rel[0]);
             let wy = quadratic_weights(rel[1]);
             let wz = quadratic_weights(rel[2]);
@@ -359,7 +372,15 @@ pub(crate) fn solve_implicit(
         .collect();
     let alpha = params.alpha();
     let clusters = if alpha > 0.0 {
-        build_clusters(&tree, fem, tb as u32, &leaf_of, &positions, &weights, alpha * mean_area)
+        build_clusters(
+            &tree,
+            fem,
+            tb as u32,
+            &leaf_of,
+            &positions,
+            &weights,
+            alpha * mean_area,
+        )
     } else {
         (0..nlev).map(|_| Default::default()).collect()
     };
@@ -390,11 +411,18 @@ pub(crate) fn solve_implicit(
     // 7. Iso-value (§1.5).
     timer.start("iso-value");
     let eval = Evaluator::new(&tree, fem, &sol);
-    let values: Vec<f64> = positions.par_iter().map(|p| eval.value_grad(*p).0).collect();
-    let iso = values.iter().zip(&weights).map(|(v, w)| v * w).sum::<f64>() / weights.iter().sum::<f64>();
+    let values: Vec<f64> = positions
+        .par_iter()
+        .map(|p| eval.value_grad(*p).0)
+        .collect();
+    let iso =
+        values.iter().zip(&weights).map(|(v, w)| v * w).sum::<f64>() / weights.iter().sum::<f64>();
     timer.stop("iso-value");
     drop(eval);
-    let nodes_per_depth = tree.levels[DEPTH_OFFSET as usize..].iter().map(|l| l.len()).collect();
+    let nodes_per_depth = tree.levels[DEPTH_OFFSET as usize..]
+        .iter()
+        .map(|l| l.len())
+        .collect();
     Ok(Implicit {
         tree,
         sol,
@@ -420,6 +448,10 @@ mod tests {
     use super::*;
 
     /// Points on a sphere by the golden-angle spiral, with exact outward normals.
+    pub(super) fn sphere_pub(n: usize, c: [f64; 3], r: f64) -> PointCloud {
+        sphere(n, c, r)
+    }
+
     fn sphere(n: usize, c: [f64; 3], r: f64) -> PointCloud {
         let mut pos = Vec::with_capacity(n);
         let mut nor = Vec::with_capacity(n);
@@ -435,11 +467,24 @@ mod tests {
         PointCloud::new(pos, nor).unwrap()
     }
 
+    pub(super) fn radial_crossing_pub(imp: &Implicit, c: [f64; 3], r: f64, dir: [f64; 3]) -> f64 {
+        radial_crossing(imp, c, r, dir)
+    }
+
     fn radial_crossing(imp: &Implicit, c: [f64; 3], r: f64, dir: [f64; 3]) -> f64 {
         // Bisection on χ − γ along the ray, between 0.5 r and 1.05 r.
-        let f = |s: f64| imp.value_grad_world([c[0] + s * dir[0], c[1] + s * dir[1], c[2] + s * dir[2]]).0 - imp.iso;
+        let f = |s: f64| {
+            imp.value_grad_world([c[0] + s * dir[0], c[1] + s * dir[1], c[2] + s * dir[2]])
+                .0
+                - imp.iso
+        };
         let (mut a, mut b) = (0.5 * r, 1.05 * r);
-        assert!(f(a) > 0.0 && f(b) < 0.0, "no sign change: {} {}", f(a), f(b));
+        assert!(
+            f(a) > 0.0 && f(b) < 0.0,
+            "no sign change: {} {}",
+            f(a),
+            f(b)
+        );
         for _ in 0..60 {
             let m = 0.5 * (a + b);
             if f(m) > 0.0 {
@@ -456,7 +501,11 @@ mod tests {
         for degree in [1u8, 2] {
             let c = [0.1, -0.2, 0.3];
             let cloud = sphere(60_000, c, 1.0);
-            let params = Params { depth: 7, degree, ..Params::default() };
+            let params = Params {
+                depth: 7,
+                degree,
+                ..Params::default()
+            };
             let imp = solve_implicit(&cloud, &params, &|_| {}).unwrap();
             let cell = 2.2 / 128.0;
             assert!((imp.iso - 0.5).abs() < 0.05, "iso {}", imp.iso);
@@ -469,8 +518,76 @@ mod tests {
                 let s = radial_crossing(&imp, c, 1.0, dir);
                 worst = worst.max((s - 1.0).abs());
             }
-            eprintln!("degree {degree}: iso {} worst radial error {worst} ({} cells)", imp.iso, worst / cell);
+            eprintln!(
+                "degree {degree}: iso {} worst radial error {worst} ({} cells)",
+                imp.iso,
+                worst / cell
+            );
             assert!(worst < 0.1 * cell, "degree {degree}: radial error {worst}");
         }
+    }
+}
+
+#[cfg(test)]
+mod probe {
+    use super::*;
+    #[test]
+    #[ignore]
+    fn probe_sphere_error() {
+        let c = [0.1, -0.2, 0.3];
+        let deg: u8 = std::env::var("DEG")
+            .map(|s| s.parse().unwrap())
+            .unwrap_or(1);
+        let n: usize = std::env::var("NPTS")
+            .map(|s| s.parse().unwrap())
+            .unwrap_or(100000);
+        let mut st = 12345u64;
+        let mut rnd = || {
+            st ^= st << 13;
+            st ^= st >> 7;
+            st ^= st << 17;
+            (st >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut pos = vec![];
+        let mut nor = vec![];
+        for _ in 0..n {
+            loop {
+                let v = [2.0 * rnd() - 1.0, 2.0 * rnd() - 1.0, 2.0 * rnd() - 1.0];
+                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                if l > 0.1 && l <= 1.0 {
+                    let u = [v[0] / l, v[1] / l, v[2] / l];
+                    pos.push([c[0] + u[0], c[1] + u[1], c[2] + u[2]]);
+                    nor.push(u);
+                    break;
+                }
+            }
+        }
+        let cloud = if std::env::var("SPIRAL").is_ok() {
+            super::tests::sphere_pub(n, c, 1.0)
+        } else {
+            PointCloud::new(pos, nor).unwrap()
+        };
+        let iters: u32 = std::env::var("ITERS")
+            .map(|s| s.parse().unwrap())
+            .unwrap_or(8);
+        let params = Params {
+            depth: 7,
+            degree: deg,
+            iters,
+            ..Params::default()
+        };
+        let imp = solve_implicit(&cloud, &params, &|_| {}).unwrap();
+        let mut errs = vec![];
+        for k in 0..400 {
+            let z = 1.0 - 2.0 * (k as f64 + 0.5) / 400.0;
+            let rho = (1.0 - z * z).sqrt();
+            let th = 2.39996 * k as f64;
+            let dir = [rho * th.cos(), rho * th.sin(), z];
+            errs.push(super::tests::radial_crossing_pub(&imp, c, 1.0, dir) - 1.0);
+        }
+        let mean = errs.iter().sum::<f64>() / errs.len() as f64;
+        let mabs = errs.iter().map(|e| e.abs()).sum::<f64>() / errs.len() as f64;
+        let mx = errs.iter().map(|e| e.abs()).fold(0.0, f64::max);
+        eprintln!("iso {} mean signed {mean:.3e} mean abs {mabs:.3e} max {mx:.3e} nodes {:?} samples {} meandepth {}", imp.iso, imp.stats.nodes_per_depth, imp.stats.samples, imp.stats.mean_sample_depth);
     }
 }

@@ -11,7 +11,9 @@ use rayon::prelude::*;
 
 use crate::bspline::Basis;
 use crate::octree::{neighbor_in, window_index, Level, Octree, DEPTH_OFFSET, NONE};
-use crate::system::{cluster_offsets, divergence_constraints, func_index, prolong, Clusters, DepthTables};
+use crate::system::{
+    cluster_offsets, divergence_constraints, func_index, prolong, Clusters, DepthTables,
+};
 
 /// The screening target τ at the samples (PR18 convention: χ ≈ 1 inside, 0 outside).
 pub const TAU: f64 = 0.5;
@@ -64,7 +66,9 @@ struct Op<'a> {
 
 impl<'a> Op<'a> {
     fn new(p: &'a Problem, t: u32) -> Self {
-        let tab = p.tables[t as usize].as_ref().expect("tables exist at solved levels");
+        let tab = p.tables[t as usize]
+            .as_ref()
+            .expect("tables exist at solved levels");
         let r = i64::from(p.fem.degree);
         let mut win = Vec::new();
         for z in -r..=r {
@@ -232,7 +236,11 @@ fn cluster_value(level: &Level, cl: &Clusters, c: usize, d: u32, degree: u8, x: 
         for y in 0..=k {
             for xx in 0..=k {
                 let j = [f[0] + xx, f[1] + y, f[2] + z];
-                let m = neighbor_in(level, node, window_index([j[0] - own[0], j[1] - own[1], j[2] - own[2]]));
+                let m = neighbor_in(
+                    level,
+                    node,
+                    window_index([j[0] - own[0], j[1] - own[1], j[2] - own[2]]),
+                );
                 if m == NONE {
                     continue;
                 }
@@ -242,7 +250,6 @@ fn cluster_value(level: &Level, cl: &Clusters, c: usize, d: u32, degree: u8, x: 
     }
     s
 }
-
 
 /// Deterministic dot product: fixed-size chunks summed in order.
 fn dot(a: &[f64], b: &[f64]) -> f64 {
@@ -272,15 +279,21 @@ fn conjugate_gradients(op: &Op, b: &[f64], valid: &[bool], max_iter: usize, tol:
             break;
         }
         let alpha = rr / pap;
-        x.par_iter_mut().zip(&p).for_each(|(xi, pi)| *xi += alpha * pi);
-        r.par_iter_mut().zip(&ap).for_each(|(ri, ai)| *ri -= alpha * ai);
+        x.par_iter_mut()
+            .zip(&p)
+            .for_each(|(xi, pi)| *xi += alpha * pi);
+        r.par_iter_mut()
+            .zip(&ap)
+            .for_each(|(ri, ai)| *ri -= alpha * ai);
         let rr_new = dot(&r, &r);
         if rr_new <= target {
             break;
         }
         let beta = rr_new / rr;
         rr = rr_new;
-        p.par_iter_mut().zip(&r).for_each(|(pi, ri)| *pi = ri + beta * *pi);
+        p.par_iter_mut()
+            .zip(&r)
+            .for_each(|(pi, ri)| *pi = ri + beta * *pi);
     }
     x
 }
@@ -320,7 +333,11 @@ pub fn solve(p: &Problem) -> Solution {
     let mut tcons: Vec<Vec<f64>> = vec![Vec::new(); nlev];
     for t in (tb..=max_level).rev() {
         let tab = p.tables[t].as_ref().expect("tables");
-        let finer = if t < max_level { Some(tcons[t + 1].as_slice()) } else { None };
+        let finer = if t < max_level {
+            Some(tcons[t + 1].as_slice())
+        } else {
+            None
+        };
         let b = divergence_constraints(tree, t as u32, tab, p.fem, &p.v[t], finer);
         tcons[t] = b;
     }
@@ -343,7 +360,13 @@ pub fn solve(p: &Problem) -> Solution {
         if p.singular {
             // Project out the constant null vector so the system is consistent.
             let cnt = valid.iter().filter(|&&v| v).count().max(1) as f64;
-            let mean = b.iter().zip(&valid).filter(|(_, &v)| v).map(|(x, _)| *x).sum::<f64>() / cnt;
+            let mean = b
+                .iter()
+                .zip(&valid)
+                .filter(|(_, &v)| v)
+                .map(|(x, _)| *x)
+                .sum::<f64>()
+                / cnt;
             for (bi, &v) in b.iter_mut().zip(&valid) {
                 if v {
                     *bi -= mean;
@@ -431,15 +454,31 @@ pub fn solve(p: &Problem) -> Solution {
         let mut x = vec![0.0; level.len()];
         op.gauss_seidel(&r, &mut x, &diag, p.iters);
         // Cumulative solution and V at this level.
-        let cum = prolong::<1>(tree, t as u32, &tab.prolong, tab.range, |q| [pc[q as usize]], |n| [x[n]]);
+        let cum = prolong::<1>(
+            tree,
+            t as u32,
+            &tab.prolong,
+            tab.range,
+            |q| [pc[q as usize]],
+            |n| [x[n]],
+        );
         sol.p[t] = cum.into_iter().map(|v| v[0]).collect();
         sol.x[t] = x;
         if t < max_level {
             let vt = &p.v[t];
             let prev = std::mem::take(&mut vc);
-            vc = prolong::<3>(tree, t as u32, &tab.vprolong, tab.vrange, |q| prev[q as usize], |n| {
-                vt.get(n).map_or([0.0; 3], |v| [f64::from(v[0]), f64::from(v[1]), f64::from(v[2])])
-            });
+            vc = prolong::<3>(
+                tree,
+                t as u32,
+                &tab.vprolong,
+                tab.vrange,
+                |q| prev[q as usize],
+                |n| {
+                    vt.get(n).map_or([0.0; 3], |v| {
+                        [f64::from(v[0]), f64::from(v[1]), f64::from(v[2])]
+                    })
+                },
+            );
         }
     }
     sol
@@ -447,7 +486,14 @@ pub fn solve(p: &Problem) -> Solution {
 
 /// `Σ_J coeff_J B_{d,J}(pos)` over the functions of level `t` around node `node` (which
 /// contains `pos`).
-pub fn coarse_value(tree: &Octree, fem: Basis, t: u32, node: u32, pos: [f64; 3], coeff: &[f64]) -> f64 {
+pub fn coarse_value(
+    tree: &Octree,
+    fem: Basis,
+    t: u32,
+    node: u32,
+    pos: [f64; 3],
+    coeff: &[f64],
+) -> f64 {
     let d = t - DEPTH_OFFSET;
     let level = &tree.levels[t as usize];
     let own = func_index(level.keys[node as usize], d);
@@ -459,12 +505,19 @@ pub fn coarse_value(tree: &Octree, fem: Basis, t: u32, node: u32, pos: [f64; 3],
     for z in 0..=k {
         for y in 0..=k {
             for x in 0..=k {
-                let o = [wx.first + x - own[0], wy.first + y - own[1], wz.first + z - own[2]];
+                let o = [
+                    wx.first + x - own[0],
+                    wy.first + y - own[1],
+                    wz.first + z - own[2],
+                ];
                 let m = neighbor_in(level, node, window_index(o));
                 if m == NONE {
                     continue;
                 }
-                s += wx.values[x as usize] * wy.values[y as usize] * wz.values[z as usize] * coeff[m as usize];
+                s += wx.values[x as usize]
+                    * wy.values[y as usize]
+                    * wz.values[z as usize]
+                    * coeff[m as usize];
             }
         }
     }

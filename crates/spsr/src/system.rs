@@ -14,7 +14,11 @@ use crate::octree::{neighbor_in, window_index, Octree, DEPTH_OFFSET, NONE};
 #[inline]
 pub fn func_index(key: [u32; 3], d: u32) -> [i64; 3] {
     let n = 1i64 << d;
-    [i64::from(key[0]) - n, i64::from(key[1]) - n, i64::from(key[2]) - n]
+    [
+        i64::from(key[0]) - n,
+        i64::from(key[1]) - n,
+        i64::from(key[2]) - n,
+    ]
 }
 
 /// Inclusive index ranges of a basis at one depth, and range checks.
@@ -121,7 +125,11 @@ impl DepthTables {
         let mid = (lo + hi) / 2;
         let mut stencil = [0.0; 125];
         for (w, s) in stencil.iter_mut().enumerate() {
-            let o = [(w % 5) as i64 - 2, ((w / 5) % 5) as i64 - 2, (w / 25) as i64 - 2];
+            let o = [
+                (w % 5) as i64 - 2,
+                ((w / 5) % 5) as i64 - 2,
+                (w / 25) as i64 - 2,
+            ];
             *s = stiffness_3d(&mass, &stiff, [mid; 3], o);
         }
         Self {
@@ -150,8 +158,16 @@ impl DepthTables {
 
 #[inline]
 fn stiffness_3d(mass: &Table1D, stiff: &Table1D, i: [i64; 3], o: [i64; 3]) -> f64 {
-    let m = [mass.get(i[0], o[0]), mass.get(i[1], o[1]), mass.get(i[2], o[2])];
-    let k = [stiff.get(i[0], o[0]), stiff.get(i[1], o[1]), stiff.get(i[2], o[2])];
+    let m = [
+        mass.get(i[0], o[0]),
+        mass.get(i[1], o[1]),
+        mass.get(i[2], o[2]),
+    ];
+    let k = [
+        stiff.get(i[0], o[0]),
+        stiff.get(i[1], o[1]),
+        stiff.get(i[2], o[2]),
+    ];
     k[0] * m[1] * m[2] + m[0] * k[1] * m[2] + m[0] * m[1] * k[2]
 }
 
@@ -301,7 +317,11 @@ pub fn divergence_constraints(
                     if vm == [0.0; 3] {
                         continue;
                     }
-                    let o = [(w % 5) as i64 - 2, ((w / 5) % 5) as i64 - 2, (w / 25) as i64 - 2];
+                    let o = [
+                        (w % 5) as i64 - 2,
+                        ((w / 5) % 5) as i64 - 2,
+                        (w / 25) as i64 - 2,
+                    ];
                     let mx = tab.vmass.get(i[0], o[0]);
                     let my = tab.vmass.get(i[1], o[1]);
                     let mz = tab.vmass.get(i[2], o[2]);
