@@ -1,2 +1,15 @@
-//! The `spsr` command line. (Being implemented.)
-fn main() {}
+//! The `spsr` binary: parse the command line, run it, report one error line and an exit code.
+use std::process::ExitCode;
+
+use clap::Parser;
+
+fn main() -> ExitCode {
+    let cli = spsr_cli::Cli::parse();
+    match spsr_cli::run(&cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(failure) => {
+            eprintln!("spsr: error: {}", failure.error);
+            ExitCode::from(failure.code)
+        }
+    }
+}

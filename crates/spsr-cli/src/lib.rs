@@ -1,0 +1,476 @@
+//! The `spsr` command line as a library: argument definitions ([`Cli`]), the commands ([`run`]),
+//! and the mapping of failures to exit codes ([`Failure`], [`exit`]). `main.rs` only parses,
+//! calls [`run`], and prints the one error line.
+
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::{Duration, Instant};
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+/// Exit codes of the `spsr` binary (also listed in `--help` and the README).
+pub mod exit {
+    /// The input data cannot be used: unreadable or malformed file, no normals, too few points.
+    pub const DATA: u8 = 1;
+    /// Bad usage: bad flags or parameter values, or an output path that cannot be used.
+    /// (clap exits with 2 on its own for command-line syntax errors.)
+    pub const USAGE: u8 = 2;
+    /// A resource limit: the operating system would not start the worker threads.
+    pub const RESOURCE: u8 = 3;
+}
+
+const EXIT_CODES: &str = "\
+Exit codes:
+  0  success
+  1  bad input data (unreadable or malformed file, no normals, too few or degenerate points)
+  2  bad usage (unknown flag, invalid parameter value, unusable output path)
+  3  resource limit (worker threads could not be started)";
+
+const RECONSTRUCT_LONG_ABOUT: &str = "\
+Reconstruct a watertight triangle mesh from an oriented point cloud (Screened Poisson Surface \
+Reconstruction, Kazhdan & Hoppe 2013).
+
+Input: a PLY file in any encoding (ASCII, binary little- or big-endian) whose vertex element has \
+x, y, z and nx, ny, nz properties, or a text file with one point per line: x y z nx ny nz. Normals \
+must point outward. Points with non-finite coordinates or zero-length normals are dropped with a \
+warning.
+
+Output: binary little-endian PLY by default, ASCII PLY with --ascii, Wavefront OBJ when the output \
+name ends in .obj. The output file appears only once it is complete; on any error no output file \
+is left behind. The output must not be the input file.";
+
+/// Command-line arguments of `spsr`.
+#[derive(Debug, Parser)]
+#[command(
+    name = "spsr",
+    version,
+    about = "Screened Poisson surface reconstruction: oriented point cloud to watertight mesh",
+    after_help = EXIT_CODES,
+    propagate_version = true
+)]
+pub struct Cli {
+    /// The command to run.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The commands of `spsr`.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Reconstruct a mesh from an oriented point cloud.
+    #[command(long_about = RECONSTRUCT_LONG_ABOUT, after_help = EXIT_CODES)]
+    Reconstruct(ReconstructArgs),
+}
+
+/// Boundary condition on the bounding cube, as spelled on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum BoundaryArg {
+    /// Zero normal derivative on the cube's faces.
+    Neumann,
+    /// Zero value on the cube's faces.
+    Dirichlet,
+    /// No condition; the basis is cut off at the cube.
+    Free,
+}
+
+impl From<BoundaryArg> for spsr::Boundary {
+    fn from(b: BoundaryArg) -> Self {
+        match b {
+            BoundaryArg::Neumann => spsr::Boundary::Neumann,
+            BoundaryArg::Dirichlet => spsr::Boundary::Dirichlet,
+            BoundaryArg::Free => spsr::Boundary::Free,
+        }
+    }
+}
+
+/// Arguments of `spsr reconstruct`. Defaults mirror [`spsr::Params::default`].
+#[derive(Debug, Args)]
+pub struct ReconstructArgs {
+    /// Oriented point cloud: PLY (any encoding) or text with `x y z nx ny nz` per line.
+    #[arg(value_name = "INPUT")]
+    pub input: PathBuf,
+
+    /// Output mesh: PLY, or OBJ when the name ends in .obj.
+    #[arg(short, long, value_name = "OUTPUT")]
+    pub output: PathBuf,
+
+    /// Maximum octree depth; the finest cells are 1/2^depth of the bounding cube. Default as
+    /// PoissonRecon 6 and 18.
+    #[arg(
+        long,
+        value_name = "D",
+        default_value_t = 8,
+        allow_negative_numbers = true
+    )]
+    pub depth: u32,
+
+    /// Depth down to which the octree is complete; the coarse solve happens there. Default as
+    /// PoissonRecon 6 and 18 [default: 5, or --depth when that is smaller]
+    #[arg(long, value_name = "D")]
+    pub full_depth: Option<u32>,
+
+    /// Target number of samples per octree node (sets each sample's splat depth). Default as
+    /// PoissonRecon 18 (version 6 used 1.0).
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 1.5,
+        allow_negative_numbers = true
+    )]
+    pub samples_per_node: f64,
+
+    /// Screening weight alpha; 0 gives the unscreened 2006 method. Default as PoissonRecon 18
+    /// (4 for degree 2, the 2013 paper's value) [default: 2 × degree]
+    #[arg(long, value_name = "ALPHA", allow_negative_numbers = true)]
+    pub point_weight: Option<f64>,
+
+    /// B-spline degree of the finite elements, 1 or 2. Default as PoissonRecon 18 (the 2013 paper
+    /// and PoissonRecon 6 use 2).
+    #[arg(long, value_name = "K", default_value_t = 1)]
+    pub degree: u8,
+
+    /// Boundary condition on the bounding cube. Default as PoissonRecon 6 and 18.
+    #[arg(long, value_enum, default_value_t = BoundaryArg::Neumann)]
+    pub boundary: BoundaryArg,
+
+    /// The bounding cube's side is the points' bounding box's largest side times this factor.
+    /// Default as PoissonRecon 6 and 18.
+    #[arg(
+        long,
+        value_name = "S",
+        default_value_t = 1.1,
+        allow_negative_numbers = true
+    )]
+    pub scale: f64,
+
+    /// Gauss-Seidel sweeps per depth. Default as PoissonRecon 6 and 18 and the 2013 paper.
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 8,
+        allow_negative_numbers = true
+    )]
+    pub iters: u32,
+
+    /// Use each normal's length as the point's confidence weight. Off by default, as PoissonRecon
+    /// 18 [default: off]
+    #[arg(long)]
+    pub confidence: bool,
+
+    /// Compute per-vertex density (estimated sampling depth) and write it as the PLY vertex
+    /// property `density`. Off by default, as PoissonRecon 18 [default: off]
+    #[arg(long)]
+    pub density: bool,
+
+    /// Number of worker threads, at least 1. Default: rayon's, which honours RAYON_NUM_THREADS
+    /// [default: all cores]
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
+    pub threads: Option<usize>,
+
+    /// Write ASCII PLY instead of binary little-endian PLY (no effect on .obj) [default: off]
+    #[arg(long)]
+    pub ascii: bool,
+
+    /// Print per-stage timings, point and octree counts, the iso-value and the mesh size to
+    /// stderr [default: off]
+    #[arg(short, long)]
+    pub verbose: bool,
+}
+
+fn parse_threads(s: &str) -> Result<usize, String> {
+    let n: usize = s.parse().map_err(|e| format!("{e}"))?;
+    if n == 0 {
+        return Err("must be at least 1".into());
+    }
+    Ok(n)
+}
+
+impl ReconstructArgs {
+    /// The library parameters these arguments describe (not yet validated).
+    pub fn params(&self) -> spsr::Params {
+        // An explicit --full-depth deeper than --depth is an error; the default follows --depth.
+        let full_depth = self
+            .full_depth
+            .unwrap_or_else(|| spsr::Params::default().full_depth.min(self.depth));
+        spsr::Params {
+            depth: self.depth,
+            full_depth,
+            samples_per_node: self.samples_per_node,
+            point_weight: self.point_weight,
+            degree: self.degree,
+            boundary: self.boundary.into(),
+            scale: self.scale,
+            iters: self.iters,
+            confidence: self.confidence,
+            density: self.density,
+        }
+    }
+}
+
+/// A failed command: the error to print and the process exit code.
+#[derive(Debug)]
+pub struct Failure {
+    /// Exit code, one of [`exit`].
+    pub code: u8,
+    /// The error; its `Display` (without the alternate flag) is the complete one-line message.
+    pub error: anyhow::Error,
+}
+
+impl Failure {
+    /// Classifies a library error. `input` is the file whose content is at fault for errors
+    /// that do not name one themselves (too few points, degenerate input, ...).
+    fn from_spsr(e: spsr::Error, input: &Path) -> Self {
+        use spsr::Error as E;
+        let code = match &e {
+            E::Io { path, .. } if path == input => exit::DATA,
+            E::Io { .. } | E::InvalidParameter { .. } | E::Output { .. } => exit::USAGE,
+            E::Parse { .. }
+            | E::MissingNormals { .. }
+            | E::TooFewPoints { .. }
+            | E::Degenerate(_)
+            | E::LengthMismatch { .. } => exit::DATA,
+            _ => exit::DATA,
+        };
+        let names_file = matches!(
+            e,
+            E::Io { .. } | E::Parse { .. } | E::MissingNormals { .. } | E::Output { .. }
+        );
+        let error = if names_file || matches!(e, E::InvalidParameter { .. }) {
+            anyhow::Error::new(e)
+        } else {
+            // The context carries the whole message, so printing it with `{}` gives one line
+            // that names the file; the library error stays reachable for downcasting.
+            let message = format!("{}: {e}", input.display());
+            anyhow::Error::new(e).context(message)
+        };
+        Failure { code, error }
+    }
+}
+
+/// Runs a parsed command line.
+pub fn run(cli: &Cli) -> Result<(), Failure> {
+    match &cli.command {
+        Command::Reconstruct(args) => reconstruct(args),
+    }
+}
+
+/// Shows the current stage on one rewritten line of stderr (only on a terminal).
+struct Progress {
+    enabled: bool,
+    step: AtomicUsize,
+}
+
+impl Progress {
+    fn new(enabled: bool) -> Self {
+        Progress {
+            enabled,
+            step: AtomicUsize::new(0),
+        }
+    }
+
+    fn stage(&self, name: &str) {
+        if !self.enabled {
+            return;
+        }
+        let n = self.step.fetch_add(1, Ordering::Relaxed) + 1;
+        let mut err = std::io::stderr().lock();
+        // \x1b[K erases the rest of the previous, possibly longer, line.
+        let _ = write!(err, "\r[{n}] {name} ...\x1b[K");
+        let _ = err.flush();
+    }
+}
+
+impl Drop for Progress {
+    fn drop(&mut self) {
+        if self.enabled && self.step.load(Ordering::Relaxed) > 0 {
+            let mut err = std::io::stderr().lock();
+            let _ = write!(err, "\r\x1b[K");
+            let _ = err.flush();
+        }
+    }
+}
+
+fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
+    let start = Instant::now();
+    let input = args.input.as_path();
+    let output = args.output.as_path();
+    let fail = |e: spsr::Error| Failure::from_spsr(e, input);
+
+    // Cheap checks first, so mistakes surface before any reading or computing.
+    let params = args.params();
+    params.validate().map_err(fail)?;
+    if let Some(n) = args.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build_global()
+            .map_err(|e| Failure {
+                code: exit::RESOURCE,
+                error: anyhow::anyhow!("cannot start {n} worker threads: {e}"),
+            })?;
+    }
+    spsr::io::check_output_path(output, input).map_err(fail)?;
+
+    let progress = Progress::new(std::io::stderr().is_terminal() && !args.verbose);
+    progress.stage("reading");
+    let t = Instant::now();
+    let cloud = spsr::io::read_points(input).map_err(fail)?;
+    let reading = t.elapsed();
+
+    let result =
+        spsr::reconstruct_with_progress(&cloud, &params, &|s| progress.stage(s)).map_err(fail)?;
+
+    progress.stage("writing");
+    let t = Instant::now();
+    let opts = spsr::io::WriteOptions { ascii: args.ascii };
+    spsr::io::write_mesh(output, &result.mesh, &opts).map_err(fail)?;
+    let writing = t.elapsed();
+    drop(progress);
+
+    let stats = &result.stats;
+    if stats.dropped > 0 {
+        eprintln!(
+            "spsr: warning: {}: {} of {} points dropped (non-finite coordinates or zero-length normals)",
+            input.display(),
+            stats.dropped,
+            stats.points
+        );
+    }
+    let mesh = &result.mesh;
+    if args.verbose {
+        print_details(args, &result, reading, writing, start.elapsed());
+    }
+    println!(
+        "spsr: wrote {}: {} vertices, {} faces in {:.2} s",
+        output.display(),
+        mesh.vertices.len(),
+        mesh.triangles.len(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+fn print_details(
+    args: &ReconstructArgs,
+    result: &spsr::Reconstruction,
+    reading: Duration,
+    writing: Duration,
+    total: Duration,
+) {
+    let stats = &result.stats;
+    let mut err = std::io::stderr().lock();
+    let _ = writeln!(err, "input       {}", args.input.display());
+    let _ = writeln!(
+        err,
+        "points      {} read, {} dropped",
+        stats.points, stats.dropped
+    );
+    let _ = writeln!(err, "samples     {}", stats.samples);
+    let nodes: usize = stats.nodes_per_depth.iter().sum();
+    let _ = writeln!(err, "octree      {nodes} nodes; per depth:");
+    for (depth, n) in stats.nodes_per_depth.iter().enumerate() {
+        let _ = writeln!(err, "  {depth:>2}  {n:>12}");
+    }
+    let _ = writeln!(err, "iso-value   {}", stats.iso_value);
+    let _ = writeln!(
+        err,
+        "mesh        {} vertices, {} faces",
+        result.mesh.vertices.len(),
+        result.mesh.triangles.len()
+    );
+    let _ = writeln!(err, "output      {}", args.output.display());
+    let _ = writeln!(err, "timings:");
+    let stages = std::iter::once(("reading", reading))
+        .chain(stats.stages.iter().copied())
+        .chain(std::iter::once(("writing", writing)));
+    for (name, d) in stages {
+        let _ = writeln!(err, "  {name:<24} {:>9.3} s", d.as_secs_f64());
+    }
+    let _ = writeln!(err, "  {:<24} {:>9.3} s", "total", total.as_secs_f64());
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(extra: &[&str]) -> ReconstructArgs {
+        let mut argv = vec!["spsr", "reconstruct", "in.ply", "-o", "out.ply"];
+        argv.extend_from_slice(extra);
+        match Cli::try_parse_from(argv).unwrap().command {
+            Command::Reconstruct(a) => a,
+        }
+    }
+
+    #[test]
+    fn defaults_match_the_library() {
+        assert_eq!(args(&[]).params(), spsr::Params::default());
+    }
+
+    #[test]
+    fn default_full_depth_follows_a_smaller_depth() {
+        assert_eq!(args(&["--depth", "3"]).params().full_depth, 3);
+        assert_eq!(
+            args(&["--depth", "3", "--full-depth", "4"])
+                .params()
+                .full_depth,
+            4
+        );
+        assert!(args(&["--depth", "3", "--full-depth", "4"])
+            .params()
+            .validate()
+            .is_err());
+    }
+
+    #[test]
+    fn flags_reach_the_params() {
+        let p = args(&[
+            "--point-weight",
+            "0",
+            "--degree",
+            "2",
+            "--boundary",
+            "dirichlet",
+            "--confidence",
+            "--density",
+        ])
+        .params();
+        assert_eq!(p.point_weight, Some(0.0));
+        assert_eq!(p.degree, 2);
+        assert_eq!(p.boundary, spsr::Boundary::Dirichlet);
+        assert!(p.confidence && p.density);
+    }
+
+    #[test]
+    fn errors_map_to_exit_codes_and_name_the_file() {
+        let input = Path::new("cloud.ply");
+        let io = |path: &str| spsr::Error::Io {
+            path: path.into(),
+            source: std::io::Error::from(std::io::ErrorKind::NotFound),
+        };
+        let f = Failure::from_spsr(io("cloud.ply"), input);
+        assert_eq!(f.code, exit::DATA);
+        assert!(f.error.to_string().starts_with("cloud.ply: "));
+
+        let f = Failure::from_spsr(io("out/mesh.ply"), input);
+        assert_eq!(f.code, exit::USAGE);
+
+        let few = spsr::Error::TooFewPoints {
+            usable: 2,
+            dropped: 0,
+            required: 4,
+        };
+        let f = Failure::from_spsr(few, input);
+        assert_eq!(f.code, exit::DATA);
+        let msg = f.error.to_string();
+        assert!(msg.starts_with("cloud.ply: too few usable points"), "{msg}");
+        assert!(f.error.downcast_ref::<spsr::Error>().is_some());
+
+        let bad = spsr::Error::InvalidParameter {
+            name: "--depth",
+            message: "40".into(),
+        };
+        let f = Failure::from_spsr(bad, input);
+        assert_eq!(f.code, exit::USAGE);
+        assert!(!f.error.to_string().contains("cloud.ply"));
+    }
+}

@@ -1,0 +1,466 @@
+//! End-to-end tests of the `spsr` binary: every bad input fails with one error line, the
+//! documented exit code and no output file; good inputs give meshes in the requested format.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use tempfile::TempDir;
+
+const DATA: i32 = 1;
+const USAGE: i32 = 2;
+
+fn spsr(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_spsr"))
+        .args(args)
+        .output()
+        .expect("the spsr binary runs")
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("temporary paths are UTF-8")
+}
+
+/// Points on a sphere of radius 0.8 centred at (1, 2, 3), with exact outward normals
+/// (Fibonacci lattice, so the sampling is even).
+fn sphere(n: usize) -> Vec<([f64; 3], [f64; 3])> {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    (0..n)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let r = (1.0 - z * z).sqrt();
+            let phi = golden * i as f64;
+            let nrm = [r * phi.cos(), r * phi.sin(), z];
+            let pos = [1.0 + 0.8 * nrm[0], 2.0 + 0.8 * nrm[1], 3.0 + 0.8 * nrm[2]];
+            (pos, nrm)
+        })
+        .collect()
+}
+
+fn write_ascii_ply(path: &Path, points: &[([f64; 3], [f64; 3])]) {
+    let mut text = format!(
+        "ply\nformat ascii 1.0\nelement vertex {}\n\
+         property float x\nproperty float y\nproperty float z\n\
+         property float nx\nproperty float ny\nproperty float nz\nend_header\n",
+        points.len()
+    );
+    for (p, n) in points {
+        text += &format!("{} {} {} {} {} {}\n", p[0], p[1], p[2], n[0], n[1], n[2]);
+    }
+    fs::write(path, text).unwrap();
+}
+
+/// A temporary folder holding a valid sphere cloud `in.ply`.
+fn sphere_dir() -> (TempDir, PathBuf) {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("in.ply");
+    write_ascii_ply(&input, &sphere(3000));
+    (dir, input)
+}
+
+/// Names of the entries of `dir`, sorted.
+fn entries(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+/// Asserts a clean failure: the exit code, one `spsr: error:` line naming the problem, no
+/// panic, and no output file.
+fn assert_fails(out: &Output, code: i32, fragments: &[&str], output: &Path) {
+    let err = stderr(out);
+    assert_eq!(out.status.code(), Some(code), "exit code; stderr:\n{err}");
+    assert!(!err.contains("panicked"), "panic:\n{err}");
+    for f in fragments {
+        assert!(err.contains(f), "stderr lacks {f:?}:\n{err}");
+    }
+    assert!(!output.exists(), "{} was left behind", output.display());
+}
+
+/// As [`assert_fails`], for errors reported by spsr itself (not clap): exactly one line.
+fn assert_fails_one_line(out: &Output, code: i32, fragments: &[&str], output: &Path) {
+    assert_fails(out, code, fragments, output);
+    let err = stderr(out);
+    assert!(err.starts_with("spsr: error: "), "stderr:\n{err}");
+    assert_eq!(err.lines().count(), 1, "more than one line:\n{err}");
+}
+
+/// Runs `spsr reconstruct <input> -o <dir>/out.ply <extra>` on a file with the given content.
+fn run_on(content: &[u8], name: &str, extra: &[&str]) -> (TempDir, PathBuf, PathBuf, Output) {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join(name);
+    fs::write(&input, content).unwrap();
+    let output = dir.path().join("out.ply");
+    let mut args = vec!["reconstruct", s(&input), "-o", s(&output)];
+    args.extend_from_slice(extra);
+    let out = spsr(&args);
+    (dir, input, output, out)
+}
+
+// ---- bad input data: exit code 1 ----
+
+#[test]
+fn missing_input_file() {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("no-such-cloud.ply");
+    let output = dir.path().join("out.ply");
+    let out = spsr(&["reconstruct", s(&input), "-o", s(&output)]);
+    assert_fails_one_line(&out, DATA, &["no-such-cloud.ply"], &output);
+}
+
+#[test]
+fn input_is_a_directory() {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("cloud-dir.ply");
+    fs::create_dir(&input).unwrap();
+    let output = dir.path().join("out.ply");
+    let out = spsr(&["reconstruct", s(&input), "-o", s(&output)]);
+    assert_fails_one_line(&out, DATA, &["cloud-dir.ply"], &output);
+}
+
+#[test]
+fn malformed_ply_header() {
+    let header = b"ply\nformat ascii 1.0\nelement vertex many\nproperty float x\nend_header\n";
+    let (_dir, _input, output, out) = run_on(header, "bad-header.ply", &[]);
+    assert_fails_one_line(&out, DATA, &["bad-header.ply"], &output);
+}
+
+#[test]
+fn truncated_binary_ply() {
+    let mut bytes = b"ply\nformat binary_little_endian 1.0\nelement vertex 100\n\
+        property float x\nproperty float y\nproperty float z\n\
+        property float nx\nproperty float ny\nproperty float nz\nend_header\n"
+        .to_vec();
+    // 100 vertices need 2400 bytes; give one and a half.
+    for v in [0.5f32, 0.25, 0.125, 0.0, 0.0, 1.0, 0.5, 0.5, 0.5] {
+        bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    let (_dir, _input, output, out) = run_on(&bytes, "truncated.ply", &[]);
+    assert_fails_one_line(&out, DATA, &["truncated.ply"], &output);
+}
+
+#[test]
+fn ply_without_normals() {
+    let mut text = String::from(
+        "ply\nformat ascii 1.0\nelement vertex 8\n\
+         property float x\nproperty float y\nproperty float z\nend_header\n",
+    );
+    for i in 0..8 {
+        text += &format!("{} {} {}\n", i & 1, (i >> 1) & 1, (i >> 2) & 1);
+    }
+    let (_dir, _input, output, out) = run_on(text.as_bytes(), "no-normals.ply", &[]);
+    assert_fails_one_line(&out, DATA, &["no-normals.ply", "normals"], &output);
+}
+
+#[test]
+fn two_points_are_too_few() {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("two.ply");
+    write_ascii_ply(&input, &sphere(2));
+    let output = dir.path().join("out.ply");
+    let out = spsr(&["reconstruct", s(&input), "-o", s(&output)]);
+    assert_fails_one_line(&out, DATA, &["two.ply", "too few"], &output);
+}
+
+#[test]
+fn zero_normals_leave_too_few_points() {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("zero-normals.ply");
+    let points: Vec<_> = sphere(10).into_iter().map(|(p, _)| (p, [0.0; 3])).collect();
+    write_ascii_ply(&input, &points);
+    let output = dir.path().join("out.ply");
+    let out = spsr(&["reconstruct", s(&input), "-o", s(&output)]);
+    assert_fails_one_line(&out, DATA, &["zero-normals.ply", "too few"], &output);
+}
+
+#[test]
+fn all_points_identical() {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("same.ply");
+    let points: Vec<_> = sphere(50)
+        .into_iter()
+        .map(|(_, n)| ([1.0, 2.0, 3.0], n))
+        .collect();
+    write_ascii_ply(&input, &points);
+    let output = dir.path().join("out.ply");
+    let out = spsr(&["reconstruct", s(&input), "-o", s(&output)]);
+    assert_fails_one_line(&out, DATA, &["same.ply", "degenerate"], &output);
+}
+
+// ---- bad usage: exit code 2, before any reading (the input does not even exist) ----
+
+fn bad_parameter(extra: &[&str], fragment: &str) {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("never-read.ply");
+    let output = dir.path().join("out.ply");
+    let mut args = vec!["reconstruct", s(&input), "-o", s(&output)];
+    args.extend_from_slice(extra);
+    let out = spsr(&args);
+    assert_fails_one_line(&out, USAGE, &[fragment], &output);
+    assert!(!stderr(&out).contains("never-read.ply"), "{}", stderr(&out));
+}
+
+#[test]
+fn depth_beyond_max_depth() {
+    bad_parameter(&["--depth", "40"], "--depth");
+}
+
+#[test]
+fn negative_point_weight() {
+    bad_parameter(&["--point-weight", "-1"], "--point-weight");
+}
+
+#[test]
+fn zero_iters() {
+    bad_parameter(&["--iters", "0"], "--iters");
+}
+
+#[test]
+fn zero_samples_per_node() {
+    bad_parameter(&["--samples-per-node", "0"], "--samples-per-node");
+}
+
+#[test]
+fn explicit_full_depth_deeper_than_depth() {
+    bad_parameter(&["--depth", "4", "--full-depth", "6"], "--full-depth");
+}
+
+#[test]
+fn zero_threads() {
+    let dir = TempDir::new().unwrap();
+    let output = dir.path().join("out.ply");
+    let out = spsr(&["reconstruct", "in.ply", "-o", s(&output), "--threads", "0"]);
+    assert_fails(&out, USAGE, &["--threads", "at least 1"], &output);
+}
+
+#[test]
+fn output_in_missing_directory() {
+    let (_dir, input) = sphere_dir();
+    let output = Path::new("/nonexistent-dir/out.ply");
+    let out = spsr(&["reconstruct", s(&input), "-o", s(output)]);
+    assert_fails_one_line(&out, USAGE, &["/nonexistent-dir/out.ply"], output);
+}
+
+#[test]
+fn output_path_is_checked_before_reading() {
+    // A malformed input would exit with 1 if it were read first.
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("bad.xyz");
+    fs::write(&input, "not a point cloud\n").unwrap();
+    let output = Path::new("/nonexistent-dir/out.ply");
+    let out = spsr(&["reconstruct", s(&input), "-o", s(output)]);
+    assert_fails_one_line(&out, USAGE, &["/nonexistent-dir/out.ply"], output);
+}
+
+#[test]
+fn output_equal_to_input() {
+    let (dir, input) = sphere_dir();
+    let before = fs::read(&input).unwrap();
+    let out = spsr(&["reconstruct", s(&input), "-o", s(&input)]);
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(USAGE), "stderr:\n{err}");
+    assert!(
+        err.starts_with("spsr: error: ") && err.lines().count() == 1,
+        "{err}"
+    );
+    assert!(err.contains("in.ply") && !err.contains("panicked"), "{err}");
+    assert_eq!(fs::read(&input).unwrap(), before, "the input was changed");
+    assert_eq!(entries(dir.path()), ["in.ply"]);
+}
+
+// ---- help and version ----
+
+#[test]
+fn help_lists_every_flag_with_its_default() {
+    let out = spsr(&["reconstruct", "--help"]);
+    assert!(out.status.success());
+    let help = String::from_utf8(out.stdout).unwrap();
+    for (flag, default) in [
+        ("--output", ""),
+        ("--depth", "[default: 8]"),
+        ("--full-depth", "[default: 5"),
+        ("--samples-per-node", "[default: 1.5]"),
+        ("--point-weight", "[default: 2 × degree]"),
+        ("--degree", "[default: 1]"),
+        ("--boundary", "[default: neumann]"),
+        ("--scale", "[default: 1.1]"),
+        ("--iters", "[default: 8]"),
+        ("--confidence", "[default: off]"),
+        ("--density", "[default: off]"),
+        ("--threads", "[default: all cores]"),
+        ("--ascii", "[default: off]"),
+        ("--verbose", "[default: off]"),
+    ] {
+        // The flag's entry: from its line in the option list to the next option's line.
+        let lines: Vec<&str> = help.lines().collect();
+        let is_option = |l: &str| {
+            let t = l.trim_start();
+            t.starts_with('-') && l.len() - t.len() <= 6
+        };
+        let start = lines
+            .iter()
+            .position(|l| is_option(l) && l.split([' ', ',']).any(|w| w == flag))
+            .unwrap_or_else(|| panic!("{flag} missing:\n{help}"));
+        let end = (start + 1..lines.len())
+            .find(|&i| is_option(lines[i]))
+            .unwrap_or(lines.len());
+        let entry = lines[start..end].join("\n");
+        assert!(
+            entry.contains(default),
+            "{flag}: no {default:?} in\n{entry}"
+        );
+    }
+    for needle in [
+        "PoissonRecon 18",
+        "2013 paper",
+        "Exit codes",
+        ".obj",
+        "nx ny nz",
+    ] {
+        assert!(help.contains(needle), "help lacks {needle:?}");
+    }
+}
+
+#[test]
+fn version() {
+    let out = spsr(&["--version"]);
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        text.starts_with("spsr ") && text.contains(env!("CARGO_PKG_VERSION")),
+        "{text}"
+    );
+}
+
+// ---- reconstructions (need the library) ----
+
+/// The header of a PLY file, up to and including `end_header`.
+fn ply_header(path: &Path) -> String {
+    let bytes = fs::read(path).unwrap();
+    let end = bytes
+        .windows(10)
+        .position(|w| w == b"end_header")
+        .unwrap_or_else(|| panic!("{} has no end_header", path.display()));
+    String::from_utf8(bytes[..end + 10].to_vec()).unwrap()
+}
+
+fn element_count(header: &str, element: &str) -> usize {
+    let prefix = format!("element {element} ");
+    header
+        .lines()
+        .find_map(|l| l.strip_prefix(&prefix))
+        .unwrap_or_else(|| panic!("no {prefix:?} in\n{header}"))
+        .trim()
+        .parse()
+        .unwrap()
+}
+
+fn reconstruct_sphere(out_name: &str, extra: &[&str]) -> (TempDir, PathBuf, Output) {
+    let (dir, input) = sphere_dir();
+    let output = dir.path().join(out_name);
+    let mut args = vec!["reconstruct", s(&input), "-o", s(&output), "--depth", "5"];
+    args.extend_from_slice(extra);
+    let out = spsr(&args);
+    assert!(out.status.success(), "spsr failed:\n{}", stderr(&out));
+    let err = stderr(&out);
+    assert!(!err.contains("warning"), "{err}");
+    // stderr is a pipe here, not a terminal: no progress line.
+    assert!(!err.contains('\r'), "{err:?}");
+    (dir, output, out)
+}
+
+#[test]
+fn sphere_gives_binary_ply_with_faces() {
+    let (dir, output, _) = reconstruct_sphere("out.ply", &[]);
+    let header = ply_header(&output);
+    assert!(
+        header.contains("format binary_little_endian 1.0"),
+        "{header}"
+    );
+    assert!(element_count(&header, "vertex") > 0);
+    assert!(element_count(&header, "face") > 0);
+    assert!(!header.contains("density"), "{header}");
+    assert_eq!(entries(dir.path()), ["in.ply", "out.ply"], "stray files");
+}
+
+#[test]
+fn ascii_flag_writes_ascii_ply() {
+    let (_dir, output, _) = reconstruct_sphere("out.ply", &["--ascii"]);
+    let header = ply_header(&output);
+    assert!(header.contains("format ascii 1.0"), "{header}");
+    assert!(element_count(&header, "face") > 0);
+}
+
+#[test]
+fn obj_extension_writes_obj() {
+    let (_dir, output, _) = reconstruct_sphere("out.obj", &[]);
+    let text = fs::read_to_string(&output).unwrap();
+    assert!(text.lines().any(|l| l.starts_with("v ")), "no vertices");
+    assert!(text.lines().any(|l| l.starts_with("f ")), "no faces");
+    assert!(!text.starts_with("ply"));
+}
+
+#[test]
+fn density_flag_adds_density_property() {
+    let (_dir, output, _) = reconstruct_sphere("out.ply", &["--density"]);
+    let header = ply_header(&output);
+    assert!(header.contains("property float density"), "{header}");
+}
+
+#[test]
+fn verbose_prints_statistics() {
+    let (_dir, output, out) = reconstruct_sphere("out.ply", &["-v", "--threads", "2"]);
+    let err = stderr(&out);
+    for needle in [
+        "iso-value",
+        "samples",
+        "octree",
+        "vertices",
+        "faces",
+        "total",
+    ] {
+        assert!(err.contains(needle), "no {needle:?} in\n{err}");
+    }
+    assert!(err.contains(s(&output)), "{err}");
+}
+
+#[test]
+fn text_input_is_read() {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("in.xyz");
+    let text: String = sphere(3000)
+        .iter()
+        .map(|(p, n)| format!("{} {} {} {} {} {}\n", p[0], p[1], p[2], n[0], n[1], n[2]))
+        .collect();
+    fs::write(&input, text).unwrap();
+    let output = dir.path().join("out.ply");
+    let out = spsr(&["reconstruct", s(&input), "-o", s(&output), "--depth", "5"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(element_count(&ply_header(&output), "face") > 0);
+}
+
+#[test]
+fn dropped_points_are_reported() {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("some-zero.ply");
+    let mut points = sphere(3000);
+    for p in points.iter_mut().take(7) {
+        p.1 = [0.0; 3];
+    }
+    write_ascii_ply(&input, &points);
+    let output = dir.path().join("out.ply");
+    let out = spsr(&["reconstruct", s(&input), "-o", s(&output), "--depth", "5"]);
+    let err = stderr(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("warning: ") && err.contains("some-zero.ply: 7 of 3000 points dropped"),
+        "{err}"
+    );
+}
