@@ -198,11 +198,6 @@ impl Density {
         }
     }
 
-    /// The kernel depth K.
-    pub fn kernel_depth(&self) -> u32 {
-        self.kernel_depth
-    }
-
     /// Samples per node around `p`, evaluated with the 3×3×3 cells around `p`'s cell at `d`.
     fn spn(&self, d: u32, p: [f64; 3]) -> f64 {
         let c = cell_of(p, d);

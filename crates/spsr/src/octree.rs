@@ -45,11 +45,6 @@ impl Level {
     pub fn len(&self) -> usize {
         self.keys.len()
     }
-
-    /// True when the level has no node.
-    pub fn is_empty(&self) -> bool {
-        self.keys.is_empty()
-    }
 }
 
 /// The octree: one [`Level`] per tree depth.
@@ -132,6 +127,7 @@ fn unpack(p: u64) -> [u32; 3] {
 }
 
 /// Interleaves the bits of a key (x lowest) into a Morton code.
+#[cfg(test)]
 fn morton(k: [u32; 3]) -> u64 {
     fn spread(v: u32) -> u64 {
         let mut x = u64::from(v) & 0x1f_ffff;
@@ -158,18 +154,6 @@ impl TreeRequest {
         Self {
             refined: (0..=max_t).map(|_| FxHashSet::default()).collect(),
         }
-    }
-
-    /// Requires the node at tree depth `t` with tree key `k` (inside the ring) to exist.
-    pub fn require(&mut self, t: u32, k: [i64; 3]) {
-        if t == 0 {
-            return;
-        }
-        let (lo, hi) = ring(t);
-        if k.iter().any(|&c| c < lo || c > hi) {
-            return;
-        }
-        self.refined[t as usize - 1].insert(pack([k[0] >> 1, k[1] >> 1, k[2] >> 1]));
     }
 
     /// Requires the `(2r+1)^3` window of nodes around `k` at tree depth `t` (clipped to the ring).
@@ -392,11 +376,6 @@ pub fn neighbor_in(level: &Level, n: u32, w: usize) -> u32 {
 
 fn prev_neighbor(level: &Level, n: u32, d: [i64; 3]) -> u32 {
     neighbor_in(level, n, window_index(d))
-}
-
-/// Sorts keys in Morton order (used by tests and callers that gather keys).
-pub fn sort_morton(keys: &mut [[u32; 3]]) {
-    keys.sort_unstable_by_key(|&k| morton(k));
 }
 
 #[cfg(test)]

@@ -418,7 +418,6 @@ pub(crate) fn solve_implicit(
     let iso =
         values.iter().zip(&weights).map(|(v, w)| v * w).sum::<f64>() / weights.iter().sum::<f64>();
     timer.stop("iso-value");
-    drop(eval);
     let nodes_per_depth = tree.levels[DEPTH_OFFSET as usize..]
         .iter()
         .map(|l| l.len())
