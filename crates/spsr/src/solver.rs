@@ -188,39 +188,114 @@ impl<'a> Op<'a> {
             .collect()
     }
 
-    /// Sequential Gauss–Seidel sweeps in node (Morton) order.
+    /// Multi-colour Gauss–Seidel sweeps (ALGORITHM.md §7.1). Nodes are coloured by their
+    /// function index modulo `degree + 1` per axis: two nodes of one colour then share no
+    /// stiffness entry and no screening cluster, so a colour is relaxed in parallel without
+    /// races, and the result does not depend on the thread count.
     fn gauss_seidel(&self, r: &[f64], x: &mut [f64], diag: &[f64], iters: u32) {
-        let mut chi = self.cluster_values(x);
-        let mut touched: [(u32, f64); 27] = [(0, 0.0); 27];
-        for _ in 0..iters {
-            for n in 0..self.level.len() as u32 {
-                let dg = diag[n as usize];
-                if dg <= 0.0 {
-                    continue;
-                }
+        let m = i64::from(self.degree) + 1;
+        let ncol = (m * m * m) as usize;
+        let mut colours: Vec<Vec<u32>> = vec![Vec::new(); ncol];
+        for n in 0..self.level.len() as u32 {
+            if diag[n as usize] > 0.0 {
                 let i = self.index(n);
-                let mut s = self.stiffness_row(n, i, x);
-                let mut k = 0;
-                for &w in &self.cwin {
-                    let m = neighbor_in(self.level, n, w);
-                    if m == NONE {
-                        continue;
-                    }
-                    let c = self.cl.of_node.get(m as usize).copied().unwrap_or(NONE);
-                    if c != NONE {
-                        let bv = self.cl.basis_value(c as usize, i, self.degree);
-                        s += self.cl.omega[c as usize] * bv * chi[c as usize];
-                        touched[k] = (c, bv);
-                        k += 1;
-                    }
+                let c = i[0].rem_euclid(m) + m * (i[1].rem_euclid(m) + m * i[2].rem_euclid(m));
+                colours[c as usize].push(n);
+            }
+        }
+        let mut chi = self.cluster_values(x);
+        let xs = SharedSlice::new(x);
+        let cs = SharedSlice::new(&mut chi);
+        for _ in 0..iters {
+            for list in &colours {
+                list.par_iter().with_min_len(256).for_each(|&n| {
+                    // SAFETY: within one colour, node `n` is the only one that writes x[n] or
+                    // the χ of its clusters, and no node reads another same-colour node's
+                    // coefficient or clusters (see the colouring argument above).
+                    unsafe { self.relax(n, r, diag[n as usize], &xs, &cs) };
+                });
+            }
+        }
+    }
+
+    /// One Gauss–Seidel update of node `n`.
+    ///
+    /// # Safety
+    /// No other thread may concurrently write `x[n]`, any `x[m]` this row reads, or the
+    /// cluster values of the clusters around `n`.
+    #[inline]
+    unsafe fn relax(&self, n: u32, r: &[f64], dg: f64, x: &SharedSlice, chi: &SharedSlice) {
+        let i = self.index(n);
+        let mut s = 0.0;
+        if self.tab.range.interior(i, 3) {
+            for &(w, _) in &self.win {
+                let m = neighbor_in(self.level, n, w);
+                if m != NONE {
+                    s += self.tab.stencil[w] * x.get(m as usize);
                 }
-                let dx = (r[n as usize] - s) / dg;
-                x[n as usize] += dx;
-                for &(c, bv) in &touched[..k] {
-                    chi[c as usize] += dx * bv;
+            }
+        } else {
+            for &(w, o) in &self.win {
+                let m = neighbor_in(self.level, n, w);
+                if m != NONE {
+                    let xm = x.get(m as usize);
+                    if xm != 0.0 {
+                        s += self.tab.stiffness(i, o) * xm;
+                    }
                 }
             }
         }
+        let mut touched: [(u32, f64); 27] = [(0, 0.0); 27];
+        let mut k = 0;
+        for &w in &self.cwin {
+            let m = neighbor_in(self.level, n, w);
+            if m == NONE {
+                continue;
+            }
+            let c = self.cl.of_node.get(m as usize).copied().unwrap_or(NONE);
+            if c != NONE {
+                let bv = self.cl.basis_value(c as usize, i, self.degree);
+                s += self.cl.omega[c as usize] * bv * chi.get(c as usize);
+                touched[k] = (c, bv);
+                k += 1;
+            }
+        }
+        let dx = (r[n as usize] - s) / dg;
+        x.set(n as usize, x.get(n as usize) + dx);
+        for &(c, bv) in &touched[..k] {
+            chi.set(c as usize, chi.get(c as usize) + dx * bv);
+        }
+    }
+}
+
+/// A slice shared between threads that write disjoint elements (multi-colour Gauss–Seidel).
+struct SharedSlice {
+    ptr: *mut f64,
+    len: usize,
+}
+
+// SAFETY: access goes through `get`/`set`, whose callers guarantee disjoint writes.
+unsafe impl Sync for SharedSlice {}
+
+impl SharedSlice {
+    fn new(s: &mut [f64]) -> Self {
+        Self { ptr: s.as_mut_ptr(), len: s.len() }
+    }
+
+    /// # Safety
+    /// No concurrent write to element `i`.
+    #[inline]
+    unsafe fn get(&self, i: usize) -> f64 {
+        debug_assert!(i < self.len);
+        *self.ptr.add(i)
+    }
+
+    /// # Safety
+    /// No concurrent access to element `i`.
+    #[inline]
+    unsafe fn set(&self, i: usize, v: f64) {
+        debug_assert!(i < self.len);
+        *self.ptr.add(i) = v;
     }
 }
 
