@@ -21,6 +21,7 @@ mod evaluate;
 pub mod extract;
 pub mod io;
 pub mod mesh;
+pub mod metrics;
 mod octree;
 mod params;
 pub mod points;

@@ -279,7 +279,10 @@ unsafe impl Sync for SharedSlice {}
 
 impl SharedSlice {
     fn new(s: &mut [f64]) -> Self {
-        Self { ptr: s.as_mut_ptr(), len: s.len() }
+        Self {
+            ptr: s.as_mut_ptr(),
+            len: s.len(),
+        }
     }
 
     /// # Safety

@@ -27,13 +27,27 @@ fn sphere_at_depth_8_is_closed_genus_0_and_within_a_tenth_of_a_cell() {
     let errs = radial_errors(&out.mesh, c, r);
     let max = errs.iter().fold(0.0f64, |m, e| m.max(e.abs()));
     let mean = errs.iter().map(|e| e.abs()).sum::<f64>() / errs.len() as f64;
-    assert!(max <= 0.1 * cell, "max radial error {max} = {} cells", max / cell);
-    assert!(mean <= 0.02 * cell, "mean radial error {mean} = {} cells", mean / cell);
+    assert!(
+        max <= 0.1 * cell,
+        "max radial error {max} = {} cells",
+        max / cell
+    );
+    assert!(
+        mean <= 0.02 * cell,
+        "mean radial error {mean} = {} cells",
+        mean / cell
+    );
     let pi = std::f64::consts::PI;
     let area = out.mesh.area();
     let volume = out.mesh.signed_volume();
-    assert!((area / (4.0 * pi * r * r) - 1.0).abs() < 0.01, "area {area}");
-    assert!((volume / (4.0 / 3.0 * pi * r * r * r) - 1.0).abs() < 0.01, "volume {volume}");
+    assert!(
+        (area / (4.0 * pi * r * r) - 1.0).abs() < 0.01,
+        "area {area}"
+    );
+    assert!(
+        (volume / (4.0 / 3.0 * pi * r * r * r) - 1.0).abs() < 0.01,
+        "volume {volume}"
+    );
 }
 
 #[test]
@@ -63,14 +77,25 @@ fn sphere_with_degree_2_and_dirichlet_or_free_boundaries() {
     let cloud = sphere(60_000, c, r, 3);
     for boundary in [Boundary::Neumann, Boundary::Dirichlet, Boundary::Free] {
         for degree in [1u8, 2] {
-            let params = Params { depth: 7, degree, boundary, ..Params::default() };
+            let params = Params {
+                depth: 7,
+                degree,
+                boundary,
+                ..Params::default()
+            };
             let out = reconstruct(&cloud, &params).unwrap();
             let what = format!("degree {degree} {boundary:?}");
             let topo = assert_closed_manifold(&out.mesh, &what);
             assert_eq!((topo.components, topo.euler), (1, 2), "{what}");
             let cell = 2.2 * r / 128.0;
-            let max = radial_errors(&out.mesh, c, r).iter().fold(0.0f64, |m, e| m.max(e.abs()));
-            assert!(max <= 0.15 * cell, "{what}: max radial error {} cells", max / cell);
+            let max = radial_errors(&out.mesh, c, r)
+                .iter()
+                .fold(0.0f64, |m, e| m.max(e.abs()));
+            assert!(
+                max <= 0.15 * cell,
+                "{what}: max radial error {} cells",
+                max / cell
+            );
         }
     }
 }
@@ -86,11 +111,21 @@ fn bunny_is_closed_and_its_distance_to_the_ground_truth_falls_with_depth() {
     let (cloud, gt) = bunny();
     let mut last = f64::INFINITY;
     for depth in [6, 7, 8] {
-        let out = reconstruct(&cloud, &Params { depth, ..Params::default() }).unwrap();
+        let out = reconstruct(
+            &cloud,
+            &Params {
+                depth,
+                ..Params::default()
+            },
+        )
+        .unwrap();
         assert_closed_manifold(&out.mesh, &format!("bunny depth {depth}"));
         // The ground truth is open at the bottom, so measure from it to the mesh.
         let dist = MeshDistance::new(&out.mesh).mean_distance(&gt.vertices);
-        assert!(dist < last, "depth {depth}: mean distance {dist} did not fall below {last}");
+        assert!(
+            dist < last,
+            "depth {depth}: mean distance {dist} did not fall below {last}"
+        );
         last = dist;
     }
     // About 0.15 % of the bunny's 0.25-unit size at depth 8.
@@ -100,17 +135,28 @@ fn bunny_is_closed_and_its_distance_to_the_ground_truth_falls_with_depth() {
 #[test]
 fn translating_and_scaling_the_input_transforms_the_mesh() {
     let (cloud, _) = bunny();
-    let params = Params { depth: 6, ..Params::default() };
+    let params = Params {
+        depth: 6,
+        ..Params::default()
+    };
     let a = reconstruct(&cloud, &params).unwrap().mesh;
     let (s, t) = (3.0, [10.0, -5.0, 3.0]);
     let map = |p: [f64; 3]| [s * p[0] + t[0], s * p[1] + t[1], s * p[2] + t[2]];
-    let moved = PointCloud::new(cloud.positions.iter().map(|&p| map(p)).collect(), cloud.normals.clone()).unwrap();
+    let moved = PointCloud::new(
+        cloud.positions.iter().map(|&p| map(p)).collect(),
+        cloud.normals.clone(),
+    )
+    .unwrap();
     let b = reconstruct(&moved, &params).unwrap().mesh;
     assert_eq!(a.vertices.len(), b.vertices.len());
     assert_eq!(a.triangles.len(), b.triangles.len());
     let dist = MeshDistance::new(&b);
     let size = 0.25 * s;
-    let worst = a.vertices.iter().map(|&p| dist.distance(map(p))).fold(0.0f64, f64::max);
+    let worst = a
+        .vertices
+        .iter()
+        .map(|&p| dist.distance(map(p)))
+        .fold(0.0f64, f64::max);
     assert!(worst < 1e-5 * size, "worst deviation {worst}");
 }
 
@@ -119,30 +165,51 @@ fn screening_lands_closer_to_the_truth_than_unscreened_poisson() {
     let (c, r) = ([0.1, -0.2, 0.3], 1.0);
     let cloud = sphere(100_000, c, r, 4);
     let err = |alpha: f64| {
-        let params = Params { depth: 7, point_weight: Some(alpha), ..Params::default() };
+        let params = Params {
+            depth: 7,
+            point_weight: Some(alpha),
+            ..Params::default()
+        };
         let mesh = reconstruct(&cloud, &params).unwrap().mesh;
         let e = radial_errors(&mesh, c, r);
         e.iter().map(|x| x.abs()).sum::<f64>() / e.len() as f64
     };
     let (screened, unscreened) = (err(4.0), err(0.0));
-    assert!(screened < unscreened, "screened {screened} vs unscreened {unscreened}");
+    assert!(
+        screened < unscreened,
+        "screened {screened} vs unscreened {unscreened}"
+    );
     // The same on the real bunny, measured from the ground truth.
     let (cloud, gt) = bunny();
     let dist = |alpha: f64| {
-        let params = Params { depth: 7, point_weight: Some(alpha), ..Params::default() };
+        let params = Params {
+            depth: 7,
+            point_weight: Some(alpha),
+            ..Params::default()
+        };
         let mesh = reconstruct(&cloud, &params).unwrap().mesh;
         MeshDistance::new(&mesh).mean_distance(&gt.vertices)
     };
     let (screened, unscreened) = (dist(4.0), dist(0.0));
-    assert!(screened < unscreened, "bunny: screened {screened} vs unscreened {unscreened}");
+    assert!(
+        screened < unscreened,
+        "bunny: screened {screened} vs unscreened {unscreened}"
+    );
 }
 
 #[test]
 fn the_mesh_does_not_depend_on_the_thread_count() {
     let (cloud, _) = bunny();
-    let params = Params { depth: 7, density: true, ..Params::default() };
+    let params = Params {
+        depth: 7,
+        density: true,
+        ..Params::default()
+    };
     let run = |n: usize| {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap();
         pool.install(|| reconstruct(&cloud, &params).unwrap().mesh)
     };
     let one = run(1);
@@ -153,7 +220,11 @@ fn the_mesh_does_not_depend_on_the_thread_count() {
 #[test]
 fn density_is_reported_per_vertex() {
     let (cloud, _) = bunny();
-    let params = Params { depth: 6, density: true, ..Params::default() };
+    let params = Params {
+        depth: 6,
+        density: true,
+        ..Params::default()
+    };
     let mesh = reconstruct(&cloud, &params).unwrap().mesh;
     let density = mesh.density.as_ref().expect("density requested");
     assert_eq!(density.len(), mesh.vertices.len());
@@ -172,7 +243,14 @@ fn invalid_points_are_dropped_and_counted() {
     cloud.normals.push([0.0, 0.0, 0.0]);
     cloud.positions.push([f64::INFINITY, 0.0, 0.0]);
     cloud.normals.push([0.0, 1.0, 0.0]);
-    let out = reconstruct(&cloud, &Params { depth: 5, ..Params::default() }).unwrap();
+    let out = reconstruct(
+        &cloud,
+        &Params {
+            depth: 5,
+            ..Params::default()
+        },
+    )
+    .unwrap();
     assert_eq!(out.stats.dropped, 3);
     assert_closed_manifold(&out.mesh, "sphere with bad points");
 }
@@ -181,24 +259,82 @@ fn invalid_points_are_dropped_and_counted() {
 fn unusable_inputs_are_clear_errors() {
     let p = Params::default();
     let few = PointCloud::new(vec![[0.0; 3], [1.0, 0.0, 0.0]], vec![[1.0, 0.0, 0.0]; 2]).unwrap();
-    assert!(matches!(reconstruct(&few, &p), Err(Error::TooFewPoints { usable: 2, .. })));
+    assert!(matches!(
+        reconstruct(&few, &p),
+        Err(Error::TooFewPoints { usable: 2, .. })
+    ));
     let zero = PointCloud::new(vec![[0.5; 3]; 10], vec![[0.0; 3]; 10]).unwrap();
-    assert!(matches!(reconstruct(&zero, &p), Err(Error::TooFewPoints { usable: 0, dropped: 10, .. })));
+    assert!(matches!(
+        reconstruct(&zero, &p),
+        Err(Error::TooFewPoints {
+            usable: 0,
+            dropped: 10,
+            ..
+        })
+    ));
     let same = PointCloud::new(vec![[1.0, 2.0, 3.0]; 50], vec![[0.0, 0.0, 1.0]; 50]).unwrap();
     let e = reconstruct(&same, &p).unwrap_err();
     assert!(matches!(e, Error::Degenerate(_)), "{e}");
     assert!(e.to_string().contains("identical"));
-    let mismatch = PointCloud { positions: vec![[0.0; 3]; 5], normals: vec![[1.0, 0.0, 0.0]; 4] };
-    assert!(matches!(reconstruct(&mismatch, &p), Err(Error::LengthMismatch { .. })));
+    let mismatch = PointCloud {
+        positions: vec![[0.0; 3]; 5],
+        normals: vec![[1.0, 0.0, 0.0]; 4],
+    };
+    assert!(matches!(
+        reconstruct(&mismatch, &p),
+        Err(Error::LengthMismatch { .. })
+    ));
     let cloud = sphere(1000, [0.0; 3], 1.0, 6);
     for (bad, flag) in [
-        (Params { depth: 40, ..p.clone() }, "--depth"),
-        (Params { point_weight: Some(-1.0), ..p.clone() }, "--point-weight"),
-        (Params { iters: 0, ..p.clone() }, "--iters"),
-        (Params { samples_per_node: 0.0, ..p.clone() }, "--samples-per-node"),
-        (Params { degree: 3, ..p.clone() }, "--degree"),
-        (Params { scale: 0.5, ..p.clone() }, "--scale"),
-        (Params { full_depth: 9, ..p.clone() }, "--full-depth"),
+        (
+            Params {
+                depth: 40,
+                ..p.clone()
+            },
+            "--depth",
+        ),
+        (
+            Params {
+                point_weight: Some(-1.0),
+                ..p.clone()
+            },
+            "--point-weight",
+        ),
+        (
+            Params {
+                iters: 0,
+                ..p.clone()
+            },
+            "--iters",
+        ),
+        (
+            Params {
+                samples_per_node: 0.0,
+                ..p.clone()
+            },
+            "--samples-per-node",
+        ),
+        (
+            Params {
+                degree: 3,
+                ..p.clone()
+            },
+            "--degree",
+        ),
+        (
+            Params {
+                scale: 0.5,
+                ..p.clone()
+            },
+            "--scale",
+        ),
+        (
+            Params {
+                full_depth: 9,
+                ..p.clone()
+            },
+            "--full-depth",
+        ),
     ] {
         let e = reconstruct(&cloud, &bad).unwrap_err();
         assert!(e.to_string().contains(flag), "{e}");
@@ -216,16 +352,41 @@ fn two_points_far_apart_and_a_flat_patch_do_not_panic() {
     }
     let n = pos.len();
     let flat = PointCloud::new(pos, vec![[0.0, 0.0, 1.0]; n]).unwrap();
-    let out = reconstruct(&flat, &Params { depth: 6, ..Params::default() }).unwrap();
+    let out = reconstruct(
+        &flat,
+        &Params {
+            depth: 6,
+            ..Params::default()
+        },
+    )
+    .unwrap();
     assert!(out.mesh.topology().edge_manifold);
     // Points on a line, with opposite normals cancelling.
     let line = PointCloud::new(
         (0..100).map(|i| [f64::from(i), 0.0, 0.0]).collect(),
-        (0..100).map(|i| if i % 2 == 0 { [0.0, 1.0, 0.0] } else { [0.0, -1.0, 0.0] }).collect(),
+        (0..100)
+            .map(|i| {
+                if i % 2 == 0 {
+                    [0.0, 1.0, 0.0]
+                } else {
+                    [0.0, -1.0, 0.0]
+                }
+            })
+            .collect(),
     )
     .unwrap();
-    match reconstruct(&line, &Params { depth: 6, ..Params::default() }) {
-        Ok(out) => assert!(out.mesh.vertices.iter().all(|v| v.iter().all(|c| c.is_finite()))),
+    match reconstruct(
+        &line,
+        &Params {
+            depth: 6,
+            ..Params::default()
+        },
+    ) {
+        Ok(out) => assert!(out
+            .mesh
+            .vertices
+            .iter()
+            .all(|v| v.iter().all(|c| c.is_finite()))),
         Err(e) => assert!(!e.to_string().is_empty()),
     }
 }
