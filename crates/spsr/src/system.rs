@@ -436,3 +436,103 @@ pub fn prolong<const K: usize>(
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bspline::Boundary;
+
+    const BASES: [(u8, Boundary); 6] = [
+        (1, Boundary::Neumann),
+        (1, Boundary::Dirichlet),
+        (1, Boundary::Free),
+        (2, Boundary::Neumann),
+        (2, Boundary::Dirichlet),
+        (2, Boundary::Free),
+    ];
+
+    #[test]
+    fn stiffness_stencils_are_symmetric_and_annihilate_constants() {
+        for (degree, boundary) in BASES {
+            let fem = Basis::new(degree, boundary);
+            let vb = Basis::new(2, boundary.derivative());
+            for d in [2u32, 3, 5] {
+                let tab = DepthTables::new(fem, vb, d);
+                let r = i64::from(degree);
+                let (lo, hi) = (tab.range.lo, tab.range.hi);
+                // Rows near the corner, the faces and the middle.
+                let probes: Vec<i64> = vec![lo, lo + 1, lo + 2, (lo + hi) / 2, hi - 1, hi];
+                for &x in &probes {
+                    for &y in &probes {
+                        for &z in &probes {
+                            let i = [x, y, z];
+                            if !tab.range.contains(i) {
+                                continue;
+                            }
+                            let mut row_sum = 0.0;
+                            for oz in -r..=r {
+                                for oy in -r..=r {
+                                    for ox in -r..=r {
+                                        let o = [ox, oy, oz];
+                                        let j = [x + ox, y + oy, z + oz];
+                                        let a = tab.stiffness(i, o);
+                                        if tab.range.contains(j) {
+                                            let b = tab.stiffness(j, [-ox, -oy, -oz]);
+                                            assert!((a - b).abs() <= 1e-12 * a.abs().max(1.0), "{degree} {boundary:?} d{d} {i:?} {o:?}: {a} vs {b}");
+                                            row_sum += a;
+                                        } else {
+                                            assert_eq!(a, 0.0);
+                                        }
+                                        if tab.range.interior(i, 3) {
+                                            assert!(
+                                                (a - tab.stencil[window_index(o)]).abs()
+                                                    < 1e-12 * a.abs().max(1.0)
+                                            );
+                                        }
+                                    }
+                                }
+                            }
+                            assert!(tab.stiffness(i, [0, 0, 0]) > 0.0);
+                            if boundary != Boundary::Dirichlet {
+                                assert!(
+                                    row_sum.abs() < 1e-10,
+                                    "{degree} {boundary:?} row {i:?} sums to {row_sum}"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn prolongation_weights_reproduce_the_two_scale_relation() {
+        for (degree, boundary) in BASES {
+            let basis = Basis::new(degree, boundary);
+            for d in 1..6u32 {
+                let p = Prolong::new(basis, d);
+                let (lo, hi) = basis.index_range(d);
+                // Prolonging the coefficients of one coarse function gives its children weights.
+                let (clo, chi) = basis.index_range(d - 1);
+                let mut out = [(0i64, 0.0); 4];
+                for c in clo..=chi {
+                    let k = basis.children(d - 1, c, &mut out);
+                    for j in lo..=hi {
+                        let o = c - (j >> 1);
+                        let w = if (-1..=1).contains(&o) {
+                            p.get(j, o)
+                        } else {
+                            0.0
+                        };
+                        let expect: f64 = out[..k].iter().filter(|e| e.0 == j).map(|e| e.1).sum();
+                        assert!(
+                            (w - expect).abs() < 1e-15,
+                            "{degree} {boundary:?} d{d} c{c} j{j}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+}
