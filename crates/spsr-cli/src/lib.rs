@@ -381,7 +381,7 @@ fn print_details(
     let _ = writeln!(err, "output      {}", args.output.display());
     let _ = writeln!(err, "timings:");
     let stages = std::iter::once(("reading", reading))
-        .chain(stats.stages.iter().copied())
+        .chain(stats.stages.iter().map(|(n, d)| (n.as_str(), *d)))
         .chain(std::iter::once(("writing", writing)));
     for (name, d) in stages {
         let _ = writeln!(err, "  {name:<24} {:>9.3} s", d.as_secs_f64());

@@ -42,7 +42,7 @@ pub struct Stats {
     /// Weighted mean of the samples' estimated depths.
     pub mean_sample_depth: f64,
     /// Wall time of each stage, in order.
-    pub stages: Vec<(&'static str, Duration)>,
+    pub stages: Vec<(String, Duration)>,
 }
 
 /// Reconstructs a watertight surface from oriented points.
@@ -51,7 +51,7 @@ pub fn reconstruct(points: &PointCloud, params: &Params) -> Result<Reconstructio
 }
 
 struct Timer<'a> {
-    stats: Vec<(&'static str, Duration)>,
+    stats: Vec<(String, Duration)>,
     last: Instant,
     progress: &'a (dyn Fn(&str) + Sync),
 }
@@ -62,7 +62,7 @@ impl Timer<'_> {
         self.last = Instant::now();
     }
     fn stop(&mut self, name: &'static str) {
-        self.stats.push((name, self.last.elapsed()));
+        self.stats.push((name.to_string(), self.last.elapsed()));
     }
 }
 
@@ -407,6 +407,9 @@ pub(crate) fn solve_implicit(
     drop(v);
     drop(clusters);
     timer.stop("solving");
+    timer
+        .stats
+        .extend(sol.timings.iter().map(|(n, d)| (format!("  {n}"), *d)));
 
     // 7. Iso-value (§1.5).
     timer.start("iso-value");
@@ -588,5 +591,42 @@ mod probe {
         let mabs = errs.iter().map(|e| e.abs()).sum::<f64>() / errs.len() as f64;
         let mx = errs.iter().map(|e| e.abs()).fold(0.0, f64::max);
         eprintln!("iso {} mean signed {mean:.3e} mean abs {mabs:.3e} max {mx:.3e} nodes {:?} samples {} meandepth {}", imp.iso, imp.stats.nodes_per_depth, imp.stats.samples, imp.stats.mean_sample_depth);
+    }
+}
+
+#[cfg(test)]
+mod profile {
+    use super::*;
+    /// `SPSR_PROFILE=path.ply DEPTH=10 cargo test --release -p spsr --lib profile -- --ignored --nocapture`
+    #[test]
+    #[ignore]
+    fn profile_stages() {
+        let Ok(path) = std::env::var("SPSR_PROFILE") else {
+            return;
+        };
+        let depth: u32 = std::env::var("DEPTH")
+            .map(|s| s.parse().unwrap())
+            .unwrap_or(10);
+        let t = Instant::now();
+        let cloud = crate::io::read_points(path.as_ref()).unwrap();
+        eprintln!("read {:?}", t.elapsed());
+        let imp = solve_implicit(
+            &cloud,
+            &Params {
+                depth,
+                ..Params::default()
+            },
+            &|s| eprintln!("  .. {s}"),
+        )
+        .unwrap();
+        for (s, d) in &imp.stats.stages {
+            eprintln!("{s:>20} {d:?}");
+        }
+        eprintln!(
+            "nodes {:?} total {}",
+            imp.stats.nodes_per_depth,
+            imp.stats.nodes_per_depth.iter().sum::<usize>()
+        );
+        eprintln!("samples {} iso {}", imp.stats.samples, imp.iso);
     }
 }

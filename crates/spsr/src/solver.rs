@@ -27,6 +27,8 @@ pub struct Solution {
     pub p: Vec<Vec<f64>>,
     /// Level of the base solve.
     pub base_level: u32,
+    /// Wall time of each part of the solve.
+    pub timings: Vec<(String, std::time::Duration)>,
 }
 
 /// Everything the solver reads.
@@ -408,6 +410,12 @@ pub fn solve(p: &Problem) -> Solution {
 
     // Divergence constraints, fine to coarse.
     (p.progress)("constraints");
+    let mut clock = std::time::Instant::now();
+    let mut timings: Vec<(String, std::time::Duration)> = Vec::new();
+    let mut lap = |name: String, clock: &mut std::time::Instant| {
+        timings.push((name, clock.elapsed()));
+        *clock = std::time::Instant::now();
+    };
     let mut tcons: Vec<Vec<f64>> = vec![Vec::new(); nlev];
     for t in (tb..=max_level).rev() {
         let tab = p.tables[t].as_ref().expect("tables");
@@ -420,10 +428,12 @@ pub fn solve(p: &Problem) -> Solution {
         tcons[t] = b;
     }
 
+    lap("divergence constraints".into(), &mut clock);
     let mut sol = Solution {
         x: vec![Vec::new(); nlev],
         p: vec![Vec::new(); nlev],
         base_level: p.base_level,
+        timings: Vec::new(),
     };
 
     // Base solve.
@@ -455,6 +465,10 @@ pub fn solve(p: &Problem) -> Solution {
         sol.p[tb] = x.clone();
         sol.x[tb] = x;
     }
+    lap(
+        format!("depth {}: conjugate gradients", tb as u32 - DEPTH_OFFSET),
+        &mut clock,
+    );
 
     // Cumulative V, prolonged level by level.
     let mut vc: Vec<[f64; 3]> = p.v[tb]
@@ -482,6 +496,21 @@ pub fn solve(p: &Problem) -> Solution {
                 }
                 let mut s = tcons[t][n as usize];
                 let par = level.brood_parent[(n >> 3) as usize];
+                if tab.is_interior(i) {
+                    let c = ((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2)) as usize;
+                    let ps = &tab.pstencil[c];
+                    let pv = &tab.pvstencil[c];
+                    for w in 0..125usize {
+                        let q = neighbor_in(parent_level, par, w);
+                        if q == NONE {
+                            continue;
+                        }
+                        s -= ps[w] * pc[q as usize];
+                        let v = vc[q as usize];
+                        s += v[0] * pv[0][w] + v[1] * pv[1][w] + v[2] * pv[2][w];
+                    }
+                    return s;
+                }
                 let mut pm = [[0.0; 5]; 3];
                 let mut ps = [[0.0; 5]; 3];
                 let mut vm = [[0.0; 5]; 3];
@@ -529,8 +558,11 @@ pub fn solve(p: &Problem) -> Solution {
             .collect();
         add_screening_targets(&op, Some(&coarse_chi), &mut r);
         let diag = op.diagonal();
+        let dd = t as u32 - DEPTH_OFFSET;
+        lap(format!("depth {dd}: right-hand side"), &mut clock);
         let mut x = vec![0.0; level.len()];
         op.gauss_seidel(&r, &mut x, &diag, p.iters);
+        lap(format!("depth {dd}: Gauss-Seidel"), &mut clock);
         // Cumulative solution and V at this level.
         let cum = prolong::<1>(
             tree,
@@ -558,7 +590,9 @@ pub fn solve(p: &Problem) -> Solution {
                 },
             );
         }
+        lap(format!("depth {dd}: prolongation"), &mut clock);
     }
+    sol.timings = timings;
     sol
 }
 

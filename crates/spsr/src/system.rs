@@ -111,6 +111,12 @@ pub struct DepthTables {
     pub vprolong: Prolong,
     /// The interior 3-D stiffness stencil, by window index.
     pub stencil: [f64; 125],
+    /// Interior stencils of `∫∂_a B_i · B^V_j` for each component `a`, by window index.
+    pub vstencil: [[f64; 125]; 3],
+    /// Interior parent stiffness stencils, by child parity (x bit 0) and parent window index.
+    pub pstencil: Box<[[f64; 125]; 8]>,
+    /// Interior parent V stencils, by child parity, component and parent window index.
+    pub pvstencil: Box<[[[f64; 125]; 3]; 8]>,
 }
 
 impl DepthTables {
@@ -132,21 +138,73 @@ impl DepthTables {
             ];
             *s = stiffness_3d(&mass, &stiff, [mid; 3], o);
         }
+        let vmass = same(fem, vb, Integrand::ValueValue);
+        let vderiv = same(fem, vb, Integrand::DerivValue);
+        let pmass = par(fem, fem, Integrand::ValueValue);
+        let pstiff = par(fem, fem, Integrand::DerivDeriv);
+        let pvmass = par(fem, vb, Integrand::ValueValue);
+        let pvderiv = par(fem, vb, Integrand::DerivValue);
+        let mut vstencil = [[0.0; 125]; 3];
+        let mut pstencil = Box::new([[0.0; 125]; 8]);
+        let mut pvstencil = Box::new([[[0.0; 125]; 3]; 8]);
+        let even = mid - (mid & 1);
+        for w in 0..125 {
+            let o = [
+                (w % 5) as i64 - 2,
+                ((w / 5) % 5) as i64 - 2,
+                (w / 25) as i64 - 2,
+            ];
+            let vector = |m: &Table1D, dv: &Table1D, i: [i64; 3]| {
+                let mm = [m.get(i[0], o[0]), m.get(i[1], o[1]), m.get(i[2], o[2])];
+                let dd = [dv.get(i[0], o[0]), dv.get(i[1], o[1]), dv.get(i[2], o[2])];
+                [
+                    dd[0] * mm[1] * mm[2],
+                    mm[0] * dd[1] * mm[2],
+                    mm[0] * mm[1] * dd[2],
+                ]
+            };
+            let v = vector(&vmass, &vderiv, [mid; 3]);
+            for a in 0..3 {
+                vstencil[a][w] = v[a];
+            }
+            for c in 0..8usize {
+                let i = [
+                    even + (c & 1) as i64,
+                    even + ((c >> 1) & 1) as i64,
+                    even + ((c >> 2) & 1) as i64,
+                ];
+                pstencil[c][w] = stiffness_3d(&pmass, &pstiff, i, o);
+                let v = vector(&pvmass, &pvderiv, i);
+                for a in 0..3 {
+                    pvstencil[c][a][w] = v[a];
+                }
+            }
+        }
         Self {
             range: Range { lo, hi },
             vrange: Range { lo: vlo, hi: vhi },
-            pmass: par(fem, fem, Integrand::ValueValue),
-            pstiff: par(fem, fem, Integrand::DerivDeriv),
-            vmass: same(fem, vb, Integrand::ValueValue),
-            vderiv: same(fem, vb, Integrand::DerivValue),
-            pvmass: par(fem, vb, Integrand::ValueValue),
-            pvderiv: par(fem, vb, Integrand::DerivValue),
+            pmass,
+            pstiff,
+            vmass,
+            vderiv,
+            pvmass,
+            pvderiv,
+            vstencil,
+            pstencil,
+            pvstencil,
             prolong: Prolong::new(fem, d),
             vprolong: Prolong::new(vb, d),
             mass,
             stiff,
             stencil,
         }
+    }
+
+    /// True when row `i` and its whole window are far enough from the boundary that the
+    /// precomputed interior stencils apply.
+    #[inline]
+    pub fn is_interior(&self, i: [i64; 3]) -> bool {
+        self.range.interior(i, 4)
     }
 
     /// Stiffness entry `∫∇B_i·∇B_j` between function `i` and `i + o` (same depth).
@@ -308,6 +366,7 @@ pub fn divergence_constraints(
             }
             let mut b = 0.0;
             if !v.is_empty() {
+                let interior = tab.is_interior(i);
                 for w in 0..125 {
                     let m = neighbor_in(level, n, w);
                     if m == NONE {
@@ -315,6 +374,13 @@ pub fn divergence_constraints(
                     }
                     let vm = v[m as usize];
                     if vm == [0.0; 3] {
+                        continue;
+                    }
+                    let vm = [f64::from(vm[0]), f64::from(vm[1]), f64::from(vm[2])];
+                    if interior {
+                        b += vm[0] * tab.vstencil[0][w]
+                            + vm[1] * tab.vstencil[1][w]
+                            + vm[2] * tab.vstencil[2][w];
                         continue;
                     }
                     let o = [
@@ -328,9 +394,7 @@ pub fn divergence_constraints(
                     let dx = tab.vderiv.get(i[0], o[0]);
                     let dy = tab.vderiv.get(i[1], o[1]);
                     let dz = tab.vderiv.get(i[2], o[2]);
-                    b += f64::from(vm[0]) * dx * my * mz
-                        + f64::from(vm[1]) * mx * dy * mz
-                        + f64::from(vm[2]) * mx * my * dz;
+                    b += vm[0] * dx * my * mz + vm[1] * mx * dy * mz + vm[2] * mx * my * dz;
                 }
             }
             if let (Some(f), Some(next)) = (finer, next) {
