@@ -96,7 +96,7 @@ pub fn extract(
     iso: f64,
     opts: &ExtractOptions,
 ) -> crate::Result<Mesh> {
-    extract_impl(leaves, max_depth, field, iso, opts).map(|(mesh, _)| mesh)
+    extract_impl(leaves, max_depth, field, iso, opts).map(|(mesh, _, _)| mesh)
 }
 
 fn bad_leaves(message: &str) -> crate::Error {
@@ -156,14 +156,15 @@ struct ChunkOut {
     bad: bool,
 }
 
-/// The extraction proper; also returns the number of edge iso-vertices (without barycentres).
+/// The extraction proper; also returns the number of edge iso-vertices (without barycentres)
+/// and, in test builds only, which output vertices are edge iso-vertices.
 fn extract_impl(
     leaves: &[Leaf],
     max_depth: u32,
     field: &dyn Field,
     iso: f64,
     opts: &ExtractOptions,
-) -> crate::Result<(Mesh, usize)> {
+) -> crate::Result<(Mesh, usize, Vec<bool>)> {
     if max_depth > MAX_SUPPORTED_DEPTH {
         return Err(crate::Error::InvalidParameter {
             name: "--depth",
@@ -301,9 +302,14 @@ fn extract_impl(
         .collect();
     drop(vt);
     let mut vertices = Vec::with_capacity(total);
+    let mut is_edge = Vec::with_capacity(if cfg!(test) { total } else { 0 });
     for c in &chunks {
         vertices.extend_from_slice(&c.owned_pos);
         vertices.extend_from_slice(&c.bary);
+        if cfg!(test) {
+            is_edge.extend(std::iter::repeat_n(true, c.owned_pos.len()));
+            is_edge.extend(std::iter::repeat_n(false, c.bary.len()));
+        }
     }
     drop(chunks);
     let mut triangles: Vec<[u32; 3]> = Vec::with_capacity(tri_parts.iter().map(Vec::len).sum());
@@ -332,6 +338,14 @@ fn extract_impl(
             }
         }
         vertices = kept;
+        if cfg!(test) {
+            is_edge = is_edge
+                .iter()
+                .zip(&used)
+                .filter(|(_, &u)| u)
+                .map(|(&e, _)| e)
+                .collect();
+        }
         triangles
             .par_iter_mut()
             .for_each(|t| *t = t.map(|i| remap[i as usize]));
@@ -343,6 +357,7 @@ fn extract_impl(
             density: None,
         },
         n_edge_vertices,
+        is_edge,
     ))
 }
 

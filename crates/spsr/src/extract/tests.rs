@@ -253,7 +253,7 @@ fn random_tree(f: &dyn Analytic, seed: u64, max: u32) -> Vec<Leaf> {
     leaves_of(&internal_from(max, &|d, o| {
         let (p, w) = center(d, o);
         let r = cell_rand(seed, d, o);
-        d < 1 || (f.dist(p) < 3.0 * w && r < 0.75) || r < 0.12
+        d < 1 || (f.dist(p) < 3.0 * w && (d < max - 2 || r < 0.6)) || r < 0.12
     }))
 }
 
@@ -337,7 +337,13 @@ fn brute_force_crossings(leaves: &[Leaf], max_depth: u32, f: &dyn Field, iso: f6
         .count()
 }
 
-fn run(leaves: &[Leaf], max_depth: u32, f: &dyn Analytic, iso: f64, linear: bool) -> (Mesh, usize) {
+fn run(
+    leaves: &[Leaf],
+    max_depth: u32,
+    f: &dyn Analytic,
+    iso: f64,
+    linear: bool,
+) -> (Mesh, usize, Vec<bool>) {
     let grid = Grid { f, inv: 1.0 / (1u64 << max_depth) as f64 };
     let opts = ExtractOptions { linear_fit: linear };
     extract_impl(leaves, max_depth, &grid, iso, &opts).unwrap()
@@ -352,9 +358,9 @@ fn check_closed(
     iso: f64,
     components: usize,
     euler: i64,
-) -> (Mesh, Topology) {
+) -> (Mesh, Vec<bool>, Topology) {
     let grid = Grid { f, inv: 1.0 / (1u64 << max_depth) as f64 };
-    let (mesh, n_edge) = run(leaves, max_depth, f, iso, false);
+    let (mesh, n_edge, is_edge) = run(leaves, max_depth, f, iso, false);
     let t = mesh.topology();
     assert!(t.closed, "{name}: not closed: {t:?}");
     assert!(t.edge_manifold && t.vertex_manifold, "{name}: not manifold: {t:?}");
@@ -368,21 +374,23 @@ fn check_closed(
         "{name}: one vertex per crossing finest edge"
     );
     // Linear fit gives the same topology.
-    let (lin, _) = run(leaves, max_depth, f, iso, true);
+    let (lin, _, _) = run(leaves, max_depth, f, iso, true);
     let tl = lin.topology();
     assert!(tl.closed && tl.vertex_manifold && tl.oriented && tl.euler == euler, "{name} linear: {tl:?}");
-    (mesh, t)
+    (mesh, is_edge, t)
 }
 
 /// Every edge vertex (two coordinates on the grid) has |χ − iso| tiny where the quadratic fit
 /// is exact; returns the number checked.
-fn check_on_surface(mesh: &Mesh, max_depth: u32, s: &Sphere) -> usize {
+fn check_on_surface(mesh: &Mesh, is_edge: &[bool], max_depth: u32, s: &Sphere) -> usize {
     let scale = (1u64 << max_depth) as f64;
     let w = 1.0 / scale;
     let mut n = 0;
-    for v in &mesh.vertices {
+    assert_eq!(is_edge.len(), mesh.vertices.len());
+    for (v, &e) in mesh.vertices.iter().zip(is_edge) {
         let on_grid = v.iter().filter(|x| (*x * scale).fract() == 0.0).count() >= 2;
-        if on_grid {
+        assert!(!e || on_grid, "edge vertex {v:?} not on a grid line");
+        if e {
             n += 1;
             let e = s.dist(*v);
             assert!(e <= 1e-3 * w, "vertex {v:?} off the surface by {e}");
@@ -420,8 +428,8 @@ fn quadratic_fit_is_exact_for_quadratics() {
 fn sphere_uniform_depth5() {
     let s = sphere();
     let leaves = uniform(5);
-    let (mesh, _) = check_closed("uniform", &leaves, 5, &s, 0.0, 1, 2);
-    assert!(check_on_surface(&mesh, 5, &s) > 100);
+    let (mesh, is_edge, _) = check_closed("uniform", &leaves, 5, &s, 0.0, 1, 2);
+    assert!(check_on_surface(&mesh, &is_edge, 5, &s) > 100);
     let v = mesh.signed_volume();
     assert!((v / sphere_volume(s.r) - 1.0).abs() < 0.03, "{v}");
 }
@@ -430,9 +438,9 @@ fn sphere_uniform_depth5() {
 fn sphere_adaptive_graded_depth7() {
     let s = sphere();
     let leaves = adaptive_graded(&s, 3, 7);
-    assert!(leaves.iter().any(|l| l.depth == 3) && leaves.iter().any(|l| l.depth == 7));
-    let (mesh, _) = check_closed("graded", &leaves, 7, &s, 0.0, 1, 2);
-    assert!(check_on_surface(&mesh, 7, &s) > 1000);
+    assert!(leaves.iter().any(|l| l.depth <= 4) && leaves.iter().any(|l| l.depth == 7));
+    let (mesh, is_edge, _) = check_closed("graded", &leaves, 7, &s, 0.0, 1, 2);
+    assert!(check_on_surface(&mesh, &is_edge, 7, &s) > 1000);
     let v = mesh.signed_volume();
     assert!((v / sphere_volume(s.r) - 1.0).abs() < 0.02, "{v}");
     let a = mesh.area();
@@ -455,8 +463,8 @@ fn graded_tree_has_unit_jumps() {
 fn sphere_non_graded_depth7() {
     let s = sphere();
     let leaves = non_graded(&s, 2, 7);
-    let (mesh, _) = check_closed("non-graded", &leaves, 7, &s, 0.0, 1, 2);
-    check_on_surface(&mesh, 7, &s);
+    let (mesh, is_edge, _) = check_closed("non-graded", &leaves, 7, &s, 0.0, 1, 2);
+    check_on_surface(&mesh, &is_edge, 7, &s);
     let v = mesh.signed_volume();
     assert!((v / sphere_volume(s.r) - 1.0).abs() < 0.02, "{v}");
 }
@@ -466,8 +474,8 @@ fn sphere_random_trees() {
     let s = Sphere { c: [0.47, 0.53, 0.5], r: 0.27 };
     for seed in 0..12 {
         let leaves = random_tree(&s, seed, 6);
-        let (mesh, _) = check_closed(&format!("random {seed}"), &leaves, 6, &s, 0.0, 1, 2);
-        check_on_surface(&mesh, 6, &s);
+        let (mesh, is_edge, _) = check_closed(&format!("random {seed}"), &leaves, 6, &s, 0.0, 1, 2);
+        check_on_surface(&mesh, &is_edge, 6, &s);
     }
 }
 
@@ -483,7 +491,7 @@ fn small_spheres_in_coarse_random_trees() {
             let q = cell_rand(seed, d, o);
             d < 1 || (s.dist(p) < 1.5 * w && q < 0.6) || q < 0.1
         }));
-        let (mesh, n_edge) = run(&leaves, 6, &s, 0.0, false);
+        let (mesh, n_edge, _) = run(&leaves, 6, &s, 0.0, false);
         if n_edge == 0 {
             continue;
         }
@@ -505,7 +513,7 @@ fn torus_all_trees() {
     check_closed("torus graded", &adaptive_graded(&t, 3, 7), 7, &t, 0.0, 1, 0);
     check_closed("torus non-graded", &non_graded(&t, 2, 7), 7, &t, 0.0, 1, 0);
     for seed in 0..4 {
-        check_closed("torus random", &random_tree(&t, seed, 6), 6, &t, 0.0, 1, 0);
+        check_closed("torus random", &random_tree(&t, seed, 7), 7, &t, 0.0, 1, 0);
     }
 }
 
@@ -516,7 +524,7 @@ fn two_spheres() {
         Sphere { c: [0.72, 0.51, 0.49], r: 0.15 },
     );
     check_closed("two uniform", &uniform(5), 5, &f, 0.0, 2, 4);
-    let (mesh, _) = check_closed("two graded", &adaptive_graded(&f, 3, 7), 7, &f, 0.0, 2, 4);
+    let (mesh, is_edge, _) = check_closed("two graded", &adaptive_graded(&f, 3, 7), 7, &f, 0.0, 2, 4);
     let v = mesh.signed_volume();
     assert!((v / (2.0 * sphere_volume(0.15)) - 1.0).abs() < 0.02, "{v}");
     check_closed("two non-graded", &non_graded(&f, 2, 7), 7, &f, 0.0, 2, 4);
@@ -557,13 +565,13 @@ fn sphere_cut_by_the_cube_boundary() {
         ("non-graded", non_graded(&s, 2, 7), 7),
         ("random", random_tree(&s, 3, 6), 6),
     ] {
-        let (mesh, _) = run(&leaves, depth, &s, 0.0, false);
+        let (mesh, _, is_edge) = run(&leaves, depth, &s, 0.0, false);
         let t = mesh.topology();
         assert!(!t.closed && t.boundary_edges > 0, "{name}: {t:?}");
         assert!(t.edge_manifold && t.vertex_manifold && t.oriented, "{name}: {t:?}");
         assert_eq!((t.components, t.euler), (1, 1), "{name}: a disk: {t:?}");
         // Boundary vertices lie on the z = 0 face.
-        check_on_surface(&mesh, depth, &s);
+        check_on_surface(&mesh, &is_edge, depth, &s);
     }
 }
 
