@@ -295,7 +295,13 @@ mod tests {
     #[test]
     fn three_triangles_on_an_edge() {
         let m = Mesh {
-            vertices: vec![[0., 0., 0.], [1., 0., 0.], [0., 1., 0.], [0., -1., 0.], [0., 0., 1.]],
+            vertices: vec![
+                [0., 0., 0.],
+                [1., 0., 0.],
+                [0., 1., 0.],
+                [0., -1., 0.],
+                [0., 0., 1.],
+            ],
             triangles: vec![[0, 1, 2], [1, 0, 3], [0, 1, 4]],
             density: None,
         };

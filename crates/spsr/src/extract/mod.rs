@@ -77,7 +77,11 @@ fn pack(c: [u32; 3]) -> u64 {
 #[inline]
 fn unpack(k: u64) -> [u32; 3] {
     let m = (1u64 << 20) - 1;
-    [(k & m) as u32, ((k >> 20) & m) as u32, ((k >> 40) & m) as u32]
+    [
+        (k & m) as u32,
+        ((k >> 20) & m) as u32,
+        ((k >> 40) & m) as u32,
+    ]
 }
 
 /// Key of the finest edge starting at `start` along `axis`.
@@ -168,11 +172,16 @@ fn extract_impl(
     if max_depth > MAX_SUPPORTED_DEPTH {
         return Err(crate::Error::InvalidParameter {
             name: "--depth",
-            message: format!("extraction supports depths up to {MAX_SUPPORTED_DEPTH}, got {max_depth}"),
+            message: format!(
+                "extraction supports depths up to {MAX_SUPPORTED_DEPTH}, got {max_depth}"
+            ),
         });
     }
     if leaves.is_empty() {
         return Err(bad_leaves("no leaves: they must tile the unit cube"));
+    }
+    if leaves.len() >= u32::MAX as usize {
+        return Err(bad_leaves("too many leaves for 32-bit indices"));
     }
     // Validate ranges and total volume (overlaps plus gaps could still cancel; the
     // per-leaf pass reports inconsistencies it meets).
@@ -193,7 +202,8 @@ fn extract_impl(
     let corners = Table::with_capacity(bound);
     let mut cidx: Vec<[u32; 8]> = leaves
         .par_iter()
-        .map(|l| {
+        .enumerate()
+        .map(|(li, l)| {
             let s = 1u32 << (max_depth - l.depth);
             let lo = l.offset.map(|o| o * s);
             let mut out = [0u32; 8];
@@ -203,30 +213,33 @@ fn extract_impl(
                     lo[1] + s * ((c as u32 >> 1) & 1),
                     lo[2] + s * ((c as u32 >> 2) & 1),
                 ];
-                *o = corners.insert(pack(p))?;
+                *o = corners.insert_min(pack(p), li as u32)?;
             }
             Some(out)
         })
         .collect::<Option<Vec<_>>>()
         .ok_or_else(|| bad_leaves("the leaves do not tile the unit cube (too many corners)"))?;
-    let mut ukeys = corners.keys();
-    ukeys.par_sort_unstable();
-    ukeys.par_iter().enumerate().for_each(|(i, &k)| {
-        if let Some(slot) = corners.slot(k) {
-            corners.set(slot, i as u32);
-        }
-    });
+    // Number the corners in order of first use by the leaves (deterministic, and keeps the
+    // samples of nearby leaves close in memory).
+    let mut entries = corners.entries();
+    entries.par_sort_unstable_by_key(|e| (e.0, e.1));
+    entries
+        .par_iter()
+        .enumerate()
+        .for_each(|(i, e)| corners.set(e.2, i as u32));
     cidx.par_iter_mut()
         .for_each(|c| *c = c.map(|slot| corners.val(slot)));
 
     // 2. The field at every distinct corner, once.
-    let raw: Vec<(f64, [f64; 3])> = ukeys.par_iter().map(|&k| field.corner(unpack(k))).collect();
-    drop(ukeys);
-    let samples = Samples {
-        d: raw.iter().map(|r| r.0 - iso).collect(),
-        g: raw.iter().map(|r| r.1).collect(),
-    };
-    drop(raw);
+    let (d, g): (Vec<f64>, Vec<[f64; 3]>) = entries
+        .par_iter()
+        .map(|e| {
+            let (v, g) = field.corner(unpack(e.1));
+            (v - iso, g)
+        })
+        .unzip();
+    drop(entries);
+    let samples = Samples { d, g };
 
     // 3. Polygons and triangles per leaf.
     let ctx = Ctx {
@@ -307,8 +320,8 @@ fn extract_impl(
         vertices.extend_from_slice(&c.owned_pos);
         vertices.extend_from_slice(&c.bary);
         if cfg!(test) {
-            is_edge.extend(std::iter::repeat_n(true, c.owned_pos.len()));
-            is_edge.extend(std::iter::repeat_n(false, c.bary.len()));
+            is_edge.extend(std::iter::repeat(true).take(c.owned_pos.len()));
+            is_edge.extend(std::iter::repeat(false).take(c.bary.len()));
         }
     }
     drop(chunks);
@@ -671,13 +684,13 @@ fn finish_leaf(ctx: &Ctx, sc: &mut Scratch, lo: [u32; 3], s: u32, out: &mut Chun
 /// Bit mask of the leaf faces (2·axis + side) that the crossing lies on.
 fn face_mask(c: &Crossing, lo: [u32; 3], s: u32) -> u32 {
     let mut m = 0;
-    for b in 0..3 {
+    for (b, (&e, &l)) in c.lo.iter().zip(&lo).enumerate() {
         if b == c.axis as usize {
             continue;
         }
-        if c.lo[b] == lo[b] {
+        if e == l {
             m |= 1 << (2 * b);
-        } else if c.lo[b] == lo[b] + s {
+        } else if e == l + s {
             m |= 1 << (2 * b + 1);
         }
     }
@@ -685,6 +698,7 @@ fn face_mask(c: &Crossing, lo: [u32; 3], s: u32) -> u32 {
 }
 
 /// Triangulates the loop in `sc.poly` (indices into `sc.cross`).
+#[allow(clippy::needless_range_loop)]
 fn triangulate(sc: &mut Scratch, lo: [u32; 3], s: u32, out: &mut ChunkOut) {
     let poly = &sc.poly;
     let k = poly.len();

@@ -163,24 +163,44 @@ fn leaves_of(internal: &HashSet<(u32, [u32; 3])>) -> Vec<Leaf> {
     while let Some((d, o)) = stack.pop() {
         if internal.contains(&(d, o)) {
             for c in (0..8u32).rev() {
-                stack.push((d + 1, [2 * o[0] + (c & 1), 2 * o[1] + ((c >> 1) & 1), 2 * o[2] + (c >> 2)]));
+                stack.push((
+                    d + 1,
+                    [
+                        2 * o[0] + (c & 1),
+                        2 * o[1] + ((c >> 1) & 1),
+                        2 * o[2] + (c >> 2),
+                    ],
+                ));
             }
         } else {
-            out.push(Leaf { depth: d, offset: o });
+            out.push(Leaf {
+                depth: d,
+                offset: o,
+            });
         }
     }
     out
 }
 
 /// Internal nodes from a split predicate (applied top-down).
-fn internal_from(max_depth: u32, split: &dyn Fn(u32, [u32; 3]) -> bool) -> HashSet<(u32, [u32; 3])> {
+fn internal_from(
+    max_depth: u32,
+    split: &dyn Fn(u32, [u32; 3]) -> bool,
+) -> HashSet<(u32, [u32; 3])> {
     let mut internal = HashSet::new();
     let mut stack = vec![(0u32, [0u32; 3])];
     while let Some((d, o)) = stack.pop() {
         if d < max_depth && split(d, o) {
             internal.insert((d, o));
             for c in 0..8u32 {
-                stack.push((d + 1, [2 * o[0] + (c & 1), 2 * o[1] + ((c >> 1) & 1), 2 * o[2] + (c >> 2)]));
+                stack.push((
+                    d + 1,
+                    [
+                        2 * o[0] + (c & 1),
+                        2 * o[1] + ((c >> 1) & 1),
+                        2 * o[2] + (c >> 2),
+                    ],
+                ));
             }
         }
     }
@@ -344,7 +364,10 @@ fn run(
     iso: f64,
     linear: bool,
 ) -> (Mesh, usize, Vec<bool>) {
-    let grid = Grid { f, inv: 1.0 / (1u64 << max_depth) as f64 };
+    let grid = Grid {
+        f,
+        inv: 1.0 / (1u64 << max_depth) as f64,
+    };
     let opts = ExtractOptions { linear_fit: linear };
     extract_impl(leaves, max_depth, &grid, iso, &opts).unwrap()
 }
@@ -359,11 +382,17 @@ fn check_closed(
     components: usize,
     euler: i64,
 ) -> (Mesh, Vec<bool>, Topology) {
-    let grid = Grid { f, inv: 1.0 / (1u64 << max_depth) as f64 };
+    let grid = Grid {
+        f,
+        inv: 1.0 / (1u64 << max_depth) as f64,
+    };
     let (mesh, n_edge, is_edge) = run(leaves, max_depth, f, iso, false);
     let t = mesh.topology();
     assert!(t.closed, "{name}: not closed: {t:?}");
-    assert!(t.edge_manifold && t.vertex_manifold, "{name}: not manifold: {t:?}");
+    assert!(
+        t.edge_manifold && t.vertex_manifold,
+        "{name}: not manifold: {t:?}"
+    );
     assert!(t.oriented, "{name}: not oriented: {t:?}");
     assert_eq!(t.components, components, "{name}: {t:?}");
     assert_eq!(t.euler, euler, "{name}: {t:?}");
@@ -376,7 +405,10 @@ fn check_closed(
     // Linear fit gives the same topology.
     let (lin, _, _) = run(leaves, max_depth, f, iso, true);
     let tl = lin.topology();
-    assert!(tl.closed && tl.vertex_manifold && tl.oriented && tl.euler == euler, "{name} linear: {tl:?}");
+    assert!(
+        tl.closed && tl.vertex_manifold && tl.oriented && tl.euler == euler,
+        "{name} linear: {tl:?}"
+    );
     (mesh, is_edge, t)
 }
 
@@ -400,7 +432,10 @@ fn check_on_surface(mesh: &Mesh, is_edge: &[bool], max_depth: u32, s: &Sphere) -
 }
 
 fn sphere() -> Sphere {
-    Sphere { c: [0.51, 0.48, 0.503], r: 0.3 }
+    Sphere {
+        c: [0.51, 0.48, 0.503],
+        r: 0.3,
+    }
 }
 
 fn sphere_volume(r: f64) -> f64 {
@@ -450,7 +485,10 @@ fn sphere_adaptive_graded_depth7() {
 
 #[test]
 fn graded_tree_has_unit_jumps() {
-    let s = Sphere { c: [0.5, 0.52, 0.49], r: 0.25 };
+    let s = Sphere {
+        c: [0.5, 0.52, 0.49],
+        r: 0.25,
+    };
     let leaves = adaptive_graded(&s, 2, 5);
     assert_eq!(max_jump(&leaves, 5), 1);
     check_closed("graded small", &leaves, 5, &s, 0.0, 1, 2);
@@ -471,7 +509,10 @@ fn sphere_non_graded_depth7() {
 
 #[test]
 fn sphere_random_trees() {
-    let s = Sphere { c: [0.47, 0.53, 0.5], r: 0.27 };
+    let s = Sphere {
+        c: [0.47, 0.53, 0.5],
+        r: 0.27,
+    };
     for seed in 0..12 {
         let leaves = random_tree(&s, seed, 6);
         let (mesh, is_edge, _) = check_closed(&format!("random {seed}"), &leaves, 6, &s, 0.0, 1, 2);
@@ -484,7 +525,8 @@ fn small_spheres_in_coarse_random_trees() {
     // Features smaller than most cells: many loops bridged along coarse edges.
     for seed in 0..40u64 {
         let r = 0.02 + 0.05 * cell_rand(seed, 99, [1, 2, 3]);
-        let c = [0.3f64, 0.4, 0.55].map(|x| x + 0.2 * cell_rand(seed, 98, [(x * 100.0) as u32, 0, 0]));
+        let c =
+            [0.3f64, 0.4, 0.55].map(|x| x + 0.2 * cell_rand(seed, 98, [(x * 100.0) as u32, 0, 0]));
         let s = Sphere { c, r };
         let leaves = leaves_of(&internal_from(6, &|d, o| {
             let (p, w) = center(d, o);
@@ -508,7 +550,11 @@ fn small_spheres_in_coarse_random_trees() {
 
 #[test]
 fn torus_all_trees() {
-    let t = Torus { c: [0.5, 0.49, 0.51], big: 0.27, small: 0.1 };
+    let t = Torus {
+        c: [0.5, 0.49, 0.51],
+        big: 0.27,
+        small: 0.1,
+    };
     check_closed("torus uniform", &uniform(5), 5, &t, 0.0, 1, 0);
     check_closed("torus graded", &adaptive_graded(&t, 3, 7), 7, &t, 0.0, 1, 0);
     check_closed("torus non-graded", &non_graded(&t, 2, 7), 7, &t, 0.0, 1, 0);
@@ -520,11 +566,17 @@ fn torus_all_trees() {
 #[test]
 fn two_spheres() {
     let f = TwoSpheres(
-        Sphere { c: [0.3, 0.5, 0.5], r: 0.15 },
-        Sphere { c: [0.72, 0.51, 0.49], r: 0.15 },
+        Sphere {
+            c: [0.3, 0.5, 0.5],
+            r: 0.15,
+        },
+        Sphere {
+            c: [0.72, 0.51, 0.49],
+            r: 0.15,
+        },
     );
     check_closed("two uniform", &uniform(5), 5, &f, 0.0, 2, 4);
-    let (mesh, is_edge, _) = check_closed("two graded", &adaptive_graded(&f, 3, 7), 7, &f, 0.0, 2, 4);
+    let (mesh, _, _) = check_closed("two graded", &adaptive_graded(&f, 3, 7), 7, &f, 0.0, 2, 4);
     let v = mesh.signed_volume();
     assert!((v / (2.0 * sphere_volume(0.15)) - 1.0).abs() < 0.02, "{v}");
     check_closed("two non-graded", &non_graded(&f, 2, 7), 7, &f, 0.0, 2, 4);
@@ -534,7 +586,10 @@ fn two_spheres() {
 #[test]
 fn iso_value_hits_corners_exactly() {
     // r = 1/4 and c = 1/2 are dyadic: many corners have χ == iso exactly.
-    let s = ExactSphere { c: [0.5; 3], r: 0.25 };
+    let s = ExactSphere {
+        c: [0.5; 3],
+        r: 0.25,
+    };
     check_closed("exact uniform", &uniform(5), 5, &s, 0.0, 1, 2);
     check_closed("exact graded", &adaptive_graded(&s, 2, 6), 6, &s, 0.0, 1, 2);
     check_closed("exact non-graded", &non_graded(&s, 2, 6), 6, &s, 0.0, 1, 2);
@@ -551,14 +606,20 @@ fn iso_value_hits_corners_exactly() {
     }
     // Iso-value equal to the value at a set of corners of a general sphere.
     let s = sphere();
-    let grid = Grid { f: &s, inv: 1.0 / 32.0 };
+    let grid = Grid {
+        f: &s,
+        inv: 1.0 / 32.0,
+    };
     let iso = grid.corner([16, 16, 16]).0;
     check_closed("iso at corner", &uniform(5), 5, &s, iso, 1, 2);
 }
 
 #[test]
 fn sphere_cut_by_the_cube_boundary() {
-    let s = Sphere { c: [0.5, 0.52, 0.08], r: 0.3 };
+    let s = Sphere {
+        c: [0.5, 0.52, 0.08],
+        r: 0.3,
+    };
     for (name, leaves, depth) in [
         ("uniform", uniform(5), 5),
         ("graded", adaptive_graded(&s, 3, 7), 7),
@@ -568,7 +629,10 @@ fn sphere_cut_by_the_cube_boundary() {
         let (mesh, _, is_edge) = run(&leaves, depth, &s, 0.0, false);
         let t = mesh.topology();
         assert!(!t.closed && t.boundary_edges > 0, "{name}: {t:?}");
-        assert!(t.edge_manifold && t.vertex_manifold && t.oriented, "{name}: {t:?}");
+        assert!(
+            t.edge_manifold && t.vertex_manifold && t.oriented,
+            "{name}: {t:?}"
+        );
         assert_eq!((t.components, t.euler), (1, 1), "{name}: a disk: {t:?}");
         // Boundary vertices lie on the z = 0 face.
         check_on_surface(&mesh, &is_edge, depth, &s);
@@ -579,7 +643,10 @@ fn sphere_cut_by_the_cube_boundary() {
 fn deterministic_across_thread_counts() {
     let s = sphere();
     let leaves = random_tree(&s, 5, 7);
-    let grid = Grid { f: &s, inv: 1.0 / 128.0 };
+    let grid = Grid {
+        f: &s,
+        inv: 1.0 / 128.0,
+    };
     let go = |n: usize| {
         rayon::ThreadPoolBuilder::new()
             .num_threads(n)
@@ -605,17 +672,36 @@ fn leaf_order_does_not_matter_for_topology() {
 #[test]
 fn rejects_bad_input() {
     let s = sphere();
-    let grid = Grid { f: &s, inv: 1.0 / 32.0 };
+    let grid = Grid {
+        f: &s,
+        inv: 1.0 / 32.0,
+    };
     let o = ExtractOptions::default();
     let mut leaves = uniform(3);
     leaves.pop();
     assert!(extract(&leaves, 5, &grid, 0.0, &o).is_err());
     assert!(extract(&[], 5, &grid, 0.0, &o).is_err());
     assert!(extract(&uniform(1), 19, &grid, 0.0, &o).is_err());
-    let bad = vec![Leaf { depth: 1, offset: [2, 0, 0] }; 8];
+    let bad = vec![
+        Leaf {
+            depth: 1,
+            offset: [2, 0, 0]
+        };
+        8
+    ];
     assert!(extract(&bad, 5, &grid, 0.0, &o).is_err());
     // No surface: empty mesh.
-    let m = extract(&uniform(2), 5, &Grid { f: &BoxField { h: 2.0 }, inv: 1.0 / 32.0 }, 0.0, &o).unwrap();
+    let m = extract(
+        &uniform(2),
+        5,
+        &Grid {
+            f: &BoxField { h: 2.0 },
+            inv: 1.0 / 32.0,
+        },
+        0.0,
+        &o,
+    )
+    .unwrap();
     assert!(m.triangles.is_empty() && m.vertices.is_empty());
 }
 
@@ -624,14 +710,20 @@ fn rejects_bad_input() {
 #[test]
 #[ignore]
 fn speed() {
-    let depth: u32 = std::env::var("SPSR_BENCH_DEPTH").ok().and_then(|s| s.parse().ok()).unwrap_or(9);
+    let depth: u32 = std::env::var("SPSR_BENCH_DEPTH")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(9);
     let s = sphere();
     let t0 = std::time::Instant::now();
     let leaves = leaves_of(&internal_from(depth, &|d, o| {
         let (p, w) = center(d, o);
         d < 4 || s.dist(p) < (0.87 + 2.0) * w
     }));
-    let grid = Grid { f: &s, inv: 1.0 / (1u64 << depth) as f64 };
+    let grid = Grid {
+        f: &s,
+        inv: 1.0 / (1u64 << depth) as f64,
+    };
     eprintln!("tree: {} leaves in {:?}", leaves.len(), t0.elapsed());
     for _ in 0..2 {
         let t = std::time::Instant::now();
