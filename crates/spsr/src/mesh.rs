@@ -10,3 +10,318 @@ pub struct Mesh {
     /// Optional per-vertex density (estimated sampling depth, ALGORITHM.md §9.5).
     pub density: Option<Vec<f32>>,
 }
+
+/// Topological summary of a [`Mesh`], as computed by [`Mesh::topology`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Topology {
+    /// Vertices referenced by at least one triangle.
+    pub vertices: usize,
+    /// Number of triangles.
+    pub faces: usize,
+    /// Edges used by exactly one triangle.
+    pub boundary_edges: usize,
+    /// Edges used by more than two triangles.
+    pub non_manifold_edges: usize,
+    /// Referenced vertices whose incident triangles do not form a single fan.
+    pub non_manifold_vertices: usize,
+    /// Every edge is used by exactly two triangles.
+    pub closed: bool,
+    /// No edge is used by more than two triangles.
+    pub edge_manifold: bool,
+    /// The triangles around every vertex form one fan (a single cycle or a single open chain).
+    pub vertex_manifold: bool,
+    /// No edge is traversed twice in the same direction, so every interior edge is traversed
+    /// in opposite directions by its two triangles (a non-manifold edge makes this false).
+    pub oriented: bool,
+    /// Connected components of triangles (triangles sharing a vertex are connected).
+    pub components: usize,
+    /// Euler characteristic `V − E + F`, counting only referenced vertices.
+    pub euler: i64,
+}
+
+fn uf_find(parent: &mut [u32], mut x: u32) -> u32 {
+    while parent[x as usize] != x {
+        let p = parent[x as usize];
+        parent[x as usize] = parent[p as usize];
+        x = p;
+    }
+    x
+}
+
+fn uf_union(parent: &mut [u32], a: u32, b: u32) {
+    let (ra, rb) = (uf_find(parent, a), uf_find(parent, b));
+    if ra != rb {
+        let (lo, hi) = if ra < rb { (ra, rb) } else { (rb, ra) };
+        parent[hi as usize] = lo;
+    }
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+impl Mesh {
+    /// Computes the topological summary: boundary and non-manifold edges, vertex manifoldness,
+    /// orientation consistency, connected components and Euler characteristic.
+    /// Triangles with out-of-range indices are ignored.
+    pub fn topology(&self) -> Topology {
+        let nv = self.vertices.len();
+        let tris: Vec<[u32; 3]> = self
+            .triangles
+            .iter()
+            .copied()
+            .filter(|t| t.iter().all(|&v| (v as usize) < nv))
+            .collect();
+        // Edges as (min, max, forward?) sorted, then grouped.
+        let mut edges: Vec<(u32, u32, bool)> = Vec::with_capacity(tris.len() * 3);
+        for t in &tris {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                edges.push((a.min(b), a.max(b), a < b));
+            }
+        }
+        edges.sort_unstable();
+        let mut n_edges = 0usize;
+        let mut boundary = 0usize;
+        let mut non_manifold = 0usize;
+        let mut oriented = true;
+        let mut i = 0;
+        while i < edges.len() {
+            let mut j = i;
+            let (mut fwd, mut bwd) = (0usize, 0usize);
+            while j < edges.len() && edges[j].0 == edges[i].0 && edges[j].1 == edges[i].1 {
+                if edges[j].2 {
+                    fwd += 1;
+                } else {
+                    bwd += 1;
+                }
+                j += 1;
+            }
+            n_edges += 1;
+            match j - i {
+                1 => boundary += 1,
+                2 => {}
+                _ => non_manifold += 1,
+            }
+            if fwd > 1 || bwd > 1 {
+                oriented = false;
+            }
+            i = j;
+        }
+        // Vertex → incident triangles (CSR).
+        let mut start = vec![0u32; nv + 1];
+        for t in &tris {
+            for &v in t {
+                start[v as usize + 1] += 1;
+            }
+        }
+        for v in 0..nv {
+            start[v + 1] += start[v];
+        }
+        let mut fill = start.clone();
+        let mut inc = vec![0u32; tris.len() * 3];
+        for (f, t) in tris.iter().enumerate() {
+            for &v in t {
+                inc[fill[v as usize] as usize] = f as u32;
+                fill[v as usize] += 1;
+            }
+        }
+        let mut referenced = 0usize;
+        let mut non_manifold_vertices = 0usize;
+        let mut link: Vec<(u32, u32)> = Vec::new();
+        let mut ids: Vec<u32> = Vec::new();
+        let mut lparent: Vec<u32> = Vec::new();
+        let mut degree: Vec<u32> = Vec::new();
+        for v in 0..nv {
+            let faces = &inc[start[v] as usize..start[v + 1] as usize];
+            if faces.is_empty() {
+                continue;
+            }
+            referenced += 1;
+            link.clear();
+            ids.clear();
+            for &f in faces {
+                let t = tris[f as usize];
+                let k = t.iter().position(|&x| x as usize == v).unwrap_or(0);
+                let (a, b) = (t[(k + 1) % 3], t[(k + 2) % 3]);
+                link.push((a, b));
+                ids.push(a);
+                ids.push(b);
+            }
+            ids.sort_unstable();
+            ids.dedup();
+            lparent.clear();
+            lparent.extend(0..ids.len() as u32);
+            degree.clear();
+            degree.resize(ids.len(), 0);
+            let mut ok = true;
+            for &(a, b) in &link {
+                let ia = ids.binary_search(&a).unwrap_or(0) as u32;
+                let ib = ids.binary_search(&b).unwrap_or(0) as u32;
+                if ia == ib {
+                    ok = false; // degenerate triangle
+                }
+                degree[ia as usize] += 1;
+                degree[ib as usize] += 1;
+                uf_union(&mut lparent, ia, ib);
+            }
+            if degree.iter().any(|&d| d > 2) {
+                ok = false;
+            }
+            let root = uf_find(&mut lparent, 0);
+            if (0..ids.len() as u32).any(|i| uf_find(&mut lparent, i) != root) {
+                ok = false;
+            }
+            if !ok {
+                non_manifold_vertices += 1;
+            }
+        }
+        // Components through shared vertices.
+        let mut parent: Vec<u32> = (0..nv as u32).collect();
+        for t in &tris {
+            uf_union(&mut parent, t[0], t[1]);
+            uf_union(&mut parent, t[0], t[2]);
+        }
+        let mut components = 0usize;
+        for v in 0..nv {
+            if start[v + 1] > start[v] && uf_find(&mut parent, v as u32) == v as u32 {
+                components += 1;
+            }
+        }
+        Topology {
+            vertices: referenced,
+            faces: tris.len(),
+            boundary_edges: boundary,
+            non_manifold_edges: non_manifold,
+            non_manifold_vertices,
+            closed: boundary == 0 && non_manifold == 0,
+            edge_manifold: non_manifold == 0,
+            vertex_manifold: non_manifold_vertices == 0,
+            oriented,
+            components,
+            euler: referenced as i64 - n_edges as i64 + tris.len() as i64,
+        }
+    }
+
+    /// Signed enclosed volume (positive when the triangles are counter-clockwise seen from
+    /// outside). Meaningful for closed meshes.
+    pub fn signed_volume(&self) -> f64 {
+        self.triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| self.vertices[i as usize]);
+                let x = cross(b, c);
+                (a[0] * x[0] + a[1] * x[1] + a[2] * x[2]) / 6.0
+            })
+            .sum()
+    }
+
+    /// Total surface area of the triangles.
+    pub fn area(&self) -> f64 {
+        self.triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| self.vertices[i as usize]);
+                let x = cross(sub(b, a), sub(c, a));
+                0.5 * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt()
+            })
+            .sum()
+    }
+
+    /// Applies `f` to every vertex position (e.g. to map unit-cube coordinates to world
+    /// coordinates).
+    pub fn transform(&mut self, f: impl Fn([f64; 3]) -> [f64; 3]) {
+        for v in &mut self.vertices {
+            *v = f(*v);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tetra() -> Mesh {
+        Mesh {
+            vertices: vec![[0., 0., 0.], [1., 0., 0.], [0., 1., 0.], [0., 0., 1.]],
+            triangles: vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+            density: None,
+        }
+    }
+
+    #[test]
+    fn tetrahedron_is_closed() {
+        let m = tetra();
+        let t = m.topology();
+        assert!(t.closed && t.edge_manifold && t.vertex_manifold && t.oriented);
+        assert_eq!((t.vertices, t.faces, t.components, t.euler), (4, 4, 1, 2));
+        assert!((m.signed_volume() - 1.0 / 6.0).abs() < 1e-12);
+        let area = 1.5 + 3f64.sqrt() / 2.0;
+        assert!((m.area() - area).abs() < 1e-12);
+    }
+
+    #[test]
+    fn open_tetrahedron() {
+        let mut m = tetra();
+        m.triangles.pop();
+        let t = m.topology();
+        assert!(!t.closed && t.edge_manifold && t.vertex_manifold && t.oriented);
+        assert_eq!(t.boundary_edges, 3);
+        assert_eq!(t.euler, 1);
+    }
+
+    #[test]
+    fn two_tetrahedra_sharing_a_vertex() {
+        let mut m = tetra();
+        m.vertices
+            .extend([[-1., 0., 0.], [0., -1., 0.], [0., 0., -1.]]);
+        m.triangles
+            .extend([[0, 4, 5], [0, 6, 4], [0, 5, 6], [4, 6, 5]]);
+        let t = m.topology();
+        assert!(t.closed && t.edge_manifold && t.oriented);
+        assert!(!t.vertex_manifold);
+        assert_eq!(t.non_manifold_vertices, 1);
+        assert_eq!(t.components, 1);
+    }
+
+    #[test]
+    fn three_triangles_on_an_edge() {
+        let m = Mesh {
+            vertices: vec![
+                [0., 0., 0.],
+                [1., 0., 0.],
+                [0., 1., 0.],
+                [0., -1., 0.],
+                [0., 0., 1.],
+            ],
+            triangles: vec![[0, 1, 2], [1, 0, 3], [0, 1, 4]],
+            density: None,
+        };
+        let t = m.topology();
+        assert!(!t.edge_manifold && !t.closed && !t.oriented);
+        assert_eq!(t.non_manifold_edges, 1);
+    }
+
+    #[test]
+    fn flipped_triangle() {
+        let mut m = tetra();
+        m.triangles[3] = [1, 3, 2];
+        let t = m.topology();
+        assert!(t.closed && t.edge_manifold && !t.oriented);
+    }
+
+    #[test]
+    fn transform_scales_volume() {
+        let mut m = tetra();
+        m.transform(|p| [2.0 * p[0], 2.0 * p[1], 2.0 * p[2]]);
+        assert!((m.signed_volume() - 8.0 / 6.0).abs() < 1e-12);
+    }
+}

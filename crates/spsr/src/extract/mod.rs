@@ -1,0 +1,794 @@
+//! Iso-surface extraction on the adaptive octree (ALGORITHM.md §9).
+//!
+//! Method (a face-based variant of Kazhdan et al. 2007, as in §9.3–9.4):
+//!
+//! 1. Every distinct leaf corner is found once (keyed by its integer coordinates at
+//!    `max_depth`) and the field is evaluated there, in parallel.
+//! 2. The boundary of each leaf is tiled by *face pieces*: a leaf face whose neighbour is
+//!    same-size or coarser is one piece; a face whose neighbour is subdivided is tiled by the
+//!    finer leaves' faces (found recursively: a square is subdivided iff its centre is a leaf
+//!    corner). The sides of a piece are split into *finest edges* at every leaf corner that
+//!    lies on them (found recursively: a dyadic segment is split iff its midpoint is a leaf
+//!    corner). Both leaves that share a piece therefore see exactly the same polygon.
+//! 3. Each finest edge with a sign change carries one iso-vertex, placed by the quadratic fit
+//!    of §9.2 and keyed globally by the edge.
+//! 4. Marching squares on each piece: going round the piece, the crossings alternate between
+//!    "entering" (outside → inside) and "leaving"; each entering crossing is joined to the
+//!    leaving crossing that closes its inside run, except that pieces with exactly two inside
+//!    runs use the asymptotic decider on the piece's four corners to join the outside runs
+//!    instead. The rule only uses data of the piece, so both sides agree; the segment
+//!    direction is reversed for the leaf on the other side, which gives consistent
+//!    orientation. This generalises the "vertex pair" rule of §9.3: a finer crossing pair on a
+//!    coarse edge is joined along that edge.
+//! 5. The segments of a leaf chain into closed loops (every crossing on the leaf boundary lies
+//!    on exactly two of its pieces). Loops of two vertices (a pair joined along an edge from
+//!    both sides) enclose nothing and are dropped. Loops are triangulated in manifold mode:
+//!    if two non-consecutive vertices lie on a common face of the leaf, fan around the
+//!    barycentre, otherwise minimum-area triangulation.
+//!
+//! Inside is `χ > iso`; corners with `χ == iso` count as outside. Output order depends only on
+//! the input (leaf order), never on the thread count.
+
+mod table;
+#[cfg(test)]
+mod tests;
+
+use crate::mesh::Mesh;
+use rayon::prelude::*;
+use table::Table;
+
+/// A leaf cell of the octree: depth in the unit cube and integer offset (`0..2^depth` per axis).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Leaf {
+    /// Depth (the unit cube is depth 0).
+    pub depth: u32,
+    /// Offset of the cell, in cells of width `2^-depth`.
+    pub offset: [u32; 3],
+}
+
+/// The implicit function, sampled at cell corners.
+pub trait Field: Sync {
+    /// χ and ∇χ (unit-cube units) at the corner with integer coordinates `c` at depth
+    /// `max_depth` (each coordinate in `0..=2^max_depth`).
+    fn corner(&self, c: [u32; 3]) -> (f64, [f64; 3]);
+}
+
+/// Options of [`extract`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ExtractOptions {
+    /// Place iso-vertices by linear interpolation instead of the quadratic fit.
+    pub linear_fit: bool,
+}
+
+/// Largest supported `max_depth` (coordinates must fit the 20-bit key fields).
+const MAX_SUPPORTED_DEPTH: u32 = 18;
+/// Marks a triangle reference to a barycentre vertex (local to a chunk).
+const BARY: u64 = 1 << 63;
+/// Leaves per parallel work unit.
+const CHUNK: usize = 2048;
+/// Largest polygon triangulated by dynamic programming; larger ones are fanned.
+const MAX_DP: usize = 16;
+
+#[inline]
+fn pack(c: [u32; 3]) -> u64 {
+    c[0] as u64 | (c[1] as u64) << 20 | (c[2] as u64) << 40
+}
+
+#[inline]
+fn unpack(k: u64) -> [u32; 3] {
+    let m = (1u64 << 20) - 1;
+    [
+        (k & m) as u32,
+        ((k >> 20) & m) as u32,
+        ((k >> 40) & m) as u32,
+    ]
+}
+
+/// Key of the finest edge starting at `start` along `axis`.
+#[inline]
+fn edge_key(start: [u32; 3], axis: usize) -> u64 {
+    pack(start) | (axis as u64) << 60
+}
+
+/// Extracts the level set `χ = iso` over `leaves`, which tile the unit cube. Inside is
+/// `χ > iso`. Vertices are in unit-cube coordinates; triangles are counter-clockwise seen
+/// from outside (their normals point along −∇χ).
+pub fn extract(
+    leaves: &[Leaf],
+    max_depth: u32,
+    field: &dyn Field,
+    iso: f64,
+    opts: &ExtractOptions,
+) -> crate::Result<Mesh> {
+    extract_impl(leaves, max_depth, field, iso, opts).map(|(mesh, _, _)| mesh)
+}
+
+fn bad_leaves(message: &str) -> crate::Error {
+    crate::Error::InvalidParameter {
+        name: "leaves",
+        message: message.to_string(),
+    }
+}
+
+/// Per-corner samples: `χ − iso` and `∇χ`, indexed by corner rank.
+struct Samples {
+    d: Vec<f64>,
+    g: Vec<[f64; 3]>,
+}
+
+/// Shared read-only state of the per-leaf pass.
+struct Ctx<'a> {
+    corners: &'a Table,
+    s: &'a Samples,
+    max_depth: u32,
+    full: u32,
+    inv: f64,
+    linear: bool,
+}
+
+/// One crossing on a finest edge, as seen by a leaf.
+#[derive(Clone, Copy)]
+struct Crossing {
+    key: u64,
+    lo: [u32; 3],
+    axis: u8,
+    len: u32,
+    i0: u32,
+    i1: u32,
+}
+
+/// Reusable per-thread buffers.
+#[derive(Default)]
+struct Scratch {
+    bv: Vec<([u32; 3], u32)>,
+    cr: Vec<(u64, bool)>,
+    cross: Vec<Crossing>,
+    pos: Vec<[f64; 3]>,
+    segs: Vec<(u64, u64)>,
+    used: Vec<bool>,
+    poly: Vec<u32>,
+    bad: bool,
+}
+
+/// Output of one chunk of leaves.
+#[derive(Default)]
+struct ChunkOut {
+    owned_keys: Vec<u64>,
+    owned_pos: Vec<[f64; 3]>,
+    bary: Vec<[f64; 3]>,
+    tris: Vec<[u64; 3]>,
+    bad: bool,
+}
+
+/// The extraction proper; also returns the number of edge iso-vertices (without barycentres)
+/// and, in test builds only, which output vertices are edge iso-vertices.
+fn extract_impl(
+    leaves: &[Leaf],
+    max_depth: u32,
+    field: &dyn Field,
+    iso: f64,
+    opts: &ExtractOptions,
+) -> crate::Result<(Mesh, usize, Vec<bool>)> {
+    if max_depth > MAX_SUPPORTED_DEPTH {
+        return Err(crate::Error::InvalidParameter {
+            name: "--depth",
+            message: format!(
+                "extraction supports depths up to {MAX_SUPPORTED_DEPTH}, got {max_depth}"
+            ),
+        });
+    }
+    if leaves.is_empty() {
+        return Err(bad_leaves("no leaves: they must tile the unit cube"));
+    }
+    if leaves.len() >= u32::MAX as usize {
+        return Err(bad_leaves("too many leaves for 32-bit indices"));
+    }
+    // Validate ranges and total volume (overlaps plus gaps could still cancel; the
+    // per-leaf pass reports inconsistencies it meets).
+    let volume: Option<u128> = leaves
+        .par_iter()
+        .map(|l| {
+            (l.depth <= max_depth && l.offset.iter().all(|&o| (o as u64) < 1u64 << l.depth))
+                .then(|| 1u128 << (3 * (max_depth - l.depth)))
+        })
+        .try_reduce(|| 0, |a, b| Some(a + b));
+    if volume != Some(1u128 << (3 * max_depth)) {
+        return Err(bad_leaves("the leaves do not tile the unit cube"));
+    }
+
+    // 1. Distinct corners (an octree with n leaves has at most 8 + 19(n−1)/7 of them).
+    let n = leaves.len();
+    let bound = (8 + 19 * (n - 1) / 7).min(8 * n);
+    let corners = Table::with_capacity(bound);
+    let mut cidx: Vec<[u32; 8]> = leaves
+        .par_iter()
+        .enumerate()
+        .map(|(li, l)| {
+            let s = 1u32 << (max_depth - l.depth);
+            let lo = l.offset.map(|o| o * s);
+            let mut out = [0u32; 8];
+            for (c, o) in out.iter_mut().enumerate() {
+                let p = [
+                    lo[0] + s * (c as u32 & 1),
+                    lo[1] + s * ((c as u32 >> 1) & 1),
+                    lo[2] + s * ((c as u32 >> 2) & 1),
+                ];
+                *o = corners.insert_min(pack(p), li as u32)?;
+            }
+            Some(out)
+        })
+        .collect::<Option<Vec<_>>>()
+        .ok_or_else(|| bad_leaves("the leaves do not tile the unit cube (too many corners)"))?;
+    // Number the corners in order of first use by the leaves (deterministic, and keeps the
+    // samples of nearby leaves close in memory).
+    let mut entries = corners.entries();
+    entries.par_sort_unstable_by_key(|e| (e.0, e.1));
+    entries
+        .par_iter()
+        .enumerate()
+        .for_each(|(i, e)| corners.set(e.2, i as u32));
+    cidx.par_iter_mut()
+        .for_each(|c| *c = c.map(|slot| corners.val(slot)));
+
+    // 2. The field at every distinct corner, once.
+    let (d, g): (Vec<f64>, Vec<[f64; 3]>) = entries
+        .par_iter()
+        .map(|e| {
+            let (v, g) = field.corner(unpack(e.1));
+            (v - iso, g)
+        })
+        .unzip();
+    drop(entries);
+    let samples = Samples { d, g };
+
+    // 3. Polygons and triangles per leaf.
+    let ctx = Ctx {
+        corners: &corners,
+        s: &samples,
+        max_depth,
+        full: 1u32 << max_depth,
+        inv: 1.0 / (1u64 << max_depth) as f64,
+        linear: opts.linear_fit,
+    };
+    let chunks: Vec<ChunkOut> = leaves
+        .par_chunks(CHUNK)
+        .zip(cidx.par_chunks(CHUNK))
+        .map_init(Scratch::default, |sc, (ls, cs)| {
+            let mut out = ChunkOut::default();
+            for (l, c) in ls.iter().zip(cs) {
+                process_leaf(&ctx, sc, l, c, &mut out);
+                if sc.bad {
+                    sc.bad = false;
+                    out.bad = true;
+                }
+            }
+            out
+        })
+        .collect();
+    drop(cidx);
+    drop(corners);
+    if chunks.iter().any(|c| c.bad) {
+        return Err(bad_leaves(
+            "the leaves do not tile the unit cube (inconsistent boundaries)",
+        ));
+    }
+
+    // 4. Global vertex numbering: each edge vertex is emitted by exactly one owner leaf; chunk
+    //    c contributes its owned vertices, then its barycentres.
+    let mut bases = Vec::with_capacity(chunks.len());
+    let mut total = 0usize;
+    let mut n_edge_vertices = 0usize;
+    for c in &chunks {
+        bases.push(total);
+        total += c.owned_keys.len() + c.bary.len();
+        n_edge_vertices += c.owned_keys.len();
+    }
+    if total >= u32::MAX as usize {
+        return Err(bad_leaves("too many vertices for 32-bit indices"));
+    }
+    let vt = Table::with_capacity(n_edge_vertices);
+    chunks.par_iter().zip(&bases).for_each(|(c, &base)| {
+        for (i, &k) in c.owned_keys.iter().enumerate() {
+            if let Some(slot) = vt.insert(k) {
+                vt.set(slot, (base + i) as u32);
+            }
+        }
+    });
+    let tri_parts: Vec<Vec<[u32; 3]>> = chunks
+        .par_iter()
+        .zip(&bases)
+        .map(|(c, &base)| {
+            let bary_base = (base + c.owned_keys.len()) as u64;
+            c.tris
+                .iter()
+                .map(|t| {
+                    t.map(|r| {
+                        if r & BARY != 0 {
+                            (bary_base + (r & !BARY)) as u32
+                        } else {
+                            vt.get(r).unwrap_or(u32::MAX)
+                        }
+                    })
+                })
+                .collect()
+        })
+        .collect();
+    drop(vt);
+    let mut vertices = Vec::with_capacity(total);
+    let mut is_edge = Vec::with_capacity(if cfg!(test) { total } else { 0 });
+    for c in &chunks {
+        vertices.extend_from_slice(&c.owned_pos);
+        vertices.extend_from_slice(&c.bary);
+        if cfg!(test) {
+            is_edge.extend(std::iter::repeat(true).take(c.owned_pos.len()));
+            is_edge.extend(std::iter::repeat(false).take(c.bary.len()));
+        }
+    }
+    drop(chunks);
+    let mut triangles: Vec<[u32; 3]> = Vec::with_capacity(tri_parts.iter().map(Vec::len).sum());
+    for p in &tri_parts {
+        triangles.extend_from_slice(p);
+    }
+    drop(tri_parts);
+    if triangles.iter().flatten().any(|&i| i == u32::MAX) {
+        return Err(bad_leaves(
+            "the leaves do not tile the unit cube (unowned iso-vertex)",
+        ));
+    }
+
+    // 5. Drop vertices no triangle uses (possible only next to dropped two-vertex loops).
+    let mut used = vec![false; vertices.len()];
+    for &i in triangles.iter().flatten() {
+        used[i as usize] = true;
+    }
+    if used.iter().any(|&u| !u) {
+        let mut remap = vec![u32::MAX; vertices.len()];
+        let mut kept = Vec::with_capacity(vertices.len());
+        for (i, v) in vertices.iter().enumerate() {
+            if used[i] {
+                remap[i] = kept.len() as u32;
+                kept.push(*v);
+            }
+        }
+        vertices = kept;
+        if cfg!(test) {
+            is_edge = is_edge
+                .iter()
+                .zip(&used)
+                .filter(|(_, &u)| u)
+                .map(|(&e, _)| e)
+                .collect();
+        }
+        triangles
+            .par_iter_mut()
+            .for_each(|t| *t = t.map(|i| remap[i as usize]));
+    }
+    Ok((
+        Mesh {
+            vertices,
+            triangles,
+            density: None,
+        },
+        n_edge_vertices,
+        is_edge,
+    ))
+}
+
+/// Builds and triangulates the iso-polygons of one leaf.
+fn process_leaf(ctx: &Ctx, sc: &mut Scratch, leaf: &Leaf, cidx: &[u32; 8], out: &mut ChunkOut) {
+    let s = 1u32 << (ctx.max_depth - leaf.depth);
+    let lo = leaf.offset.map(|o| o * s);
+    let mut inside = 0u32;
+    for (c, &i) in cidx.iter().enumerate() {
+        if ctx.s.d[i as usize] > 0.0 {
+            inside |= 1 << c;
+        }
+    }
+    if s == 1 && (inside == 0 || inside == 0xff) {
+        return; // finest leaf: nothing can cross its boundary
+    }
+    sc.cross.clear();
+    sc.segs.clear();
+    for n in 0..3 {
+        let (u, v) = ((n + 1) % 3, (n + 2) % 3);
+        for side in 0..2u32 {
+            let mut origin = lo;
+            origin[n] += side * s;
+            let c0 = (side as usize) << n;
+            let known = [
+                cidx[c0],
+                cidx[c0 | 1 << u],
+                cidx[c0 | 1 << u | 1 << v],
+                cidx[c0 | 1 << v],
+            ];
+            face(ctx, sc, origin, s, n, side == 0, Some(known));
+        }
+    }
+    if sc.segs.is_empty() || sc.bad {
+        return;
+    }
+    finish_leaf(ctx, sc, lo, s, out);
+}
+
+/// Visits the pieces tiling the square `origin + [0,size]²` (normal `n`).
+fn face(
+    ctx: &Ctx,
+    sc: &mut Scratch,
+    origin: [u32; 3],
+    size: u32,
+    n: usize,
+    flip: bool,
+    known: Option<[u32; 4]>,
+) {
+    let (u, v) = ((n + 1) % 3, (n + 2) % 3);
+    if size > 1 {
+        let h = size / 2;
+        let mut c = origin;
+        c[u] += h;
+        c[v] += h;
+        if ctx.corners.contains(pack(c)) {
+            for (du, dv) in [(0, 0), (1, 0), (1, 1), (0, 1)] {
+                let mut o = origin;
+                o[u] += du * h;
+                o[v] += dv * h;
+                face(ctx, sc, o, h, n, flip, None);
+            }
+            return;
+        }
+    }
+    piece(ctx, sc, origin, size, n, flip, known);
+}
+
+/// Pushes the leaf corners strictly inside the dyadic segment from `a` (length `len` along
+/// `axis`, direction `dir`), in order from `a`.
+fn split_side(ctx: &Ctx, sc: &mut Scratch, a: [u32; 3], axis: usize, forward: bool, len: u32) {
+    if len <= 1 {
+        return;
+    }
+    let h = len / 2;
+    let mut m = a;
+    if forward {
+        m[axis] += h;
+    } else {
+        m[axis] -= h;
+    }
+    if let Some(i) = ctx.corners.get(pack(m)) {
+        split_side(ctx, sc, a, axis, forward, h);
+        sc.bv.push((m, i));
+        split_side(ctx, sc, m, axis, forward, h);
+    }
+}
+
+/// Marching squares on one face piece; appends its oriented segments and crossings.
+fn piece(
+    ctx: &Ctx,
+    sc: &mut Scratch,
+    origin: [u32; 3],
+    size: u32,
+    n: usize,
+    flip: bool,
+    known: Option<[u32; 4]>,
+) {
+    let (u, v) = ((n + 1) % 3, (n + 2) % 3);
+    let mut p = [origin; 4];
+    p[1][u] += size;
+    p[2][u] += size;
+    p[2][v] += size;
+    p[3][v] += size;
+    let idx = match known {
+        Some(k) => k,
+        None => {
+            let mut k = [0u32; 4];
+            for (ki, pi) in k.iter_mut().zip(&p) {
+                match ctx.corners.get(pack(*pi)) {
+                    Some(i) => *ki = i,
+                    None => {
+                        sc.bad = true;
+                        return;
+                    }
+                }
+            }
+            k
+        }
+    };
+    // Boundary, counter-clockwise around +n.
+    sc.bv.clear();
+    let sides = [(u, true), (v, true), (u, false), (v, false)];
+    for (c, &(axis, fwd)) in sides.iter().enumerate() {
+        sc.bv.push((p[c], idx[c]));
+        split_side(ctx, sc, p[c], axis, fwd, size);
+    }
+    let d = &ctx.s.d;
+    let first = d[sc.bv[0].1 as usize] > 0.0;
+    if sc.bv.iter().all(|b| (d[b.1 as usize] > 0.0) == first) {
+        return;
+    }
+    sc.cr.clear();
+    let nb = sc.bv.len();
+    for i in 0..nb {
+        let (pa, ia) = sc.bv[i];
+        let (pb, ib) = sc.bv[(i + 1) % nb];
+        let (ina, inb) = (d[ia as usize] > 0.0, d[ib as usize] > 0.0);
+        if ina == inb {
+            continue;
+        }
+        let axis = if pa[0] != pb[0] {
+            0
+        } else if pa[1] != pb[1] {
+            1
+        } else {
+            2
+        };
+        let (lo, i0, i1, len) = if pa[axis] < pb[axis] {
+            (pa, ia, ib, pb[axis] - pa[axis])
+        } else {
+            (pb, ib, ia, pa[axis] - pb[axis])
+        };
+        let key = edge_key(lo, axis);
+        sc.cr.push((key, inb));
+        sc.cross.push(Crossing {
+            key,
+            lo,
+            axis: axis as u8,
+            len,
+            i0,
+            i1,
+        });
+    }
+    // Pairing rule (see module docs).
+    let f = idx.map(|i| d[i as usize]);
+    let fin = f.map(|x| x > 0.0);
+    let join_outside = sc.cr.len() == 4
+        && fin[0] == fin[2]
+        && fin[1] == fin[3]
+        && fin[0] != fin[1]
+        && (f[0] * f[2] - f[1] * f[3]) / (f[0] + f[2] - f[1] - f[3]) > 0.0;
+    let m = sc.cr.len();
+    for i in 0..m {
+        let (ki, entry) = sc.cr[i];
+        let kn = sc.cr[(i + 1) % m].0;
+        let seg = match (entry, join_outside) {
+            (true, false) => (ki, kn),
+            (false, true) => (kn, ki),
+            _ => continue,
+        };
+        sc.segs.push(if flip { (seg.1, seg.0) } else { seg });
+    }
+}
+
+/// Root of the fitted edge function in `[0, 1]` (ALGORITHM.md §9.2). `x0, x1` are the
+/// endpoint values minus iso (opposite signs), `g0, g1` the derivatives along the edge in
+/// edge-parameter units.
+fn edge_root(x0: f64, x1: f64, g0: f64, g1: f64, linear: bool) -> f64 {
+    let lin = (x0 / (x0 - x1)).clamp(0.0, 1.0);
+    if linear {
+        return lin;
+    }
+    let delta = x1 - x0;
+    let scale = delta / ((g0 + g1) * 0.5);
+    if !scale.is_finite() {
+        return lin;
+    }
+    let (g0, g1) = (g0 * scale, g1 * scale);
+    let a = 3.0 * delta - g1 - 2.0 * g0;
+    let b = g0;
+    let c = x0;
+    const EPS: f64 = 1e-12;
+    let ok = |t: f64| t.is_finite() && (-EPS..=1.0 + EPS).contains(&t);
+    let (mut sum, mut count) = (0.0, 0);
+    if a == 0.0 {
+        if b != 0.0 && ok(-c / b) {
+            sum = -c / b;
+            count = 1;
+        }
+    } else {
+        let disc = b * b - 4.0 * a * c;
+        if disc >= 0.0 {
+            let sq = disc.sqrt();
+            let q = -0.5 * (b + if b >= 0.0 { sq } else { -sq });
+            let r1 = q / a;
+            let r2 = if q != 0.0 { c / q } else { r1 };
+            for r in [r1, r2] {
+                if ok(r) {
+                    sum += r;
+                    count += 1;
+                }
+            }
+        }
+    }
+    if count == 0 {
+        lin
+    } else {
+        (sum / count as f64).clamp(0.0, 1.0)
+    }
+}
+
+/// The iso-vertex position on a crossing's edge.
+fn crossing_point(ctx: &Ctx, c: &Crossing) -> [f64; 3] {
+    let axis = c.axis as usize;
+    let (x0, x1) = (ctx.s.d[c.i0 as usize], ctx.s.d[c.i1 as usize]);
+    let h = c.len as f64 * ctx.inv;
+    let g0 = ctx.s.g[c.i0 as usize][axis] * h;
+    let g1 = ctx.s.g[c.i1 as usize][axis] * h;
+    let t = edge_root(x0, x1, g0, g1, ctx.linear);
+    let mut p = c.lo.map(|x| x as f64 * ctx.inv);
+    p[axis] += t * h;
+    p
+}
+
+/// Whether the leaf at `lo` (size `s`) owns the edge vertex of `c`: it contains the edge's
+/// midpoint nudged towards + along both other axes (towards − on the cube's far faces).
+fn owns(ctx: &Ctx, lo: [u32; 3], s: u32, c: &Crossing) -> bool {
+    let a = c.axis as usize;
+    (0..3).filter(|&b| b != a).all(|b| {
+        let e = c.lo[b];
+        if e < ctx.full {
+            lo[b] <= e && e < lo[b] + s
+        } else {
+            lo[b] + s == ctx.full
+        }
+    })
+}
+
+/// Chains the segments of a leaf into loops and triangulates them.
+fn finish_leaf(ctx: &Ctx, sc: &mut Scratch, lo: [u32; 3], s: u32, out: &mut ChunkOut) {
+    sc.cross.sort_unstable_by_key(|c| c.key);
+    sc.cross.dedup_by_key(|c| c.key);
+    sc.pos.clear();
+    for c in &sc.cross {
+        let p = crossing_point(ctx, c);
+        sc.pos.push(p);
+        if owns(ctx, lo, s, c) {
+            out.owned_keys.push(c.key);
+            out.owned_pos.push(p);
+        }
+    }
+    sc.segs.sort_unstable();
+    if sc.segs.windows(2).any(|w| w[0].0 == w[1].0) {
+        sc.bad = true;
+        return;
+    }
+    sc.used.clear();
+    sc.used.resize(sc.segs.len(), false);
+    for start in 0..sc.segs.len() {
+        if sc.used[start] {
+            continue;
+        }
+        sc.poly.clear();
+        let mut cur = start;
+        loop {
+            sc.used[cur] = true;
+            let (from, to) = sc.segs[cur];
+            match sc.cross.binary_search_by_key(&from, |c| c.key) {
+                Ok(i) => sc.poly.push(i as u32),
+                Err(_) => {
+                    sc.bad = true;
+                    return;
+                }
+            }
+            match sc.segs.binary_search_by_key(&to, |s| s.0) {
+                Ok(j) if j == start => break,
+                Ok(j) if !sc.used[j] => cur = j,
+                _ => {
+                    sc.bad = true;
+                    return;
+                }
+            }
+        }
+        if sc.poly.len() >= 3 {
+            triangulate(sc, lo, s, out);
+        }
+    }
+}
+
+/// Bit mask of the leaf faces (2·axis + side) that the crossing lies on.
+fn face_mask(c: &Crossing, lo: [u32; 3], s: u32) -> u32 {
+    let mut m = 0;
+    for (b, (&e, &l)) in c.lo.iter().zip(&lo).enumerate() {
+        if b == c.axis as usize {
+            continue;
+        }
+        if e == l {
+            m |= 1 << (2 * b);
+        } else if e == l + s {
+            m |= 1 << (2 * b + 1);
+        }
+    }
+    m
+}
+
+/// Triangulates the loop in `sc.poly` (indices into `sc.cross`).
+#[allow(clippy::needless_range_loop)]
+fn triangulate(sc: &mut Scratch, lo: [u32; 3], s: u32, out: &mut ChunkOut) {
+    let poly = &sc.poly;
+    let k = poly.len();
+    let key = |i: usize| sc.cross[poly[i] as usize].key;
+    if k == 3 {
+        out.tris.push([key(0), key(1), key(2)]);
+        return;
+    }
+    let mut fan = k > MAX_DP;
+    if !fan {
+        let mut masks = [0u32; MAX_DP];
+        for (m, &p) in masks.iter_mut().zip(poly.iter()) {
+            *m = face_mask(&sc.cross[p as usize], lo, s);
+        }
+        'outer: for i in 0..k {
+            for j in i + 2..k {
+                if i == 0 && j == k - 1 {
+                    continue;
+                }
+                if masks[i] & masks[j] != 0 {
+                    fan = true;
+                    break 'outer;
+                }
+            }
+        }
+    }
+    let pos = |i: usize| sc.pos[poly[i] as usize];
+    if fan {
+        let mut b = [0.0; 3];
+        for i in 0..k {
+            let p = pos(i);
+            for a in 0..3 {
+                b[a] += p[a];
+            }
+        }
+        let b = b.map(|x| x / k as f64);
+        let r = BARY | out.bary.len() as u64;
+        out.bary.push(b);
+        for i in 0..k {
+            out.tris.push([r, key(i), key((i + 1) % k)]);
+        }
+        return;
+    }
+    // Minimum-area triangulation by dynamic programming over polygon intervals.
+    let mut cost = [[0.0f64; MAX_DP]; MAX_DP];
+    let mut split = [[0u8; MAX_DP]; MAX_DP];
+    let mut pts = [[0.0f64; 3]; MAX_DP];
+    for (i, p) in pts.iter_mut().enumerate().take(k) {
+        *p = pos(i);
+    }
+    let area = |a: usize, b: usize, c: usize| {
+        let (pa, pb, pc) = (pts[a], pts[b], pts[c]);
+        let u = [pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]];
+        let v = [pc[0] - pa[0], pc[1] - pa[1], pc[2] - pa[2]];
+        let x = [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ];
+        (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt()
+    };
+    for gap in 2..k {
+        for i in 0..k - gap {
+            let j = i + gap;
+            let mut best = f64::INFINITY;
+            let mut bm = i + 1;
+            for m in i + 1..j {
+                let c = cost[i][m] + cost[m][j] + area(i, m, j);
+                if c < best {
+                    best = c;
+                    bm = m;
+                }
+            }
+            cost[i][j] = best;
+            split[i][j] = bm as u8;
+        }
+    }
+    let mut stack = [(0usize, 0usize); MAX_DP];
+    let mut top = 1;
+    stack[0] = (0, k - 1);
+    while top > 0 {
+        top -= 1;
+        let (i, j) = stack[top];
+        if j < i + 2 {
+            continue;
+        }
+        let m = split[i][j] as usize;
+        out.tris.push([key(i), key(m), key(j)]);
+        stack[top] = (i, m);
+        stack[top + 1] = (m, j);
+        top += 2;
+    }
+}

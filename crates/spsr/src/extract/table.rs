@@ -1,0 +1,149 @@
+//! A fixed-capacity open-addressing hash table from packed `u64` keys to `u32` values that
+//! many threads can fill at once (lock-free insertion by compare-and-swap), then read.
+//!
+//! Which slot a key lands in depends on the insertion order, so callers never expose slot
+//! numbers: they store deterministic values (ranks, indices, minima) and read those back.
+//!
+//! Keys are packed integer points (20 bits per axis, see `super::pack`). The hash keeps
+//! 2×2×2 blocks of neighbouring points in 8 consecutive slots, so the corners of nearby
+//! cells share cache lines; the blocks themselves are spread by a strong mixer.
+
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering::Relaxed};
+
+/// Marks an empty slot. Packed keys never have all bits set.
+pub(super) const EMPTY: u64 = u64::MAX;
+
+#[repr(C, align(16))]
+struct Slot {
+    key: AtomicU64,
+    val: AtomicU32,
+}
+
+/// Concurrent insert-only hash table (linear probing).
+pub(super) struct Table {
+    slots: Vec<Slot>,
+    mask: usize,
+}
+
+/// A strong 64-bit mixer (the MurmurHash3 finaliser).
+#[inline]
+fn mix(mut k: u64) -> u64 {
+    k ^= k >> 33;
+    k = k.wrapping_mul(0xff51_afd7_ed55_8ccd);
+    k ^= k >> 33;
+    k = k.wrapping_mul(0xc4ce_b9fe_1a85_ec53);
+    k ^ (k >> 33)
+}
+
+/// Bits of each axis (and of the edge axis tag above them) that select the 2×2×2 block.
+const LOW: u64 = 1 | 1 << 20 | 1 << 40;
+
+#[inline]
+fn hash(k: u64) -> u64 {
+    let off = (k & 1) | (k >> 19 & 2) | (k >> 38 & 4);
+    (mix(k & !LOW) << 3) | off
+}
+
+impl Table {
+    /// A table able to hold `n` keys with a load factor of at most about 0.7.
+    pub(super) fn with_capacity(n: usize) -> Table {
+        let cap = ((n.max(8) as f64 * 1.45) as usize).next_power_of_two();
+        let mut slots = Vec::with_capacity(cap);
+        slots.resize_with(cap, || Slot {
+            key: AtomicU64::new(EMPTY),
+            val: AtomicU32::new(u32::MAX),
+        });
+        Table {
+            slots,
+            mask: cap - 1,
+        }
+    }
+
+    /// Inserts `key` if absent; returns its slot, or `None` when the table is full.
+    #[inline]
+    pub(super) fn insert(&self, key: u64) -> Option<u32> {
+        let mut i = hash(key) as usize & self.mask;
+        for _ in 0..=self.mask {
+            let s = &self.slots[i].key;
+            let cur = s.load(Relaxed);
+            if cur == key {
+                return Some(i as u32);
+            }
+            if cur == EMPTY {
+                match s.compare_exchange(EMPTY, key, Relaxed, Relaxed) {
+                    Ok(_) => return Some(i as u32),
+                    Err(actual) if actual == key => return Some(i as u32),
+                    Err(_) => {}
+                }
+            }
+            i = (i + 1) & self.mask;
+        }
+        None
+    }
+
+    /// Inserts `key` if absent and lowers its value to at most `v`; returns its slot.
+    #[inline]
+    pub(super) fn insert_min(&self, key: u64, v: u32) -> Option<u32> {
+        let slot = self.insert(key)?;
+        let val = &self.slots[slot as usize].val;
+        if val.load(Relaxed) > v {
+            val.fetch_min(v, Relaxed);
+        }
+        Some(slot)
+    }
+
+    /// The slot of `key`, if present.
+    #[inline]
+    pub(super) fn slot(&self, key: u64) -> Option<u32> {
+        let mut i = hash(key) as usize & self.mask;
+        for _ in 0..=self.mask {
+            let cur = self.slots[i].key.load(Relaxed);
+            if cur == key {
+                return Some(i as u32);
+            }
+            if cur == EMPTY {
+                return None;
+            }
+            i = (i + 1) & self.mask;
+        }
+        None
+    }
+
+    /// Whether `key` is present.
+    #[inline]
+    pub(super) fn contains(&self, key: u64) -> bool {
+        self.slot(key).is_some()
+    }
+
+    /// The value stored for `key`, if present.
+    #[inline]
+    pub(super) fn get(&self, key: u64) -> Option<u32> {
+        self.slot(key).map(|s| self.val(s))
+    }
+
+    /// Stores `val` in slot `slot`.
+    #[inline]
+    pub(super) fn set(&self, slot: u32, val: u32) {
+        self.slots[slot as usize].val.store(val, Relaxed);
+    }
+
+    /// The value in slot `slot`.
+    #[inline]
+    pub(super) fn val(&self, slot: u32) -> u32 {
+        self.slots[slot as usize].val.load(Relaxed)
+    }
+
+    /// `(value, key, slot)` of every key present, in slot order (which depends on the
+    /// insertion order).
+    pub(super) fn entries(&self) -> Vec<(u32, u64, u32)> {
+        use rayon::prelude::*;
+        self.slots
+            .par_iter()
+            .enumerate()
+            .filter_map(|(i, s)| {
+                let k = s.key.load(Relaxed);
+                (k != EMPTY).then(|| (s.val.load(Relaxed), k, i as u32))
+            })
+            .collect()
+    }
+}
