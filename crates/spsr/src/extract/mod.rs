@@ -560,7 +560,12 @@ fn piece(
 /// endpoint values minus iso (opposite signs), `g0, g1` the derivatives along the edge in
 /// edge-parameter units.
 fn edge_root(x0: f64, x1: f64, g0: f64, g1: f64, linear: bool) -> f64 {
-    let lin = (x0 / (x0 - x1)).clamp(0.0, 1.0);
+    let lin = x0 / (x0 - x1);
+    let lin = if lin.is_nan() {
+        0.5
+    } else {
+        lin.clamp(0.0, 1.0)
+    };
     if linear {
         return lin;
     }

@@ -640,6 +640,36 @@ fn sphere_cut_by_the_cube_boundary() {
 }
 
 #[test]
+fn deepest_supported_depth() {
+    // One path refined to depth 18 around a point of the surface, everything else coarse:
+    // exercises the full key range and jumps of up to 17 depths.
+    let s = sphere();
+    let p0 = [s.c[0] + s.r, s.c[1], s.c[2]];
+    let q0 = [0.999_999, 0.5, 0.5];
+    let s2 = Sphere {
+        c: [1.0, 0.5, 0.5],
+        r: 0.2,
+    };
+    for (f, p) in [(&s, p0), (&s2, q0)] {
+        let leaves = leaves_of(&internal_from(18, &|d, o| {
+            let (c, w) = center(d, o);
+            d < 3 || (0..3).all(|i| (p[i] - c[i]).abs() <= 0.5 * w)
+        }));
+        assert!(leaves.iter().any(|l| l.depth == 18));
+        let (mesh, n, _) = run(&leaves, 18, f, 0.0, false);
+        assert!(n > 0);
+        let t = mesh.topology();
+        assert!(t.edge_manifold && t.vertex_manifold && t.oriented, "{t:?}");
+        assert_eq!(t.components, 1, "{t:?}");
+        if f.c[0] < 0.9 {
+            assert!(t.closed && t.euler == 2, "{t:?}");
+        } else {
+            assert!(!t.closed && t.euler == 1, "{t:?}");
+        }
+    }
+}
+
+#[test]
 fn deterministic_across_thread_counts() {
     let s = sphere();
     let leaves = random_tree(&s, 5, 7);
@@ -724,7 +754,15 @@ fn speed() {
         f: &s,
         inv: 1.0 / (1u64 << depth) as f64,
     };
-    eprintln!("tree: {} leaves in {:?}", leaves.len(), t0.elapsed());
+    let mut hist = vec![0usize; depth as usize + 1];
+    for l in &leaves {
+        hist[l.depth as usize] += 1;
+    }
+    eprintln!(
+        "tree: {} leaves in {:?}, per depth {hist:?}",
+        leaves.len(),
+        t0.elapsed()
+    );
     for _ in 0..2 {
         let t = std::time::Instant::now();
         let mesh = extract(&leaves, depth, &grid, 0.0, &ExtractOptions::default()).unwrap();
