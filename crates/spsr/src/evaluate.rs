@@ -31,6 +31,11 @@ impl<'a> Evaluator<'a> {
         }
     }
 
+    /// B-spline degree of the elements.
+    pub fn degree(&self) -> u8 {
+        self.fem.degree
+    }
+
     /// Deepest unit depth of the tree.
     pub fn max_depth(&self) -> u32 {
         self.t_max - DEPTH_OFFSET
@@ -156,12 +161,38 @@ pub struct CornerField<'a> {
 }
 
 impl Field for CornerField<'_> {
+    /// The value at the corner, and the central gradient: the mean of the one-sided
+    /// derivatives on either side of the corner. With degree-1 elements χ is piecewise
+    /// trilinear and its derivative jumps at every corner; a one-sided derivative there is the
+    /// slope of one neighbouring edge only, which bends the quadratic vertex fit (§9.2) towards
+    /// that edge. For degree 2 (C¹) both sides agree and nothing changes.
     fn corner(&self, c: [u32; 3]) -> (f64, [f64; 3]) {
         let s = 1.0 / (1u64 << self.depth) as f64;
-        self.eval.value_grad([
+        let p = [
             f64::from(c[0]) * s,
             f64::from(c[1]) * s,
             f64::from(c[2]) * s,
-        ])
+        ];
+        let (v, g) = self.eval.value_grad(p);
+        if self.eval.degree() != 1 {
+            return (v, g);
+        }
+        // Just below the corner on every axis (clamped at the cube's lower faces), where the
+        // evaluation uses the cells on the other side.
+        let eps = s * 1e-6;
+        let q = [
+            (p[0] - eps).max(0.0),
+            (p[1] - eps).max(0.0),
+            (p[2] - eps).max(0.0),
+        ];
+        let (_, gl) = self.eval.value_grad(q);
+        (
+            v,
+            [
+                0.5 * (g[0] + gl[0]),
+                0.5 * (g[1] + gl[1]),
+                0.5 * (g[2] + gl[2]),
+            ],
+        )
     }
 }

@@ -450,10 +450,6 @@ mod tests {
     use super::*;
 
     /// Points on a sphere by the golden-angle spiral, with exact outward normals.
-    pub(super) fn sphere_pub(n: usize, c: [f64; 3], r: f64) -> PointCloud {
-        sphere(n, c, r)
-    }
-
     fn sphere(n: usize, c: [f64; 3], r: f64) -> PointCloud {
         let mut pos = Vec::with_capacity(n);
         let mut nor = Vec::with_capacity(n);
@@ -467,10 +463,6 @@ mod tests {
             nor.push(u);
         }
         PointCloud::new(pos, nor).unwrap()
-    }
-
-    pub(super) fn radial_crossing_pub(imp: &Implicit, c: [f64; 3], r: f64, dir: [f64; 3]) -> f64 {
-        radial_crossing(imp, c, r, dir)
     }
 
     fn radial_crossing(imp: &Implicit, c: [f64; 3], r: f64, dir: [f64; 3]) -> f64 {
@@ -527,106 +519,5 @@ mod tests {
             );
             assert!(worst < 0.1 * cell, "degree {degree}: radial error {worst}");
         }
-    }
-}
-
-#[cfg(test)]
-mod probe {
-    use super::*;
-    #[test]
-    #[ignore]
-    fn probe_sphere_error() {
-        let c = [0.1, -0.2, 0.3];
-        let deg: u8 = std::env::var("DEG")
-            .map(|s| s.parse().unwrap())
-            .unwrap_or(1);
-        let n: usize = std::env::var("NPTS")
-            .map(|s| s.parse().unwrap())
-            .unwrap_or(100000);
-        let mut st = 12345u64;
-        let mut rnd = || {
-            st ^= st << 13;
-            st ^= st >> 7;
-            st ^= st << 17;
-            (st >> 11) as f64 / (1u64 << 53) as f64
-        };
-        let mut pos = vec![];
-        let mut nor = vec![];
-        for _ in 0..n {
-            loop {
-                let v = [2.0 * rnd() - 1.0, 2.0 * rnd() - 1.0, 2.0 * rnd() - 1.0];
-                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                if l > 0.1 && l <= 1.0 {
-                    let u = [v[0] / l, v[1] / l, v[2] / l];
-                    pos.push([c[0] + u[0], c[1] + u[1], c[2] + u[2]]);
-                    nor.push(u);
-                    break;
-                }
-            }
-        }
-        let cloud = if std::env::var("SPIRAL").is_ok() {
-            super::tests::sphere_pub(n, c, 1.0)
-        } else {
-            PointCloud::new(pos, nor).unwrap()
-        };
-        let iters: u32 = std::env::var("ITERS")
-            .map(|s| s.parse().unwrap())
-            .unwrap_or(8);
-        let params = Params {
-            depth: 7,
-            degree: deg,
-            iters,
-            ..Params::default()
-        };
-        let imp = solve_implicit(&cloud, &params, &|_| {}).unwrap();
-        let mut errs = vec![];
-        for k in 0..400 {
-            let z = 1.0 - 2.0 * (k as f64 + 0.5) / 400.0;
-            let rho = (1.0 - z * z).sqrt();
-            let th = 2.39996 * k as f64;
-            let dir = [rho * th.cos(), rho * th.sin(), z];
-            errs.push(super::tests::radial_crossing_pub(&imp, c, 1.0, dir) - 1.0);
-        }
-        let mean = errs.iter().sum::<f64>() / errs.len() as f64;
-        let mabs = errs.iter().map(|e| e.abs()).sum::<f64>() / errs.len() as f64;
-        let mx = errs.iter().map(|e| e.abs()).fold(0.0, f64::max);
-        eprintln!("iso {} mean signed {mean:.3e} mean abs {mabs:.3e} max {mx:.3e} nodes {:?} samples {} meandepth {}", imp.iso, imp.stats.nodes_per_depth, imp.stats.samples, imp.stats.mean_sample_depth);
-    }
-}
-
-#[cfg(test)]
-mod profile {
-    use super::*;
-    /// `SPSR_PROFILE=path.ply DEPTH=10 cargo test --release -p spsr --lib profile -- --ignored --nocapture`
-    #[test]
-    #[ignore]
-    fn profile_stages() {
-        let Ok(path) = std::env::var("SPSR_PROFILE") else {
-            return;
-        };
-        let depth: u32 = std::env::var("DEPTH")
-            .map(|s| s.parse().unwrap())
-            .unwrap_or(10);
-        let t = Instant::now();
-        let cloud = crate::io::read_points(path.as_ref()).unwrap();
-        eprintln!("read {:?}", t.elapsed());
-        let imp = solve_implicit(
-            &cloud,
-            &Params {
-                depth,
-                ..Params::default()
-            },
-            &|s| eprintln!("  .. {s}"),
-        )
-        .unwrap();
-        for (s, d) in &imp.stats.stages {
-            eprintln!("{s:>20} {d:?}");
-        }
-        eprintln!(
-            "nodes {:?} total {}",
-            imp.stats.nodes_per_depth,
-            imp.stats.nodes_per_depth.iter().sum::<usize>()
-        );
-        eprintln!("samples {} iso {}", imp.stats.samples, imp.iso);
     }
 }

@@ -417,17 +417,17 @@ pub fn solve(p: &Problem) -> Solution {
         *clock = std::time::Instant::now();
     };
     let mut tcons: Vec<Vec<f64>> = vec![Vec::new(); nlev];
+    let mut g_finer: Vec<f64> = Vec::new();
+    let empty: Vec<[f32; 3]> = Vec::new();
     for t in (tb..=max_level).rev() {
         let tab = p.tables[t].as_ref().expect("tables");
-        let finer = if t < max_level {
-            Some(tcons[t + 1].as_slice())
-        } else {
-            None
-        };
-        let b = divergence_constraints(tree, t as u32, tab, p.fem, &p.v[t], finer);
+        let v_finer = p.v.get(t + 1).unwrap_or(&empty);
+        let gf = (t < max_level).then_some(g_finer.as_slice());
+        let (g, b) = divergence_constraints(tree, t as u32, tab, p.fem, &p.v[t], v_finer, gf);
+        g_finer = g;
         tcons[t] = b;
     }
-
+    drop(g_finer);
     lap("divergence constraints".into(), &mut clock);
     let mut sol = Solution {
         x: vec![Vec::new(); nlev],

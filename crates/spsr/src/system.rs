@@ -117,6 +117,52 @@ pub struct DepthTables {
     pub pstencil: Box<[[f64; 125]; 8]>,
     /// Interior parent V stencils, by child parity, component and parent window index.
     pub pvstencil: Box<[[[f64; 125]; 3]; 8]>,
+    /// FEM values of this depth against V functions one depth finer.
+    pub cvmass: CoarseFine,
+    /// FEM derivatives of this depth against V functions one depth finer.
+    pub cvderiv: CoarseFine,
+    /// Interior stencils of `∫∂_a B_I · B^V_o` for V one depth finer, by component and
+    /// offset `o − 2I ∈ [−3, 4]^3` (index `(kx+3) + 8(ky+3) + 64(kz+3)`).
+    pub cvstencil: Box<[[f64; 512]; 3]>,
+}
+
+/// 1-D integrals between the FEM functions `I` of one depth and the V functions `o` one depth
+/// finer, for offsets `o − 2I ∈ [−3, 4]`. Built exactly from the two-scale relation,
+/// `∫B_I^(k) B_o = Σ_j c_Ij ∫B_{j}^(k) B_o`, with the same-depth tables of the finer depth.
+#[derive(Debug, Clone)]
+pub struct CoarseFine {
+    lo: i64,
+    rows: Vec<[f64; 8]>,
+}
+
+impl CoarseFine {
+    fn new(fem: Basis, d: u32, fine: &Table1D) -> Self {
+        let (lo, hi) = fem.index_range(d);
+        let mut out = [(0i64, 0.0f64); 4];
+        let rows = (lo..=hi)
+            .map(|i| {
+                let k = fem.children(d, i, &mut out);
+                let mut row = [0.0; 8];
+                for (slot, r) in row.iter_mut().enumerate() {
+                    let o = 2 * i + slot as i64 - 3;
+                    *r = out[..k].iter().map(|&(j, c)| c * fine.get(j, o - j)).sum();
+                }
+                row
+            })
+            .collect();
+        Self { lo, rows }
+    }
+
+    /// Entry for coarse index `i` and offset `k = o − 2i` (0 outside `[−3, 4]` or the range).
+    #[inline]
+    pub fn get(&self, i: i64, k: i64) -> f64 {
+        if !(-3..=4).contains(&k) {
+            return 0.0;
+        }
+        self.rows
+            .get((i - self.lo) as usize)
+            .map_or(0.0, |r| r[(k + 3) as usize])
+    }
 }
 
 impl DepthTables {
@@ -180,7 +226,33 @@ impl DepthTables {
                 }
             }
         }
+        let cvmass = CoarseFine::new(fem, d, &table(fem, vb, d + 1, false, Integrand::ValueValue));
+        let cvderiv = CoarseFine::new(fem, d, &table(fem, vb, d + 1, false, Integrand::DerivValue));
+        let mut cvstencil = Box::new([[0.0; 512]; 3]);
+        for w in 0..512 {
+            let k = [
+                (w % 8) as i64 - 3,
+                ((w / 8) % 8) as i64 - 3,
+                (w / 64) as i64 - 3,
+            ];
+            let m = [
+                cvmass.get(mid, k[0]),
+                cvmass.get(mid, k[1]),
+                cvmass.get(mid, k[2]),
+            ];
+            let dv = [
+                cvderiv.get(mid, k[0]),
+                cvderiv.get(mid, k[1]),
+                cvderiv.get(mid, k[2]),
+            ];
+            cvstencil[0][w] = dv[0] * m[1] * m[2];
+            cvstencil[1][w] = m[0] * dv[1] * m[2];
+            cvstencil[2][w] = m[0] * m[1] * dv[2];
+        }
         Self {
+            cvmass,
+            cvderiv,
+            cvstencil,
             range: Range { lo, hi },
             vrange: Range { lo: vlo, hi: vhi },
             pmass,
@@ -344,16 +416,23 @@ pub fn cluster_offsets(degree: u8) -> &'static [i64] {
     }
 }
 
-/// `∫∇B_i·V` for every node of level `t` from the V coefficients of the same level,
-/// plus the restriction of `finer` (the same quantity one level down), ALGORITHM.md §6.
+/// Divergence constraints of level `t` (ALGORITHM.md §6), fine to coarse. Returns
+/// `(G_t, T_t)` where `G_t[i] = ∫∇B_i·V_{>d}` (V of all finer depths) and
+/// `T_t = G_t + ∫∇B_i·V_d` (adding the same depth).
+///
+/// `G_t` is the restriction of `G_{t+1}` (V two or more depths finer: exact, because the
+/// conforming windows guarantee every child function that such V touches) plus the V of the
+/// next depth applied directly through the coarse-FEM × fine-V tables: restricting the next
+/// depth's own constraints instead would miss the children functions that have no node.
 pub fn divergence_constraints(
     tree: &Octree,
     t: u32,
     tab: &DepthTables,
     fem: Basis,
     v: &[[f32; 3]],
-    finer: Option<&[f64]>,
-) -> Vec<f64> {
+    v_finer: &[[f32; 3]],
+    g_finer: Option<&[f64]>,
+) -> (Vec<f64>, Vec<f64>) {
     let d = t - DEPTH_OFFSET;
     let level = &tree.levels[t as usize];
     let next = tree.levels.get(t as usize + 1);
@@ -362,11 +441,72 @@ pub fn divergence_constraints(
         .map(|n| {
             let i = func_index(level.keys[n as usize], d);
             if !tab.range.contains(i) {
-                return 0.0;
+                return (0.0, 0.0);
             }
-            let mut b = 0.0;
+            let interior = tab.is_interior(i);
+            let mut g = 0.0;
+            if let (Some(gf), Some(next)) = (g_finer, next) {
+                g += restrict_one(tree, level, next, fem, d, n, i, gf);
+            }
+            if !v_finer.is_empty() {
+                let mut m1 = [[0.0; 8]; 3];
+                let mut d1 = [[0.0; 8]; 3];
+                if !interior {
+                    for a in 0..3 {
+                        for k in 0..8 {
+                            m1[a][k] = tab.cvmass.get(i[a], k as i64 - 3);
+                            d1[a][k] = tab.cvderiv.get(i[a], k as i64 - 3);
+                        }
+                    }
+                }
+                for w in 0..125 {
+                    let m = neighbor_in(level, n, w);
+                    if m == NONE {
+                        continue;
+                    }
+                    let b = level.child[m as usize];
+                    if b == NONE {
+                        continue;
+                    }
+                    let o = [
+                        (w % 5) as i64 - 2,
+                        ((w / 5) % 5) as i64 - 2,
+                        (w / 25) as i64 - 2,
+                    ];
+                    for c in 0..8u32 {
+                        let vf = v_finer[(b * 8 + c) as usize];
+                        if vf == [0.0; 3] {
+                            continue;
+                        }
+                        let k = [
+                            2 * o[0] + i64::from(c & 1),
+                            2 * o[1] + i64::from((c >> 1) & 1),
+                            2 * o[2] + i64::from(c >> 2),
+                        ];
+                        if k.iter().any(|&x| !(-3..=4).contains(&x)) {
+                            continue;
+                        }
+                        let vf = [f64::from(vf[0]), f64::from(vf[1]), f64::from(vf[2])];
+                        if interior {
+                            let w8 = ((k[0] + 3) + 8 * (k[1] + 3) + 64 * (k[2] + 3)) as usize;
+                            g += vf[0] * tab.cvstencil[0][w8]
+                                + vf[1] * tab.cvstencil[1][w8]
+                                + vf[2] * tab.cvstencil[2][w8];
+                        } else {
+                            let (x, y, z) = (
+                                (k[0] + 3) as usize,
+                                (k[1] + 3) as usize,
+                                (k[2] + 3) as usize,
+                            );
+                            g += vf[0] * d1[0][x] * m1[1][y] * m1[2][z]
+                                + vf[1] * m1[0][x] * d1[1][y] * m1[2][z]
+                                + vf[2] * m1[0][x] * m1[1][y] * d1[2][z];
+                        }
+                    }
+                }
+            }
+            let mut b = g;
             if !v.is_empty() {
-                let interior = tab.is_interior(i);
                 for w in 0..125 {
                     let m = neighbor_in(level, n, w);
                     if m == NONE {
@@ -397,12 +537,9 @@ pub fn divergence_constraints(
                     b += vm[0] * dx * my * mz + vm[1] * mx * dy * mz + vm[2] * mx * my * dz;
                 }
             }
-            if let (Some(f), Some(next)) = (finer, next) {
-                b += restrict_one(tree, level, next, fem, d, n, i, f);
-            }
-            b
+            (g, b)
         })
-        .collect()
+        .unzip()
 }
 
 /// `Σ_j c_ij y_j` over the children `j` (at the next level) of function `i` (node `n`).
