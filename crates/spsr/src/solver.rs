@@ -105,22 +105,22 @@ impl<'a> Op<'a> {
         func_index(self.level.keys[n as usize], self.d)
     }
 
-    /// `Σ_j L_ij x_j` for row `n`.
+    /// `Σ_j L_ij x_j` for row `n`, reading coefficients through `x`.
     #[inline]
-    fn stiffness_row(&self, n: u32, i: [i64; 3], x: &[f64]) -> f64 {
+    fn stiffness_row(&self, n: u32, i: [i64; 3], x: impl Fn(usize) -> f64) -> f64 {
         let mut s = 0.0;
         if self.tab.range.interior(i, 3) {
             for &(w, _) in &self.win {
                 let m = neighbor_in(self.level, n, w);
                 if m != NONE {
-                    s += self.tab.stencil[w] * x[m as usize];
+                    s += self.tab.stencil[w] * x(m as usize);
                 }
             }
         } else {
             for &(w, o) in &self.win {
                 let m = neighbor_in(self.level, n, w);
                 if m != NONE {
-                    let xm = x[m as usize];
+                    let xm = x(m as usize);
                     if xm != 0.0 {
                         s += self.tab.stiffness(i, o) * xm;
                     }
@@ -128,6 +128,21 @@ impl<'a> Op<'a> {
             }
         }
         s
+    }
+
+    /// Calls `f(cluster, B_i(p_c))` for every screening cluster that touches function `i`.
+    #[inline]
+    fn for_each_cluster(&self, n: u32, i: [i64; 3], mut f: impl FnMut(u32, f64)) {
+        for &w in &self.cwin {
+            let m = neighbor_in(self.level, n, w);
+            if m == NONE {
+                continue;
+            }
+            let c = self.cl.of_node.get(m as usize).copied().unwrap_or(NONE);
+            if c != NONE {
+                f(c, self.cl.basis_value(c as usize, i, self.degree));
+            }
+        }
     }
 
     fn diagonal(&self) -> Vec<f64> {
@@ -139,17 +154,7 @@ impl<'a> Op<'a> {
                     return 0.0;
                 }
                 let mut dg = self.tab.stiffness(i, [0, 0, 0]);
-                for &w in &self.cwin {
-                    let m = neighbor_in(self.level, n, w);
-                    if m == NONE {
-                        continue;
-                    }
-                    let c = self.cl.of_node.get(m as usize).copied().unwrap_or(NONE);
-                    if c != NONE {
-                        let bv = self.cl.basis_value(c as usize, i, self.degree);
-                        dg += self.cl.omega[c as usize] * bv * bv;
-                    }
-                }
+                self.for_each_cluster(n, i, |c, bv| dg += self.cl.omega[c as usize] * bv * bv);
                 dg
             })
             .collect()
@@ -173,18 +178,10 @@ impl<'a> Op<'a> {
                     return 0.0;
                 }
                 let i = self.index(n);
-                let mut s = self.stiffness_row(n, i, x);
-                for &w in &self.cwin {
-                    let m = neighbor_in(self.level, n, w);
-                    if m == NONE {
-                        continue;
-                    }
-                    let c = self.cl.of_node.get(m as usize).copied().unwrap_or(NONE);
-                    if c != NONE {
-                        let bv = self.cl.basis_value(c as usize, i, self.degree);
-                        s += self.cl.omega[c as usize] * bv * chi[c as usize];
-                    }
-                }
+                let mut s = self.stiffness_row(n, i, |m| x[m]);
+                self.for_each_cluster(n, i, |c, bv| {
+                    s += self.cl.omega[c as usize] * bv * chi[c as usize]
+                });
                 s
             })
             .collect()
@@ -228,40 +225,14 @@ impl<'a> Op<'a> {
     #[inline]
     unsafe fn relax(&self, n: u32, r: &[f64], dg: f64, x: &SharedSlice, chi: &SharedSlice) {
         let i = self.index(n);
-        let mut s = 0.0;
-        if self.tab.range.interior(i, 3) {
-            for &(w, _) in &self.win {
-                let m = neighbor_in(self.level, n, w);
-                if m != NONE {
-                    s += self.tab.stencil[w] * x.get(m as usize);
-                }
-            }
-        } else {
-            for &(w, o) in &self.win {
-                let m = neighbor_in(self.level, n, w);
-                if m != NONE {
-                    let xm = x.get(m as usize);
-                    if xm != 0.0 {
-                        s += self.tab.stiffness(i, o) * xm;
-                    }
-                }
-            }
-        }
+        let mut s = self.stiffness_row(n, i, |m| x.get(m));
         let mut touched: [(u32, f64); 27] = [(0, 0.0); 27];
         let mut k = 0;
-        for &w in &self.cwin {
-            let m = neighbor_in(self.level, n, w);
-            if m == NONE {
-                continue;
-            }
-            let c = self.cl.of_node.get(m as usize).copied().unwrap_or(NONE);
-            if c != NONE {
-                let bv = self.cl.basis_value(c as usize, i, self.degree);
-                s += self.cl.omega[c as usize] * bv * chi.get(c as usize);
-                touched[k] = (c, bv);
-                k += 1;
-            }
-        }
+        self.for_each_cluster(n, i, |c, bv| {
+            s += self.cl.omega[c as usize] * bv * chi.get(c as usize);
+            touched[k] = (c, bv);
+            k += 1;
+        });
         let dx = (r[n as usize] - s) / dg;
         x.set(n as usize, x.get(n as usize) + dx);
         for &(c, bv) in &touched[..k] {
@@ -386,18 +357,10 @@ fn add_screening_targets(op: &Op, coarse_chi: Option<&[f64]>, r: &mut [f64]) {
         if !op.tab.range.contains(i) {
             return;
         }
-        for &w in &op.cwin {
-            let m = neighbor_in(op.level, n, w);
-            if m == NONE {
-                continue;
-            }
-            let c = op.cl.of_node.get(m as usize).copied().unwrap_or(NONE);
-            if c != NONE {
-                let bv = op.cl.basis_value(c as usize, i, op.degree);
-                let coarse = coarse_chi.map_or(0.0, |v| v[c as usize]);
-                *rn += op.cl.omega[c as usize] * bv * (TAU - coarse);
-            }
-        }
+        op.for_each_cluster(n, i, |c, bv| {
+            let coarse = coarse_chi.map_or(0.0, |v| v[c as usize]);
+            *rn += op.cl.omega[c as usize] * bv * (TAU - coarse);
+        });
     });
 }
 
