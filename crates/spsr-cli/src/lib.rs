@@ -383,10 +383,21 @@ fn print_details(
     let stages = std::iter::once(("reading", reading))
         .chain(stats.stages.iter().map(|(n, d)| (n.as_str(), *d)))
         .chain(std::iter::once(("writing", writing)));
-    for (name, d) in stages {
-        let _ = writeln!(err, "  {name:<24} {:>9.3} s", d.as_secs_f64());
+    let memory = std::iter::once(None)
+        .chain(stats.peak_memory.iter().copied())
+        .chain(std::iter::once(None));
+    for ((name, d), mem) in stages.zip(memory) {
+        match mem {
+            Some(bytes) => {
+                let mib = bytes as f64 / (1024.0 * 1024.0);
+                let _ = writeln!(err, "  {name:<32} {:>9.3} s   peak {mib:>8.0} MiB", d.as_secs_f64());
+            }
+            None => {
+                let _ = writeln!(err, "  {name:<32} {:>9.3} s", d.as_secs_f64());
+            }
+        }
     }
-    let _ = writeln!(err, "  {:<24} {:>9.3} s", "total", total.as_secs_f64());
+    let _ = writeln!(err, "  {:<32} {:>9.3} s", "total", total.as_secs_f64());
 }
 
 #[cfg(test)]

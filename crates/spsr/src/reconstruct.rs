@@ -43,6 +43,17 @@ pub struct Stats {
     pub mean_sample_depth: f64,
     /// Wall time of each stage, in order.
     pub stages: Vec<(String, Duration)>,
+    /// Peak resident memory of the process (bytes) at the end of each stage, where the
+    /// platform reports it (Linux); same order as `stages`.
+    pub peak_memory: Vec<Option<u64>>,
+}
+
+/// The process's peak resident set size so far, in bytes (Linux `VmHWM`).
+pub fn peak_rss() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
 }
 
 /// Reconstructs a watertight surface from oriented points.
@@ -52,6 +63,7 @@ pub fn reconstruct(points: &PointCloud, params: &Params) -> Result<Reconstructio
 
 struct Timer<'a> {
     stats: Vec<(String, Duration)>,
+    memory: Vec<Option<u64>>,
     last: Instant,
     progress: &'a (dyn Fn(&str) + Sync),
 }
@@ -63,6 +75,7 @@ impl Timer<'_> {
     }
     fn stop(&mut self, name: &'static str) {
         self.stats.push((name.to_string(), self.last.elapsed()));
+        self.memory.push(peak_rss());
     }
 }
 
@@ -107,6 +120,7 @@ pub fn reconstruct_with_progress(
     } = imp;
     let mut timer = Timer {
         stats: std::mem::take(&mut stats.stages),
+        memory: std::mem::take(&mut stats.peak_memory),
         last: Instant::now(),
         progress,
     };
@@ -161,6 +175,7 @@ pub fn reconstruct_with_progress(
     timer.stop("extraction");
 
     stats.stages = timer.stats;
+    stats.peak_memory = timer.memory;
     Ok(Reconstruction { mesh, stats })
 }
 
@@ -179,6 +194,7 @@ pub(crate) fn solve_implicit(
     }
     let mut timer = Timer {
         stats: Vec::new(),
+        memory: Vec::new(),
         last: Instant::now(),
         progress,
     };
@@ -407,9 +423,10 @@ pub(crate) fn solve_implicit(
     drop(v);
     drop(clusters);
     timer.stop("solving");
-    timer
-        .stats
-        .extend(sol.timings.iter().map(|(n, d)| (format!("  {n}"), *d)));
+    for (n, d, m) in &sol.timings {
+        timer.stats.push((format!("  {n}"), *d));
+        timer.memory.push(*m);
+    }
 
     // 7. Iso-value (§1.5).
     timer.start("iso-value");
@@ -441,6 +458,7 @@ pub(crate) fn solve_implicit(
             iso_value: iso,
             mean_sample_depth: sum_depth / sum_w,
             stages: timer.stats,
+            peak_memory: timer.memory,
         },
     })
 }

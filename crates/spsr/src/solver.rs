@@ -28,7 +28,7 @@ pub struct Solution {
     /// Level of the base solve.
     pub base_level: u32,
     /// Wall time of each part of the solve.
-    pub timings: Vec<(String, std::time::Duration)>,
+    pub timings: Vec<(String, std::time::Duration, Option<u64>)>,
 }
 
 /// Everything the solver reads.
@@ -374,9 +374,9 @@ pub fn solve(p: &Problem) -> Solution {
     // Divergence constraints, fine to coarse.
     (p.progress)("constraints");
     let mut clock = std::time::Instant::now();
-    let mut timings: Vec<(String, std::time::Duration)> = Vec::new();
+    let mut timings: Vec<(String, std::time::Duration, Option<u64>)> = Vec::new();
     let mut lap = |name: String, clock: &mut std::time::Instant| {
-        timings.push((name, clock.elapsed()));
+        timings.push((name, clock.elapsed(), crate::reconstruct::peak_rss()));
         *clock = std::time::Instant::now();
     };
     let mut tcons: Vec<Vec<f64>> = vec![Vec::new(); nlev];
