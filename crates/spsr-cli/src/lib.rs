@@ -163,6 +163,12 @@ pub struct ReconstructArgs {
     #[arg(long)]
     pub density: bool,
 
+    /// Place mesh vertices by linear interpolation along cell edges instead of the quadratic fit
+    /// through the end values and gradients. Off by default, as PoissonRecon 18 (--linearFit)
+    /// [default: off]
+    #[arg(long)]
+    pub linear_fit: bool,
+
     /// Number of worker threads, at least 1. Default: rayon's, which honours RAYON_NUM_THREADS
     /// [default: all cores]
     #[arg(long, value_name = "N", value_parser = parse_threads)]
@@ -204,6 +210,7 @@ impl ReconstructArgs {
             iters: self.iters,
             confidence: self.confidence,
             density: self.density,
+            linear_fit: self.linear_fit,
         }
     }
 }
@@ -390,7 +397,11 @@ fn print_details(
         match mem {
             Some(bytes) => {
                 let mib = bytes as f64 / (1024.0 * 1024.0);
-                let _ = writeln!(err, "  {name:<32} {:>9.3} s   peak {mib:>8.0} MiB", d.as_secs_f64());
+                let _ = writeln!(
+                    err,
+                    "  {name:<32} {:>9.3} s   peak {mib:>8.0} MiB",
+                    d.as_secs_f64()
+                );
             }
             None => {
                 let _ = writeln!(err, "  {name:<32} {:>9.3} s", d.as_secs_f64());

@@ -51,20 +51,29 @@ impl<'a> Evaluator<'a> {
         self.tree.descend(key, self.t_max, self.t_max)
     }
 
+    /// χ(p) alone.
+    pub fn value(&self, p: [f64; 3]) -> f64 {
+        self.sum::<false>(p).0
+    }
+
     /// χ(p) and ∇χ(p) (unit-cube units).
     pub fn value_grad(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
+        self.sum::<true>(p)
+    }
+
+    fn sum<const GRAD: bool>(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
         let (t, n) = self.leaf(p);
         let mut acc = (0.0, [0.0; 3]);
         let base = self.sol.base_level;
         if t > base {
             let par = self.tree.parent(t, n);
-            self.window_sum(t - 1, par, p, &self.sol.p[t as usize - 1], &mut acc);
+            self.window_sum::<GRAD>(t - 1, par, p, &self.sol.p[t as usize - 1], &mut acc);
         }
         if t >= base {
-            self.window_sum(t, n, p, &self.sol.x[t as usize], &mut acc);
+            self.window_sum::<GRAD>(t, n, p, &self.sol.x[t as usize], &mut acc);
         }
         if t < self.t_max && t >= base {
-            self.finer_sum(t, n, p, &mut acc);
+            self.finer_sum::<GRAD>(t, n, p, &mut acc);
         }
         acc
     }
@@ -77,7 +86,14 @@ impl<'a> Evaluator<'a> {
         ]
     }
 
-    fn window_sum(&self, t: u32, node: u32, p: [f64; 3], coeff: &[f64], acc: &mut (f64, [f64; 3])) {
+    fn window_sum<const GRAD: bool>(
+        &self,
+        t: u32,
+        node: u32,
+        p: [f64; 3],
+        coeff: &[f64],
+        acc: &mut (f64, [f64; 3]),
+    ) {
         if coeff.is_empty() {
             return;
         }
@@ -98,13 +114,19 @@ impl<'a> Evaluator<'a> {
                     if m == NONE {
                         continue;
                     }
-                    accumulate(&w, [x, y, z], coeff[m as usize], acc);
+                    accumulate::<GRAD>(&w, [x, y, z], coeff[m as usize], acc);
                 }
             }
         }
     }
 
-    fn finer_sum(&self, t: u32, node: u32, p: [f64; 3], acc: &mut (f64, [f64; 3])) {
+    fn finer_sum<const GRAD: bool>(
+        &self,
+        t: u32,
+        node: u32,
+        p: [f64; 3],
+        acc: &mut (f64, [f64; 3]),
+    ) {
         let coeff = &self.sol.x[t as usize + 1];
         if coeff.is_empty() {
             return;
@@ -132,7 +154,7 @@ impl<'a> Evaluator<'a> {
                         continue;
                     }
                     let bits = (j[0] & 1) | ((j[1] & 1) << 1) | ((j[2] & 1) << 2);
-                    accumulate(&w, [x, y, z], coeff[(b * 8) as usize + bits as usize], acc);
+                    accumulate::<GRAD>(&w, [x, y, z], coeff[(b * 8) as usize + bits as usize], acc);
                 }
             }
         }
@@ -140,13 +162,16 @@ impl<'a> Evaluator<'a> {
 }
 
 #[inline]
-fn accumulate(w: &[Window; 3], k: [i64; 3], c: f64, acc: &mut (f64, [f64; 3])) {
+fn accumulate<const GRAD: bool>(w: &[Window; 3], k: [i64; 3], c: f64, acc: &mut (f64, [f64; 3])) {
     if c == 0.0 {
         return;
     }
     let (x, y, z) = (k[0] as usize, k[1] as usize, k[2] as usize);
     let (vx, vy, vz) = (w[0].values[x], w[1].values[y], w[2].values[z]);
     acc.0 += c * vx * vy * vz;
+    if !GRAD {
+        return;
+    }
     acc.1[0] += c * w[0].derivs[x] * vy * vz;
     acc.1[1] += c * vx * w[1].derivs[y] * vz;
     acc.1[2] += c * vx * vy * w[2].derivs[z];
@@ -161,6 +186,15 @@ pub struct CornerField<'a> {
 }
 
 impl Field for CornerField<'_> {
+    fn value(&self, c: [u32; 3]) -> f64 {
+        let s = 1.0 / (1u64 << self.depth) as f64;
+        self.eval.value([
+            f64::from(c[0]) * s,
+            f64::from(c[1]) * s,
+            f64::from(c[2]) * s,
+        ])
+    }
+
     /// The value at the corner, and the central gradient: the mean of the one-sided
     /// derivatives on either side of the corner. With degree-1 elements χ is piecewise
     /// trilinear and its derivative jumps at every corner; a one-sided derivative there is the

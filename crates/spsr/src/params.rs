@@ -37,6 +37,9 @@ pub struct Params {
     pub confidence: bool,
     /// Compute per-vertex density (estimated sampling depth, ALGORITHM.md §9.5). Default off.
     pub density: bool,
+    /// Place iso-vertices by linear interpolation along cell edges instead of the quadratic
+    /// fit through the end values and gradients (PoissonRecon 18 `--linearFit`). Default off.
+    pub linear_fit: bool,
 }
 
 impl Default for Params {
@@ -52,6 +55,7 @@ impl Default for Params {
             iters: 8,
             confidence: false,
             density: false,
+            linear_fit: false,
         }
     }
 }

@@ -156,7 +156,9 @@ pub fn reconstruct_with_progress(
         max_leaf_depth,
         &field,
         iso,
-        &ExtractOptions::default(),
+        &ExtractOptions {
+            linear_fit: params.linear_fit,
+        },
     )?;
     drop(leaves);
     if params.density {
@@ -431,10 +433,7 @@ pub(crate) fn solve_implicit(
     // 7. Iso-value (§1.5).
     timer.start("iso-value");
     let eval = Evaluator::new(&tree, fem, &sol);
-    let values: Vec<f64> = positions
-        .par_iter()
-        .map(|p| eval.value_grad(*p).0)
-        .collect();
+    let values: Vec<f64> = positions.par_iter().map(|p| eval.value(*p)).collect();
     let iso =
         values.iter().zip(&weights).map(|(v, w)| v * w).sum::<f64>() / weights.iter().sum::<f64>();
     timer.stop("iso-value");

@@ -51,6 +51,12 @@ pub trait Field: Sync {
     /// χ and ∇χ (unit-cube units) at the corner with integer coordinates `c` at depth
     /// `max_depth` (each coordinate in `0..=2^max_depth`).
     fn corner(&self, c: [u32; 3]) -> (f64, [f64; 3]);
+
+    /// χ alone at a corner. Extraction asks every corner for its value but only the corners
+    /// of leaves the surface crosses for their gradient, so a cheaper value-only path pays.
+    fn value(&self, c: [u32; 3]) -> f64 {
+        self.corner(c).0
+    }
 }
 
 /// Options of [`extract`].
@@ -195,7 +201,6 @@ fn extract_impl(
     if volume != Some(1u128 << (3 * max_depth)) {
         return Err(bad_leaves("the leaves do not tile the unit cube"));
     }
-
     // 1. Distinct corners (an octree with n leaves has at most 8 + 19(n−1)/7 of them).
     let n = leaves.len();
     let bound = (8 + 19 * (n - 1) / 7).min(8 * n);
@@ -229,18 +234,37 @@ fn extract_impl(
         .for_each(|(i, e)| corners.set(e.2, i as u32));
     cidx.par_iter_mut()
         .for_each(|c| *c = c.map(|slot| corners.val(slot)));
-
-    // 2. The field at every distinct corner, once.
-    let (d, g): (Vec<f64>, Vec<[f64; 3]>) = entries
+    // 2. The field at every distinct corner, once: values everywhere, gradients only at the
+    //    corners of leaves whose corners disagree in sign. Every finest edge that crosses the
+    //    surface is a whole edge of such a leaf (the finest leaf along it), so the vertex fit
+    //    never needs a gradient elsewhere.
+    let d: Vec<f64> = entries
         .par_iter()
-        .map(|e| {
-            let (v, g) = field.corner(unpack(e.1));
-            (v - iso, g)
+        .map(|e| field.value(unpack(e.1)) - iso)
+        .collect();
+    let mut need = vec![false; d.len()];
+    for c in &cidx {
+        let first = d[c[0] as usize] > 0.0;
+        if c.iter().any(|&k| (d[k as usize] > 0.0) != first) {
+            for &k in c {
+                need[k as usize] = true;
+            }
+        }
+    }
+    let g: Vec<[f64; 3]> = entries
+        .par_iter()
+        .zip(&need)
+        .map(|(e, &n)| {
+            if n {
+                field.corner(unpack(e.1)).1
+            } else {
+                [0.0; 3]
+            }
         })
-        .unzip();
+        .collect();
+    drop(need);
     drop(entries);
     let samples = Samples { d, g };
-
     // 3. Polygons and triangles per leaf.
     let ctx = Ctx {
         corners: &corners,
@@ -272,7 +296,6 @@ fn extract_impl(
             "the leaves do not tile the unit cube (inconsistent boundaries)",
         ));
     }
-
     // 4. Global vertex numbering: each edge vertex is emitted by exactly one owner leaf; chunk
     //    c contributes its owned vertices, then its barycentres.
     let mut bases = Vec::with_capacity(chunks.len());
@@ -335,7 +358,6 @@ fn extract_impl(
             "the leaves do not tile the unit cube (unowned iso-vertex)",
         ));
     }
-
     // 5. Drop vertices no triangle uses (possible only next to dropped two-vertex loops).
     let mut used = vec![false; vertices.len()];
     for &i in triangles.iter().flatten() {
