@@ -118,6 +118,8 @@ fn bad_leaves(message: &str) -> crate::Error {
 
 /// Per-corner samples: `χ − iso` and `∇χ`, indexed by corner rank.
 struct Samples {
+    /// Index into `g` of each corner's gradient (`u32::MAX` where none was computed).
+    gi: Vec<u32>,
     d: Vec<f64>,
     g: Vec<[f64; 3]>,
 }
@@ -242,29 +244,27 @@ fn extract_impl(
         .par_iter()
         .map(|e| field.value(unpack(e.1)) - iso)
         .collect();
-    let mut need = vec![false; d.len()];
+    // Compact index of each corner's gradient (u32::MAX where none is needed).
+    let mut gi = vec![u32::MAX; d.len()];
+    let mut needed: Vec<u32> = Vec::new();
     for c in &cidx {
         let first = d[c[0] as usize] > 0.0;
         if c.iter().any(|&k| (d[k as usize] > 0.0) != first) {
             for &k in c {
-                need[k as usize] = true;
+                if gi[k as usize] == u32::MAX {
+                    gi[k as usize] = needed.len() as u32;
+                    needed.push(k);
+                }
             }
         }
     }
-    let g: Vec<[f64; 3]> = entries
+    let g: Vec<[f64; 3]> = needed
         .par_iter()
-        .zip(&need)
-        .map(|(e, &n)| {
-            if n {
-                field.corner(unpack(e.1)).1
-            } else {
-                [0.0; 3]
-            }
-        })
+        .map(|&k| field.corner(unpack(entries[k as usize].1)).1)
         .collect();
-    drop(need);
+    drop(needed);
     drop(entries);
-    let samples = Samples { d, g };
+    let samples = Samples { d, g, gi };
     // 3. Polygons and triangles per leaf.
     let ctx = Ctx {
         corners: &corners,
@@ -635,8 +635,16 @@ fn crossing_point(ctx: &Ctx, c: &Crossing) -> [f64; 3] {
     let axis = c.axis as usize;
     let (x0, x1) = (ctx.s.d[c.i0 as usize], ctx.s.d[c.i1 as usize]);
     let h = c.len as f64 * ctx.inv;
-    let g0 = ctx.s.g[c.i0 as usize][axis] * h;
-    let g1 = ctx.s.g[c.i1 as usize][axis] * h;
+    // A corner without a gradient cannot occur (see step 2 of `extract_impl`); if it did, the
+    // zero gradients send the fit to its linear fallback instead of panicking.
+    let grad = |i: u32| {
+        ctx.s
+            .g
+            .get(ctx.s.gi[i as usize] as usize)
+            .map_or(0.0, |g| g[axis])
+    };
+    let g0 = grad(c.i0) * h;
+    let g1 = grad(c.i1) * h;
     let t = edge_root(x0, x1, g0, g1, ctx.linear);
     let mut p = c.lo.map(|x| x as f64 * ctx.inv);
     p[axis] += t * h;
