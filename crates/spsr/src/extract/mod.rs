@@ -206,26 +206,42 @@ fn extract_impl(
     // 1. Distinct corners (an octree with n leaves has at most 8 + 19(n−1)/7 of them).
     let n = leaves.len();
     let bound = (8 + 19 * (n - 1) / 7).min(8 * n);
-    let corners = Table::with_capacity(bound);
-    let mut cidx: Vec<[u32; 8]> = leaves
-        .par_iter()
-        .enumerate()
-        .map(|(li, l)| {
-            let s = 1u32 << (max_depth - l.depth);
-            let lo = l.offset.map(|o| o * s);
-            let mut out = [0u32; 8];
-            for (c, o) in out.iter_mut().enumerate() {
-                let p = [
-                    lo[0] + s * (c as u32 & 1),
-                    lo[1] + s * ((c as u32 >> 1) & 1),
-                    lo[2] + s * ((c as u32 >> 2) & 1),
-                ];
-                *o = corners.insert_min(pack(p), li as u32)?;
-            }
-            Some(out)
-        })
-        .collect::<Option<Vec<_>>>()
-        .ok_or_else(|| bad_leaves("the leaves do not tile the unit cube (too many corners)"))?;
+    let insert_all = |corners: &Table| -> Option<Vec<[u32; 8]>> {
+        leaves
+            .par_iter()
+            .enumerate()
+            .map(|(li, l)| {
+                let s = 1u32 << (max_depth - l.depth);
+                let lo = l.offset.map(|o| o * s);
+                let mut out = [0u32; 8];
+                for (c, o) in out.iter_mut().enumerate() {
+                    let p = [
+                        lo[0] + s * (c as u32 & 1),
+                        lo[1] + s * ((c as u32 >> 1) & 1),
+                        lo[2] + s * ((c as u32 >> 2) & 1),
+                    ];
+                    *o = corners.insert_min(pack(p), li as u32)?;
+                }
+                Some(out)
+            })
+            .collect()
+    };
+    // Octrees from reconstructions have about 1.1–1.3 corners per leaf; size the table for 1.5
+    // and fall back to the worst-case bound only if that is exceeded (the ranks below do not
+    // depend on the table's size).
+    let estimate = (3 * n / 2).max(64).min(bound);
+    let first = Table::with_capacity(estimate);
+    let (corners, mut cidx) = match insert_all(&first) {
+        Some(c) => (first, c),
+        None => {
+            drop(first);
+            let t = Table::with_capacity(bound);
+            let c = insert_all(&t).ok_or_else(|| {
+                bad_leaves("the leaves do not tile the unit cube (too many corners)")
+            })?;
+            (t, c)
+        }
+    };
     // Number the corners in order of first use by the leaves (deterministic, and keeps the
     // samples of nearby leaves close in memory).
     let mut entries = corners.entries();

@@ -8,7 +8,7 @@
 //! 2×2×2 blocks of neighbouring points in 8 consecutive slots, so the corners of nearby
 //! cells share cache lines; the blocks themselves are spread by a strong mixer.
 
-use std::sync::atomic::{AtomicU32, AtomicU64, Ordering::Relaxed};
+use std::sync::atomic::{AtomicU32, AtomicU64, AtomicUsize, Ordering::Relaxed};
 
 /// Marks an empty slot. Packed keys never have all bits set.
 pub(super) const EMPTY: u64 = u64::MAX;
@@ -23,6 +23,10 @@ struct Slot {
 pub(super) struct Table {
     slots: Vec<Slot>,
     mask: usize,
+    /// Keys inserted so far, and the most the table accepts (a load factor of 0.8) before
+    /// `insert` reports it full.
+    len: AtomicUsize,
+    limit: usize,
 }
 
 /// A strong 64-bit mixer (the MurmurHash3 finaliser).
@@ -56,6 +60,8 @@ impl Table {
         Table {
             slots,
             mask: cap - 1,
+            len: AtomicUsize::new(0),
+            limit: cap / 5 * 4,
         }
     }
 
@@ -70,8 +76,14 @@ impl Table {
                 return Some(i as u32);
             }
             if cur == EMPTY {
+                if self.len.load(Relaxed) >= self.limit {
+                    return None;
+                }
                 match s.compare_exchange(EMPTY, key, Relaxed, Relaxed) {
-                    Ok(_) => return Some(i as u32),
+                    Ok(_) => {
+                        self.len.fetch_add(1, Relaxed);
+                        return Some(i as u32);
+                    }
                     Err(actual) if actual == key => return Some(i as u32),
                     Err(_) => {}
                 }
