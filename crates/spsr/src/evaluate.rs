@@ -91,7 +91,7 @@ impl<'a> Evaluator<'a> {
         t: u32,
         node: u32,
         p: [f64; 3],
-        coeff: &[f64],
+        coeff: &[f32],
         acc: &mut (f64, [f64; 3]),
     ) {
         if coeff.is_empty() {
@@ -114,7 +114,7 @@ impl<'a> Evaluator<'a> {
                     if m == NONE {
                         continue;
                     }
-                    accumulate::<GRAD>(&w, [x, y, z], coeff[m as usize], acc);
+                    accumulate::<GRAD>(&w, [x, y, z], f64::from(coeff[m as usize]), acc);
                 }
             }
         }
@@ -154,7 +154,12 @@ impl<'a> Evaluator<'a> {
                         continue;
                     }
                     let bits = (j[0] & 1) | ((j[1] & 1) << 1) | ((j[2] & 1) << 2);
-                    accumulate::<GRAD>(&w, [x, y, z], coeff[(b * 8) as usize + bits as usize], acc);
+                    accumulate::<GRAD>(
+                        &w,
+                        [x, y, z],
+                        f64::from(coeff[(b * 8) as usize + bits as usize]),
+                        acc,
+                    );
                 }
             }
         }

@@ -22,9 +22,9 @@ pub const TAU: f64 = 0.5;
 #[derive(Debug, Default)]
 pub struct Solution {
     /// Coefficients solved at each level (empty below the base level).
-    pub x: Vec<Vec<f64>>,
+    pub x: Vec<Vec<f32>>,
     /// Cumulative solution of all levels up to and including this one, prolonged to it.
-    pub p: Vec<Vec<f64>>,
+    pub p: Vec<Vec<f32>>,
     /// Level of the base solve.
     pub base_level: u32,
     /// Wall time of each part of the solve.
@@ -286,7 +286,11 @@ fn cluster_value(level: &Level, cl: &Clusters, c: usize, d: u32, degree: u8, x: 
     for z in 0..=k {
         for y in 0..=k {
             for xx in 0..=k {
-                let j = [f[0] + xx, f[1] + y, f[2] + z];
+                let j = [
+                    i64::from(f[0]) + xx,
+                    i64::from(f[1]) + y,
+                    i64::from(f[2]) + z,
+                ];
                 let m = neighbor_in(
                     level,
                     node,
@@ -295,11 +299,19 @@ fn cluster_value(level: &Level, cl: &Clusters, c: usize, d: u32, degree: u8, x: 
                 if m == NONE {
                     continue;
                 }
-                s += v[0][xx as usize] * v[1][y as usize] * v[2][z as usize] * x[m as usize];
+                s += f64::from(v[0][xx as usize])
+                    * f64::from(v[1][y as usize])
+                    * f64::from(v[2][z as usize])
+                    * x[m as usize];
             }
         }
     }
     s
+}
+
+/// Single-precision copy of a coefficient vector (storage; arithmetic stays in f64).
+fn to_f32(v: &[f64]) -> Vec<f32> {
+    v.par_iter().map(|&x| x as f32).collect()
 }
 
 /// Deterministic dot product: fixed-size chunks summed in order.
@@ -399,6 +411,9 @@ pub fn solve(p: &Problem) -> Solution {
         timings: Vec::new(),
     };
 
+    // The cumulative solution of the previous level, kept in full precision for the cascade;
+    // the stored copies (for evaluation) are single precision.
+    let mut p_prev: Vec<f64>;
     // Base solve.
     (p.progress)("solving base depth");
     {
@@ -425,8 +440,9 @@ pub fn solve(p: &Problem) -> Solution {
             }
         }
         let x = conjugate_gradients(&op, &b, &valid, 3000, 1e-7);
-        sol.p[tb] = x.clone();
-        sol.x[tb] = x;
+        sol.x[tb] = to_f32(&x);
+        sol.p[tb] = to_f32(&x);
+        p_prev = x;
     }
     lap(
         format!("depth {}: conjugate gradients", tb as u32 - DEPTH_OFFSET),
@@ -448,7 +464,7 @@ pub fn solve(p: &Problem) -> Solution {
         let tab = op.tab;
         let level = op.level;
         let parent_level = &tree.levels[t - 1];
-        let pc = &sol.p[t - 1];
+        let pc = &p_prev;
         // Right-hand side: own constraints + coarser V − coarser solution coupling.
         let mut r: Vec<f64> = (0..level.len() as u32)
             .into_par_iter()
@@ -535,8 +551,10 @@ pub fn solve(p: &Problem) -> Solution {
             |q| [pc[q as usize]],
             |n| [x[n]],
         );
-        sol.p[t] = cum.into_iter().map(|v| v[0]).collect();
-        sol.x[t] = x;
+        let cum: Vec<f64> = cum.into_iter().map(|v| v[0]).collect();
+        sol.p[t] = to_f32(&cum);
+        sol.x[t] = to_f32(&x);
+        p_prev = cum;
         if t < max_level {
             let vt = &p.v[t];
             let prev = std::mem::take(&mut vc);

@@ -314,9 +314,9 @@ pub struct Clusters {
     pub omega: Vec<f64>,
     /// Per axis, the first FEM index whose support contains the position, and the values of
     /// the `degree + 1` functions from there.
-    pub first: Vec<[i64; 3]>,
+    pub first: Vec<[i32; 3]>,
     /// Basis values per axis (see `first`).
-    pub vals: Vec<[[f64; 3]; 3]>,
+    pub vals: Vec<[[f32; 3]; 3]>,
 }
 
 impl Clusters {
@@ -327,11 +327,11 @@ impl Clusters {
         let v = &self.vals[c];
         let mut r = 1.0;
         for a in 0..3 {
-            let k = i[a] - f[a];
+            let k = i[a] - i64::from(f[a]);
             if k < 0 || k > i64::from(degree) {
                 return 0.0;
             }
-            r *= v[a][k as usize];
+            r *= f64::from(v[a][k as usize]);
         }
         r
     }
@@ -388,12 +388,13 @@ pub fn build_clusters(
         for (c, &(n, w, wp)) in merged.iter().enumerate() {
             let p = [wp[0] / w, wp[1] / w, wp[2] / w];
             cl.of_node[n as usize] = c as u32;
-            let mut first = [0i64; 3];
-            let mut vals = [[0.0; 3]; 3];
+            let mut first = [0i32; 3];
+            let mut vals = [[0.0f32; 3]; 3];
             for a in 0..3 {
                 let win = fem.window(d, p[a]);
-                first[a] = win.first;
-                vals[a] = win.values;
+                // Indices fit in i32 (depth ≤ MAX_DEPTH); values are stored in single precision.
+                first[a] = win.first as i32;
+                vals[a] = win.values.map(|v| v as f32);
             }
             cl.node.push(n);
             cl.pos.push(p);
