@@ -343,6 +343,9 @@ fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
             stats.points
         );
     }
+    for w in &stats.warnings {
+        eprintln!("spsr: warning: {}: {w}", input.display());
+    }
     let mesh = &result.mesh;
     if args.verbose {
         print_details(args, &result, reading, writing, start.elapsed());

@@ -43,6 +43,8 @@ pub struct Stats {
     pub mean_sample_depth: f64,
     /// Wall time of each stage, in order.
     pub stages: Vec<(String, Duration)>,
+    /// Warnings about the input that did not stop the reconstruction (e.g. far outliers).
+    pub warnings: Vec<String>,
     /// Peak resident memory of the process (bytes) at the end of each stage, where the
     /// platform reports it (Linux); same order as `stages`.
     pub peak_memory: Vec<Option<u64>>,
@@ -181,6 +183,41 @@ pub fn reconstruct_with_progress(
     Ok(Reconstruction { mesh, stats })
 }
 
+/// Fraction of points at each end of every axis left out of the robust extent.
+const OUTLIER_QUANTILE: f64 = 0.001;
+
+/// Bounding boxes larger than this many times the robust extent get a warning.
+const OUTLIER_RATIO: f64 = 20.0;
+
+/// A warning when a few far points make the bounding cube much larger than the bulk of the
+/// cloud: the cube sets the finest cell size, so such outliers silently waste depth.
+fn outlier_warning(points: &PointCloud, valid: &[usize], side: f64, depth: u32) -> Option<String> {
+    if valid.len() < 1000 {
+        return None;
+    }
+    let k = ((valid.len() as f64 * OUTLIER_QUANTILE) as usize).max(1);
+    let robust = (0..3)
+        .map(|a| {
+            let mut c: Vec<f64> = valid.iter().map(|&i| points.positions[i][a]).collect();
+            let n = c.len();
+            let lo = *c.select_nth_unstable_by(k, f64::total_cmp).1;
+            let hi = *c.select_nth_unstable_by(n - 1 - k, f64::total_cmp).1;
+            hi - lo
+        })
+        .fold(0.0, f64::max);
+    if !(robust > 0.0) || side <= OUTLIER_RATIO * robust {
+        return None;
+    }
+    let ratio = side / robust;
+    let lost = ratio.log2().floor();
+    Some(format!(
+        "the points span {side:.4e} units, but 99.8 % of them lie within {robust:.4e}: a few far \
+         outliers make the finest cells about {ratio:.0} times coarser (depth {depth} acts like \
+         depth {}); remove the outliers or crop the input",
+        depth.saturating_sub(lost as u32)
+    ))
+}
+
 /// Stages 1–7 of the pipeline: everything up to and including the iso-value.
 pub(crate) fn solve_implicit(
     points: &PointCloud,
@@ -234,6 +271,10 @@ pub(crate) fn solve_implicit(
         } else {
             "the points' extent is not finite (coordinates too large)".into()
         }));
+    }
+    let mut warnings = Vec::new();
+    if let Some(w) = outlier_warning(points, &valid, side, params.depth) {
+        warnings.push(w);
     }
     let width = side * params.scale;
     let origin: [f64; 3] = std::array::from_fn(|a| 0.5 * (lo[a] + hi[a]) - 0.5 * width);
@@ -456,6 +497,7 @@ pub(crate) fn solve_implicit(
             nodes_per_depth,
             iso_value: iso,
             mean_sample_depth: sum_depth / sum_w,
+            warnings,
             stages: timer.stats,
             peak_memory: timer.memory,
         },

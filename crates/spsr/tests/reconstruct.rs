@@ -423,3 +423,32 @@ fn regression_cascade_matches_a_complete_grid_solve() {
         complete / cell
     );
 }
+
+#[test]
+fn a_far_outlier_is_reported_with_the_fix() {
+    let mut cloud = sphere(20_000, [0.0; 3], 1.0, 8);
+    cloud.positions.push([1.0e6, 0.0, 0.0]);
+    cloud.normals.push([1.0, 0.0, 0.0]);
+    let out = reconstruct(
+        &cloud,
+        &Params {
+            depth: 6,
+            ..Params::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(out.stats.warnings.len(), 1, "{:?}", out.stats.warnings);
+    let w = &out.stats.warnings[0];
+    assert!(w.contains("outliers") && w.contains("remove"), "{w}");
+    // Without the outlier there is nothing to say.
+    let clean = sphere(20_000, [0.0; 3], 1.0, 8);
+    let out = reconstruct(
+        &clean,
+        &Params {
+            depth: 6,
+            ..Params::default()
+        },
+    )
+    .unwrap();
+    assert!(out.stats.warnings.is_empty(), "{:?}", out.stats.warnings);
+}
