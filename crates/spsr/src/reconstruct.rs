@@ -205,7 +205,7 @@ fn outlier_warning(points: &PointCloud, valid: &[usize], side: f64, depth: u32) 
             hi - lo
         })
         .fold(0.0, f64::max);
-    if !(robust > 0.0) || side <= OUTLIER_RATIO * robust {
+    if robust <= 0.0 || side <= OUTLIER_RATIO * robust {
         return None;
     }
     let ratio = side / robust;
