@@ -16,7 +16,8 @@ pub mod exit {
     /// Bad usage: bad flags or parameter values, or an output path that cannot be used.
     /// (clap exits with 2 on its own for command-line syntax errors.)
     pub const USAGE: u8 = 2;
-    /// A resource limit: the operating system would not start the worker threads.
+    /// A resource limit: the run would need more memory than allowed (`--max-memory`, or the
+    /// memory the machine has available), or the worker threads could not be started.
     pub const RESOURCE: u8 = 3;
 }
 
@@ -25,7 +26,8 @@ Exit codes:
   0  success
   1  bad input data (unreadable or malformed file, no normals, too few or degenerate points)
   2  bad usage (unknown flag, invalid parameter value, unusable output path)
-  3  resource limit (worker threads could not be started)";
+  3  resource limit (estimated memory above --max-memory or the available memory; worker
+     threads could not be started)";
 
 const RECONSTRUCT_LONG_ABOUT: &str = "\
 Reconstruct a watertight triangle mesh from an oriented point cloud (Screened Poisson Surface \
@@ -169,6 +171,12 @@ pub struct ReconstructArgs {
     #[arg(long)]
     pub linear_fit: bool,
 
+    /// Refuse the run, before the octree is built, when its estimated peak memory exceeds this
+    /// size (bytes, or with a suffix K, M, G, T, powers of 1024; e.g. 8G) [default: the memory
+    /// the machine has available]
+    #[arg(long, value_name = "SIZE", value_parser = parse_size)]
+    pub max_memory: Option<u64>,
+
     /// Number of worker threads, at least 1. Default: rayon's, which honours RAYON_NUM_THREADS
     /// [default: all cores]
     #[arg(long, value_name = "N", value_parser = parse_threads)]
@@ -182,6 +190,29 @@ pub struct ReconstructArgs {
     /// stderr [default: off]
     #[arg(short, long)]
     pub verbose: bool,
+}
+
+/// Parses a memory size: a number of bytes, optionally with a binary suffix (K, M, G, T, with
+/// or without a trailing `B`/`iB`).
+fn parse_size(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let upper = t.to_ascii_uppercase();
+    let body = upper.trim_end_matches("IB").trim_end_matches('B');
+    let (num, mul) = match body.chars().last() {
+        Some('K') => (&body[..body.len() - 1], 1u64 << 10),
+        Some('M') => (&body[..body.len() - 1], 1 << 20),
+        Some('G') => (&body[..body.len() - 1], 1 << 30),
+        Some('T') => (&body[..body.len() - 1], 1 << 40),
+        _ => (body, 1),
+    };
+    let v: f64 = num
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{t}' is not a size such as 512M or 8G"))?;
+    if !(v.is_finite() && v > 0.0) {
+        return Err("must be a positive size".into());
+    }
+    Ok((v * mul as f64) as u64)
 }
 
 fn parse_threads(s: &str) -> Result<usize, String> {
@@ -211,6 +242,7 @@ impl ReconstructArgs {
             confidence: self.confidence,
             density: self.density,
             linear_fit: self.linear_fit,
+            max_memory: self.max_memory,
         }
     }
 }
@@ -237,20 +269,22 @@ impl Failure {
             | E::TooFewPoints { .. }
             | E::Degenerate(_)
             | E::LengthMismatch { .. } => exit::DATA,
+            E::ResourceLimit { .. } => exit::RESOURCE,
             _ => exit::DATA,
         };
         let names_file = matches!(
             e,
             E::Io { .. } | E::Parse { .. } | E::MissingNormals { .. } | E::Output { .. }
         );
-        let error = if names_file || matches!(e, E::InvalidParameter { .. }) {
-            anyhow::Error::new(e)
-        } else {
-            // The context carries the whole message, so printing it with `{}` gives one line
-            // that names the file; the library error stays reachable for downcasting.
-            let message = format!("{}: {e}", input.display());
-            anyhow::Error::new(e).context(message)
-        };
+        let error =
+            if names_file || matches!(e, E::InvalidParameter { .. } | E::ResourceLimit { .. }) {
+                anyhow::Error::new(e)
+            } else {
+                // The context carries the whole message, so printing it with `{}` gives one line
+                // that names the file; the library error stays reachable for downcasting.
+                let message = format!("{}: {e}", input.display());
+                anyhow::Error::new(e).context(message)
+            };
         Failure { code, error }
     }
 }

@@ -464,3 +464,35 @@ fn dropped_points_are_reported() {
         "{err}"
     );
 }
+
+#[test]
+fn run_over_the_memory_limit_exits_3_and_suggests_a_depth() {
+    let (dir, input) = sphere_dir();
+    let output = dir.path().join("out.ply");
+    let out = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&output),
+        "--depth",
+        "10",
+        "--max-memory",
+        "2M",
+    ]);
+    assert_fails_one_line(&out, 3, &["--depth", "--max-memory", "GiB"], &output);
+}
+
+#[test]
+fn max_memory_needs_a_size() {
+    let (dir, input) = sphere_dir();
+    let output = dir.path().join("out.ply");
+    let out = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&output),
+        "--max-memory",
+        "lots",
+    ]);
+    assert_fails(&out, 2, &["512M"], &output);
+}

@@ -58,6 +58,19 @@ pub enum Error {
     /// The usable points span no volume along any axis (all identical).
     #[error("degenerate input: {0}")]
     Degenerate(String),
+    /// The run would need more memory than allowed (`Params::max_memory`, or the memory the
+    /// machine has available). Nothing large has been allocated yet.
+    #[error("{message}")]
+    ResourceLimit {
+        /// Estimated peak memory of the run, in bytes.
+        estimate: u64,
+        /// The limit, in bytes.
+        limit: u64,
+        /// The deepest `--depth` expected to fit.
+        suggested_depth: u32,
+        /// The full explanation, with what to do.
+        message: String,
+    },
     /// The output path cannot be used.
     #[error("{}: {message}", path.display())]
     Output {

@@ -175,11 +175,27 @@ impl TreeRequest {
     }
 }
 
-impl Octree {
-    /// Builds the tree from the requested nodes: makes levels of unit depth `≤ full_depth`
-    /// complete, closes the request under ancestry, and enforces the conforming property at
-    /// unit depths `≥ conform_from` (ALGORITHM.md §4.2 steps 3 and 5).
-    pub fn build(mut req: TreeRequest, full_depth: u32, conform_from: u32) -> Octree {
+/// A request closed under completeness, ancestry and the conforming rule: its node count is
+/// known before any level is built.
+#[derive(Debug)]
+pub struct ClosedRequest(TreeRequest);
+
+impl ClosedRequest {
+    /// Number of nodes the tree will have at each tree depth.
+    pub fn level_counts(&self) -> Vec<usize> {
+        std::iter::once(1)
+            .chain(self.0.refined.iter().map(|r| 8 * r.len()))
+            .take(self.0.refined.len())
+            .collect()
+    }
+}
+
+impl TreeRequest {
+    /// Makes levels of unit depth `≤ full_depth` complete, closes the request under ancestry,
+    /// and enforces the conforming property at unit depths `≥ conform_from` (ALGORITHM.md §4.2
+    /// steps 3 and 5).
+    pub fn close(mut self, full_depth: u32, conform_from: u32) -> ClosedRequest {
+        let req = &mut self;
         let max_t = req.refined.len() as u32 - 1;
         // Complete levels: every ring node at unit depth < full_depth has children.
         for t in 0..(full_depth + DEPTH_OFFSET).min(max_t) {
@@ -242,7 +258,23 @@ impl Octree {
         }
         // The root always exists and has children.
         req.refined[0].insert(0);
+        ClosedRequest(self)
+    }
+}
 
+impl Octree {
+    /// Builds the tree from the requested nodes: makes levels of unit depth `≤ full_depth`
+    /// complete, closes the request under ancestry, and enforces the conforming property at
+    /// unit depths `≥ conform_from` (ALGORITHM.md §4.2 steps 3 and 5).
+    #[cfg(test)]
+    pub fn build(req: TreeRequest, full_depth: u32, conform_from: u32) -> Octree {
+        Octree::materialize(req.close(full_depth, conform_from))
+    }
+
+    /// Builds the levels of a closed request (see [`TreeRequest::close`]).
+    pub fn materialize(req: ClosedRequest) -> Octree {
+        let req = req.0;
+        let max_t = req.refined.len() as u32 - 1;
         // Materialise levels top-down.
         let mut levels: Vec<Level> = Vec::with_capacity(max_t as usize + 1);
         levels.push(Level {

@@ -40,6 +40,10 @@ pub struct Params {
     /// Place iso-vertices by linear interpolation along cell edges instead of the quadratic
     /// fit through the end values and gradients (PoissonRecon 18 `--linearFit`). Default off.
     pub linear_fit: bool,
+    /// Refuse the run, before building the octree, when its estimated peak memory exceeds this
+    /// many bytes. `None` (default) uses the memory the machine has available, where the
+    /// platform reports it (Linux); elsewhere there is no limit.
+    pub max_memory: Option<u64>,
 }
 
 impl Default for Params {
@@ -56,6 +60,7 @@ impl Default for Params {
             confidence: false,
             density: false,
             linear_fit: false,
+            max_memory: None,
         }
     }
 }
@@ -118,6 +123,12 @@ impl Params {
                     "{} must be at least 1 (points must lie inside the cube)",
                     self.scale
                 ),
+            );
+        }
+        if self.max_memory == Some(0) {
+            return bad(
+                "--max-memory",
+                "0 bytes cannot hold any reconstruction".into(),
             );
         }
         if self.iters == 0 || self.iters > 10_000 {

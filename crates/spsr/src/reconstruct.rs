@@ -183,6 +183,75 @@ pub fn reconstruct_with_progress(
     Ok(Reconstruction { mesh, stats })
 }
 
+/// Peak memory per octree node over the whole run (solve and extraction), measured on depth-10
+/// reconstructions of 1 M points (about 175 bytes) with a margin.
+const BYTES_PER_NODE: u64 = 190;
+
+/// Memory per input point (the cloud, its unit-cube copy, samples and density).
+const BYTES_PER_POINT: u64 = 200;
+
+/// Memory the machine can still give this process: available memory plus what the process
+/// already holds (Linux; `None` elsewhere).
+fn memory_budget() -> Option<u64> {
+    let meminfo = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let kb = |key: &str, text: &str| -> Option<u64> {
+        let line = text.lines().find(|l| l.starts_with(key))?;
+        line.split_whitespace().nth(1)?.parse::<u64>().ok()
+    };
+    let available = kb("MemAvailable:", &meminfo)? * 1024;
+    let status = std::fs::read_to_string("/proc/self/status").ok();
+    let own = status.and_then(|s| kb("VmRSS:", &s)).unwrap_or(0) * 1024;
+    Some(available + own)
+}
+
+fn gib(bytes: u64) -> String {
+    format!("{:.2} GiB", bytes as f64 / (1u64 << 30) as f64)
+}
+
+/// Refuses a run whose estimated peak memory exceeds the limit. The suggested depth is the
+/// deepest whose levels of this tree fit: a shallower run keeps the same coarse levels.
+fn check_memory(level_counts: &[usize], points: usize, params: &Params) -> Result<()> {
+    let estimate_to = |levels: usize| {
+        let nodes: usize = level_counts.iter().take(levels).sum();
+        BYTES_PER_NODE * nodes as u64 + BYTES_PER_POINT * points as u64
+    };
+    let estimate = estimate_to(level_counts.len());
+    let (limit, what) = match params.max_memory {
+        Some(m) => (m, "the --max-memory limit"),
+        None => match memory_budget() {
+            Some(m) => (m, "the memory this machine has available"),
+            None => return Ok(()),
+        },
+    };
+    if estimate <= limit {
+        return Ok(());
+    }
+    let nodes: usize = level_counts.iter().sum();
+    let fits = (1..params.depth)
+        .rev()
+        .find(|&d| estimate_to((d + DEPTH_OFFSET + 1) as usize) <= limit);
+    let advice = match fits {
+        Some(d) => {
+            format!("use --depth {d} or less, a larger --samples-per-node, or raise --max-memory")
+        }
+        None => {
+            "even the coarsest depth does not fit: raise --max-memory or use fewer points".into()
+        }
+    };
+    Err(Error::ResourceLimit {
+        estimate,
+        limit,
+        suggested_depth: fits.unwrap_or(1),
+        message: format!(
+            "this reconstruction needs about {} ({nodes} octree nodes at --depth {}), more than \
+             {what} ({}); {advice}",
+            gib(estimate),
+            params.depth,
+            gib(limit)
+        ),
+    })
+}
+
 /// Fraction of points at each end of every axis left out of the robust extent.
 const OUTLIER_QUANTILE: f64 = 0.001;
 
@@ -345,7 +414,9 @@ pub(crate) fn solve_implicit(
             }
         }
     }
-    let tree = Octree::build(req, base, base);
+    let closed = req.close(base, base);
+    check_memory(&closed.level_counts(), points.len(), params)?;
+    let tree = Octree::materialize(closed);
     timer.stop("octree");
 
     // 4. Splat V and measure Ā (§3.6).

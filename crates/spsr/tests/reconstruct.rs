@@ -452,3 +452,35 @@ fn a_far_outlier_is_reported_with_the_fix() {
     .unwrap();
     assert!(out.stats.warnings.is_empty(), "{:?}", out.stats.warnings);
 }
+
+#[test]
+fn a_run_over_the_memory_limit_is_refused_with_a_depth_that_fits() {
+    let cloud = sphere(50_000, [0.0; 3], 1.0, 9);
+    let params = Params {
+        depth: 9,
+        max_memory: Some(40 << 20),
+        ..Params::default()
+    };
+    match reconstruct(&cloud, &params) {
+        Err(Error::ResourceLimit {
+            estimate,
+            limit,
+            suggested_depth,
+            message,
+        }) => {
+            assert!(estimate > limit);
+            assert!(suggested_depth < 9);
+            assert!(
+                message.contains("--depth") && message.contains("--max-memory"),
+                "{message}"
+            );
+            // The suggestion fits.
+            let ok = Params {
+                depth: suggested_depth,
+                ..params.clone()
+            };
+            reconstruct(&cloud, &ok).unwrap();
+        }
+        other => panic!("expected a resource-limit error, got {other:?}"),
+    }
+}
