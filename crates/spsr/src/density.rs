@@ -32,6 +32,22 @@ pub fn quadratic_weights(t: f64) -> [f64; 3] {
     [0.5 * (1.0 - t) * (1.0 - t), 0.5 + t - t * t, 0.5 * t * t]
 }
 
+/// Calls `f(offset, weight)` for the 3×3×3 cells around a cell, with the product of the
+/// quadratic B-spline weights at relative position `t ∈ [0,1]^3` (offsets in `{−1,0,1}^3`).
+#[inline]
+pub fn for_each_quadratic_neighbour(t: [f64; 3], mut f: impl FnMut([i64; 3], f64)) {
+    let wx = quadratic_weights(t[0]);
+    let wy = quadratic_weights(t[1]);
+    let wz = quadratic_weights(t[2]);
+    for (k, wzk) in wz.iter().enumerate() {
+        for (j, wyj) in wy.iter().enumerate() {
+            for (i, wxi) in wx.iter().enumerate() {
+                f([i as i64 - 1, j as i64 - 1, k as i64 - 1], wxi * wyj * wzk);
+            }
+        }
+    }
+}
+
 /// The normaliser σ that makes a planar layer of one sample per cell read as one sample
 /// per node: the mean of `1 / Σ β_j(t)²` over `t = 0.05, 0.15, …, 0.95` (ALGORITHM.md §3.5).
 pub fn sigma() -> f64 {
@@ -155,21 +171,10 @@ impl Density {
             for &(c, w, wp) in &level {
                 let t: [f64; 3] =
                     std::array::from_fn(|a| (wp[a] / w * h - c[a] as f64).clamp(0.0, 1.0));
-                let wx = quadratic_weights(t[0]);
-                let wy = quadratic_weights(t[1]);
-                let wz = quadratic_weights(t[2]);
-                for (k, wzk) in wz.iter().enumerate() {
-                    for (j, wyj) in wy.iter().enumerate() {
-                        for (i, wxi) in wx.iter().enumerate() {
-                            let key = pack([
-                                c[0] + i as i64 - 1,
-                                c[1] + j as i64 - 1,
-                                c[2] + k as i64 - 1,
-                            ]);
-                            *map.entry(key).or_insert(0.0) += sigma * w * wxi * wyj * wzk;
-                        }
-                    }
-                }
+                for_each_quadratic_neighbour(t, |o, wt| {
+                    let key = pack([c[0] + o[0], c[1] + o[1], c[2] + o[2]]);
+                    *map.entry(key).or_insert(0.0) += sigma * w * wt;
+                });
             }
             if d == 0 {
                 break;
@@ -203,25 +208,13 @@ impl Density {
         let c = cell_of(p, d);
         let h = (1i64 << d) as f64;
         let t: [f64; 3] = std::array::from_fn(|a| (p[a] * h - c[a] as f64).clamp(0.0, 1.0));
-        let wx = quadratic_weights(t[0]);
-        let wy = quadratic_weights(t[1]);
-        let wz = quadratic_weights(t[2]);
         let map = &self.rho[d as usize];
         let mut s = 0.0;
-        for (k, wzk) in wz.iter().enumerate() {
-            for (j, wyj) in wy.iter().enumerate() {
-                for (i, wxi) in wx.iter().enumerate() {
-                    let key = pack([
-                        c[0] + i as i64 - 1,
-                        c[1] + j as i64 - 1,
-                        c[2] + k as i64 - 1,
-                    ]);
-                    if let Some(r) = map.get(&key) {
-                        s += r * wxi * wyj * wzk;
-                    }
-                }
+        for_each_quadratic_neighbour(t, |o, wt| {
+            if let Some(r) = map.get(&pack([c[0] + o[0], c[1] + o[1], c[2] + o[2]])) {
+                s += r * wt;
             }
-        }
+        });
         s
     }
 

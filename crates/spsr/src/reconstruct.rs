@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 use rayon::prelude::*;
 
 use crate::bspline::{Basis, Boundary};
-use crate::density::{cell_of, merge_samples, quadratic_weights, Density};
+use crate::density::{cell_of, for_each_quadratic_neighbour, merge_samples, Density};
 use crate::evaluate::{CornerField, Evaluator};
 use crate::extract::{extract, ExtractOptions, Leaf};
 use crate::octree::{Octree, TreeRequest, DEPTH_OFFSET, NONE};
@@ -454,24 +454,17 @@ pub(crate) fn solve_implicit(
             let scale = -s.weight * q.area / (h * h * h) * f;
             let rel: [f64; 3] =
                 std::array::from_fn(|a| (s.pos[a] / h - c[a] as f64).clamp(0.0, 1.0));
-            let wx = quadratic_weights(rel[0]);
-            let wy = quadratic_weights(rel[1]);
-            let wz = quadratic_weights(rel[2]);
-            for (k, wzk) in wz.iter().enumerate() {
-                for (j, wyj) in wy.iter().enumerate() {
-                    for (i, wxi) in wx.iter().enumerate() {
-                        let m = tree.neighbor(t, node, [i as i64 - 1, j as i64 - 1, k as i64 - 1]);
-                        if m == NONE {
-                            continue;
-                        }
-                        let w = scale * wxi * wyj * wzk;
-                        let cell = &mut v[t as usize][m as usize];
-                        for a in 0..3 {
-                            cell[a] += (w * s.normal[a]) as f32;
-                        }
-                    }
+            for_each_quadratic_neighbour(rel, |o, wt| {
+                let m = tree.neighbor(t, node, o);
+                if m == NONE {
+                    return;
                 }
-            }
+                let w = scale * wt;
+                let cell = &mut v[t as usize][m as usize];
+                for a in 0..3 {
+                    cell[a] += (w * s.normal[a]) as f32;
+                }
+            });
         }
     }
     if sum_w <= 0.0 {
