@@ -177,6 +177,12 @@ pub struct ReconstructArgs {
     #[arg(long, value_name = "SIZE", value_parser = parse_size)]
     pub max_memory: Option<u64>,
 
+    /// Split each sample's normal between the two depths around its estimated depth (2006 paper,
+    /// PoissonRecon 6) instead of splatting it whole at the depth above (PoissonRecon 18):
+    /// smoother, better on smooth surfaces, less detail on scans [default: off]
+    #[arg(long)]
+    pub two_level_splat: bool,
+
     /// Number of worker threads, at least 1. Default: rayon's, which honours RAYON_NUM_THREADS
     /// [default: all cores]
     #[arg(long, value_name = "N", value_parser = parse_threads)]
@@ -243,6 +249,7 @@ impl ReconstructArgs {
             density: self.density,
             linear_fit: self.linear_fit,
             max_memory: self.max_memory,
+            two_level_splat: self.two_level_splat,
         }
     }
 }

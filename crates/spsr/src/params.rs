@@ -44,6 +44,12 @@ pub struct Params {
     /// many bytes. `None` (default) uses the memory the machine has available, where the
     /// platform reports it (Linux); elsewhere there is no limit.
     pub max_memory: Option<u64>,
+    /// Split each sample's normal between the two depths around its estimated (fractional)
+    /// depth, as the 2006 paper and PoissonRecon 6 do, instead of splatting it whole at the
+    /// depth above, as PoissonRecon 18 does (ALGORITHM.md §3.6). The split gives smoother
+    /// fields: measured more accurate on smooth analytic surfaces, less on detailed scans.
+    /// Default off (PoissonRecon 18).
+    pub two_level_splat: bool,
 }
 
 impl Default for Params {
@@ -61,6 +67,7 @@ impl Default for Params {
             density: false,
             linear_fit: false,
             max_memory: None,
+            two_level_splat: false,
         }
     }
 }

@@ -397,6 +397,10 @@ pub(crate) fn solve_implicit(
                 dp = depth;
                 f = 1.0;
             }
+            if !params.two_level_splat {
+                // PoissonRecon 18 splats the whole sample at the ceiling depth.
+                f = 1.0;
+            }
             Some(Splat {
                 levels: [(dp, f), (dp - 1, 1.0 - f)],
             })

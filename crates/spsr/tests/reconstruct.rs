@@ -484,3 +484,22 @@ fn a_run_over_the_memory_limit_is_refused_with_a_depth_that_fits() {
         other => panic!("expected a resource-limit error, got {other:?}"),
     }
 }
+
+#[test]
+fn the_two_level_splat_is_closed_and_accurate_on_a_sphere() {
+    let (c, r) = ([0.1, -0.2, 0.3], 1.0);
+    let cloud = sphere(100_000, c, r, 10);
+    let params = Params {
+        depth: 7,
+        two_level_splat: true,
+        ..Params::default()
+    };
+    let out = reconstruct(&cloud, &params).unwrap();
+    let topo = assert_closed_manifold(&out.mesh, "two-level splat");
+    assert_eq!((topo.components, topo.euler), (1, 2));
+    let cell = 2.2 * r / 128.0;
+    let max = radial_errors(&out.mesh, c, r)
+        .iter()
+        .fold(0.0f64, |m, e| m.max(e.abs()));
+    assert!(max <= 0.1 * cell, "max radial error {} cells", max / cell);
+}
