@@ -135,10 +135,11 @@ pub fn reconstruct_with_progress(
         let d = t - DEPTH_OFFSET;
         let level = &tree.levels[t as usize];
         let n = 1i64 << d;
-        for (i, &k) in level.keys.iter().enumerate() {
-            if level.child[i] != NONE {
+        for i in 0..level.len() as u32 {
+            if level.child(i) != NONE {
                 continue;
             }
+            let k = level.key(i);
             let o = func_index(k, d);
             if o.iter().all(|&c| c >= 0 && c < n) {
                 leaves.push(Leaf {
@@ -520,18 +521,19 @@ pub(crate) fn solve_implicit(
         .map(|t| (t >= tb).then(|| DepthTables::new(fem, vb, t as u32 - DEPTH_OFFSET)))
         .collect();
     let singular = alpha == 0.0 && params.boundary != Boundary::Dirichlet;
-    let sol = solve(&Problem {
-        tree: &tree,
-        fem,
-        tables: &tables,
-        v: &v,
-        clusters: &clusters,
-        base_level: tb as u32,
-        iters: params.iters,
-        singular,
-        progress,
-    });
-    drop(v);
+    let sol = solve(
+        &Problem {
+            tree: &tree,
+            fem,
+            tables: &tables,
+            clusters: &clusters,
+            base_level: tb as u32,
+            iters: params.iters,
+            singular,
+            progress,
+        },
+        v,
+    );
     drop(clusters);
     timer.stop("solving");
     for (n, d, m) in &sol.timings {

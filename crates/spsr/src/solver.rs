@@ -39,8 +39,6 @@ pub struct Problem<'a> {
     pub fem: Basis,
     /// Tables per level (present at levels ≥ base).
     pub tables: &'a [Option<DepthTables>],
-    /// V per level (may be empty).
-    pub v: &'a [Vec<[f32; 3]>],
     /// Clusters per level.
     pub clusters: &'a [Clusters],
     /// Base level.
@@ -102,7 +100,7 @@ impl<'a> Op<'a> {
 
     #[inline]
     fn index(&self, n: u32) -> [i64; 3] {
-        func_index(self.level.keys[n as usize], self.d)
+        func_index(self.level.key(n), self.d)
     }
 
     /// `Σ_j L_ij x_j` for row `n`, reading coefficients through `x`.
@@ -145,7 +143,7 @@ impl<'a> Op<'a> {
         }
     }
 
-    fn diagonal(&self) -> Vec<f64> {
+    fn diagonal(&self) -> Vec<f32> {
         (0..self.level.len() as u32)
             .into_par_iter()
             .map(|n| {
@@ -155,7 +153,7 @@ impl<'a> Op<'a> {
                 }
                 let mut dg = self.tab.stiffness(i, [0, 0, 0]);
                 self.for_each_cluster(n, i, |c, bv| dg += self.cl.omega[c as usize] * bv * bv);
-                dg
+                dg as f32
             })
             .collect()
     }
@@ -191,7 +189,7 @@ impl<'a> Op<'a> {
     /// function index modulo `degree + 1` per axis: two nodes of one colour then share no
     /// stiffness entry and no screening cluster, so a colour is relaxed in parallel without
     /// races, and the result does not depend on the thread count.
-    fn gauss_seidel(&self, r: &[f64], x: &mut [f64], diag: &[f64], iters: u32) {
+    fn gauss_seidel(&self, r: &[f32], x: &mut [f64], diag: &[f32], iters: u32) {
         let m = i64::from(self.degree) + 1;
         let ncol = (m * m * m) as usize;
         let mut colours: Vec<Vec<u32>> = vec![Vec::new(); ncol];
@@ -211,7 +209,15 @@ impl<'a> Op<'a> {
                     // SAFETY: within one colour, node `n` is the only one that writes x[n] or
                     // the χ of its clusters, and no node reads another same-colour node's
                     // coefficient or clusters (see the colouring argument above).
-                    unsafe { self.relax(n, r, diag[n as usize], &xs, &cs) };
+                    unsafe {
+                        self.relax(
+                            n,
+                            f64::from(r[n as usize]),
+                            f64::from(diag[n as usize]),
+                            &xs,
+                            &cs,
+                        )
+                    };
                 });
             }
         }
@@ -223,7 +229,7 @@ impl<'a> Op<'a> {
     /// No other thread may concurrently write `x[n]`, any `x[m]` this row reads, or the
     /// cluster values of the clusters around `n`.
     #[inline]
-    unsafe fn relax(&self, n: u32, r: &[f64], dg: f64, x: &SharedSlice, chi: &SharedSlice) {
+    unsafe fn relax(&self, n: u32, r: f64, dg: f64, x: &SharedSlice, chi: &SharedSlice) {
         let i = self.index(n);
         let mut s = self.stiffness_row(n, i, |m| x.get(m));
         let mut touched: [(u32, f64); 27] = [(0, 0.0); 27];
@@ -233,7 +239,7 @@ impl<'a> Op<'a> {
             touched[k] = (c, bv);
             k += 1;
         });
-        let dx = (r[n as usize] - s) / dg;
+        let dx = (r - s) / dg;
         x.set(n as usize, x.get(n as usize) + dx);
         for &(c, bv) in &touched[..k] {
             chi.set(c as usize, chi.get(c as usize) + dx * bv);
@@ -278,7 +284,7 @@ impl SharedSlice {
 /// `Σ_j B_j(p_c) x_j` over the level's functions around cluster `c`.
 fn cluster_value(level: &Level, cl: &Clusters, c: usize, d: u32, degree: u8, x: &[f64]) -> f64 {
     let node = cl.node[c];
-    let own = func_index(level.keys[node as usize], d);
+    let own = func_index(level.key(node), d);
     let f = cl.first[c];
     let v = &cl.vals[c];
     let k = i64::from(degree);
@@ -362,7 +368,7 @@ fn conjugate_gradients(op: &Op, b: &[f64], valid: &[bool], max_iter: usize, tol:
 }
 
 /// Right-hand side contributions from the clusters: `Σ_c ω_c B_i(p_c) (τ − coarse_c)`.
-fn add_screening_targets(op: &Op, coarse_chi: Option<&[f64]>, r: &mut [f64]) {
+fn add_screening_targets(op: &Op, r: &mut [f64]) {
     r.par_iter_mut().enumerate().for_each(|(n, rn)| {
         let n = n as u32;
         let i = op.index(n);
@@ -370,14 +376,14 @@ fn add_screening_targets(op: &Op, coarse_chi: Option<&[f64]>, r: &mut [f64]) {
             return;
         }
         op.for_each_cluster(n, i, |c, bv| {
-            let coarse = coarse_chi.map_or(0.0, |v| v[c as usize]);
-            *rn += op.cl.omega[c as usize] * bv * (TAU - coarse);
+            *rn += op.cl.omega[c as usize] * bv * TAU;
         });
     });
 }
 
-/// Solves the whole hierarchy.
-pub fn solve(p: &Problem) -> Solution {
+/// Solves the whole hierarchy. `v` is the splatted vector field per level (may be empty);
+/// each level's V is released as soon as the cascade no longer needs it.
+pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
     let tree = p.tree;
     let nlev = tree.levels.len();
     let tb = p.base_level as usize;
@@ -391,18 +397,22 @@ pub fn solve(p: &Problem) -> Solution {
         timings.push((name, clock.elapsed(), crate::reconstruct::peak_rss()));
         *clock = std::time::Instant::now();
     };
-    let mut tcons: Vec<Vec<f64>> = vec![Vec::new(); nlev];
+    // Constraints are stored in single precision (summed in double precision).
+    let mut tcons: Vec<Vec<f32>> = vec![Vec::new(); nlev];
     let mut g_finer: Vec<f64> = Vec::new();
     let empty: Vec<[f32; 3]> = Vec::new();
+    v.resize_with(nlev, Vec::new);
     for t in (tb..=max_level).rev() {
         let tab = p.tables[t].as_ref().expect("tables");
-        let v_finer = p.v.get(t + 1).unwrap_or(&empty);
+        let v_finer = v.get(t + 1).unwrap_or(&empty);
         let gf = (t < max_level).then_some(g_finer.as_slice());
-        let (g, b) = divergence_constraints(tree, t as u32, tab, p.fem, &p.v[t], v_finer, gf);
+        let (g, b) = divergence_constraints(tree, t as u32, tab, p.fem, &v[t], v_finer, gf);
         g_finer = g;
         tcons[t] = b;
     }
     drop(g_finer);
+    // The finest level's V has entered the constraints; the cascade only prolongs coarser V.
+    v[max_level] = Vec::new();
     lap("divergence constraints".into(), &mut clock);
     let mut sol = Solution {
         x: vec![Vec::new(); nlev],
@@ -421,8 +431,9 @@ pub fn solve(p: &Problem) -> Solution {
         let valid: Vec<bool> = (0..op.level.len() as u32)
             .map(|n| op.tab.range.contains(op.index(n)))
             .collect();
-        let mut b = std::mem::take(&mut tcons[tb]);
-        add_screening_targets(&op, None, &mut b);
+        let mut b: Vec<f64> = tcons[tb].iter().map(|&x| f64::from(x)).collect();
+        tcons[tb] = Vec::new();
+        add_screening_targets(&op, &mut b);
         if p.singular {
             // Project out the constant null vector so the system is consistent.
             let cnt = valid.iter().filter(|&&v| v).count().max(1) as f64;
@@ -449,11 +460,8 @@ pub fn solve(p: &Problem) -> Solution {
         &mut clock,
     );
 
-    // Cumulative V, prolonged level by level.
-    let mut vc: Vec<[f64; 3]> = p.v[tb]
-        .iter()
-        .map(|v| [f64::from(v[0]), f64::from(v[1]), f64::from(v[2])])
-        .collect();
+    // Cumulative V, prolonged level by level (stored in single precision).
+    let mut vc: Vec<[f32; 3]> = std::mem::take(&mut v[tb]);
     if vc.is_empty() {
         vc = vec![[0.0; 3]; tree.levels[tb].len()];
     }
@@ -465,67 +473,6 @@ pub fn solve(p: &Problem) -> Solution {
         let level = op.level;
         let parent_level = &tree.levels[t - 1];
         let pc = &p_prev;
-        // Right-hand side: own constraints + coarser V − coarser solution coupling.
-        let mut r: Vec<f64> = (0..level.len() as u32)
-            .into_par_iter()
-            .map(|n| {
-                let i = op.index(n);
-                if !tab.range.contains(i) {
-                    return 0.0;
-                }
-                let mut s = tcons[t][n as usize];
-                let par = level.brood_parent[(n >> 3) as usize];
-                if tab.is_interior(i) {
-                    let c = ((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2)) as usize;
-                    let ps = &tab.pstencil[c];
-                    let pv = &tab.pvstencil[c];
-                    for w in 0..125usize {
-                        let q = neighbor_in(parent_level, par, w);
-                        if q == NONE {
-                            continue;
-                        }
-                        s -= ps[w] * pc[q as usize];
-                        let v = vc[q as usize];
-                        s += v[0] * pv[0][w] + v[1] * pv[1][w] + v[2] * pv[2][w];
-                    }
-                    return s;
-                }
-                let mut pm = [[0.0; 5]; 3];
-                let mut ps = [[0.0; 5]; 3];
-                let mut vm = [[0.0; 5]; 3];
-                let mut vd = [[0.0; 5]; 3];
-                for a in 0..3 {
-                    for o in 0..5 {
-                        pm[a][o] = tab.pmass.get(i[a], o as i64 - 2);
-                        ps[a][o] = tab.pstiff.get(i[a], o as i64 - 2);
-                        vm[a][o] = tab.pvmass.get(i[a], o as i64 - 2);
-                        vd[a][o] = tab.pvderiv.get(i[a], o as i64 - 2);
-                    }
-                }
-                for w in 0..125usize {
-                    let (ox, oy, oz) = (w % 5, (w / 5) % 5, w / 25);
-                    let q = neighbor_in(parent_level, par, w);
-                    if q == NONE {
-                        continue;
-                    }
-                    let xq = pc[q as usize];
-                    if xq != 0.0 {
-                        let k = ps[0][ox] * pm[1][oy] * pm[2][oz]
-                            + pm[0][ox] * ps[1][oy] * pm[2][oz]
-                            + pm[0][ox] * pm[1][oy] * ps[2][oz];
-                        s -= k * xq;
-                    }
-                    let v = vc[q as usize];
-                    if v != [0.0; 3] {
-                        s += v[0] * vd[0][ox] * vm[1][oy] * vm[2][oz]
-                            + v[1] * vm[0][ox] * vd[1][oy] * vm[2][oz]
-                            + v[2] * vm[0][ox] * vm[1][oy] * vd[2][oz];
-                    }
-                }
-                s
-            })
-            .collect();
-        tcons[t] = Vec::new();
         // Screening: the coarser solution at the clusters of this level.
         let coarse_chi: Vec<f64> = (0..op.cl.pos.len())
             .into_par_iter()
@@ -535,40 +482,123 @@ pub fn solve(p: &Problem) -> Solution {
                 coarse_value(tree, p.fem, t as u32 - 1, par, op.cl.pos[c], pc)
             })
             .collect();
-        add_screening_targets(&op, Some(&coarse_chi), &mut r);
+        // Right-hand side: own constraints + coarser V − coarser solution coupling.
+        let rhs = |n: u32| -> f64 {
+            let i = op.index(n);
+            if !tab.range.contains(i) {
+                return 0.0;
+            }
+            let mut s = f64::from(tcons[t][n as usize]);
+            let par = level.brood_parent[(n >> 3) as usize];
+            if tab.is_interior(i) {
+                let c = ((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2)) as usize;
+                let ps = &tab.pstencil[c];
+                let pv = &tab.pvstencil[c];
+                for w in 0..125usize {
+                    let q = neighbor_in(parent_level, par, w);
+                    if q == NONE {
+                        continue;
+                    }
+                    s -= ps[w] * pc[q as usize];
+                    let v = vc[q as usize];
+                    s += f64::from(v[0]) * pv[0][w]
+                        + f64::from(v[1]) * pv[1][w]
+                        + f64::from(v[2]) * pv[2][w];
+                }
+                return s;
+            }
+            let mut pm = [[0.0; 5]; 3];
+            let mut ps = [[0.0; 5]; 3];
+            let mut vm = [[0.0; 5]; 3];
+            let mut vd = [[0.0; 5]; 3];
+            for a in 0..3 {
+                for o in 0..5 {
+                    pm[a][o] = tab.pmass.get(i[a], o as i64 - 2);
+                    ps[a][o] = tab.pstiff.get(i[a], o as i64 - 2);
+                    vm[a][o] = tab.pvmass.get(i[a], o as i64 - 2);
+                    vd[a][o] = tab.pvderiv.get(i[a], o as i64 - 2);
+                }
+            }
+            for w in 0..125usize {
+                let (ox, oy, oz) = (w % 5, (w / 5) % 5, w / 25);
+                let q = neighbor_in(parent_level, par, w);
+                if q == NONE {
+                    continue;
+                }
+                let xq = pc[q as usize];
+                if xq != 0.0 {
+                    let k = ps[0][ox] * pm[1][oy] * pm[2][oz]
+                        + pm[0][ox] * ps[1][oy] * pm[2][oz]
+                        + pm[0][ox] * pm[1][oy] * ps[2][oz];
+                    s -= k * xq;
+                }
+                let v = vc[q as usize];
+                if v != [0.0; 3] {
+                    let v = v.map(f64::from);
+                    s += v[0] * vd[0][ox] * vm[1][oy] * vm[2][oz]
+                        + v[1] * vm[0][ox] * vd[1][oy] * vm[2][oz]
+                        + v[2] * vm[0][ox] * vm[1][oy] * vd[2][oz];
+                }
+            }
+            s
+        };
+        // Screening targets: Σ_c ω_c B_i(p_c) (τ − χ_{<d}(p_c)). Stored in single precision.
+        let r: Vec<f32> = (0..level.len() as u32)
+            .into_par_iter()
+            .map(|n| {
+                let mut s = rhs(n);
+                let i = op.index(n);
+                if tab.range.contains(i) {
+                    op.for_each_cluster(n, i, |c, bv| {
+                        s += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
+                    });
+                }
+                s as f32
+            })
+            .collect();
+        tcons[t] = Vec::new();
         let diag = op.diagonal();
         let dd = t as u32 - DEPTH_OFFSET;
         lap(format!("depth {dd}: right-hand side"), &mut clock);
         let mut x = vec![0.0; level.len()];
         op.gauss_seidel(&r, &mut x, &diag, p.iters);
         lap(format!("depth {dd}: Gauss-Seidel"), &mut clock);
-        // Cumulative solution and V at this level.
-        let cum = prolong::<1>(
-            tree,
-            t as u32,
-            &tab.prolong,
-            tab.range,
-            |q| [pc[q as usize]],
-            |n| [x[n]],
-        );
-        let cum: Vec<f64> = cum.into_iter().map(|v| v[0]).collect();
-        sol.p[t] = to_f32(&cum);
+        // Cumulative solution and V at this level. The cascade carries the cumulative
+        // solution in double precision; the stored copy is single precision.
         sol.x[t] = to_f32(&x);
-        p_prev = cum;
         if t < max_level {
-            let vt = &p.v[t];
+            let cum = prolong::<1, f64>(
+                tree,
+                t as u32,
+                &tab.prolong,
+                tab.range,
+                |q| [pc[q as usize]],
+                |n| [x[n]],
+                |c| c[0],
+            );
+            drop(x);
+            sol.p[t] = to_f32(&cum);
+            p_prev = cum;
+            let vt = std::mem::take(&mut v[t]);
             let prev = std::mem::take(&mut vc);
-            vc = prolong::<3>(
+            vc = prolong::<3, [f32; 3]>(
                 tree,
                 t as u32,
                 &tab.vprolong,
                 tab.vrange,
-                |q| prev[q as usize],
-                |n| {
-                    vt.get(n).map_or([0.0; 3], |v| {
-                        [f64::from(v[0]), f64::from(v[1]), f64::from(v[2])]
-                    })
-                },
+                |q| prev[q as usize].map(f64::from),
+                |n| vt.get(n).map_or([0.0; 3], |v| v.map(f64::from)),
+                |c| c.map(|x| x as f32),
+            );
+        } else {
+            sol.p[t] = prolong::<1, f32>(
+                tree,
+                t as u32,
+                &tab.prolong,
+                tab.range,
+                |q| [pc[q as usize]],
+                |n| [x[n]],
+                |c| c[0] as f32,
             );
         }
         lap(format!("depth {dd}: prolongation"), &mut clock);
@@ -589,7 +619,7 @@ pub fn coarse_value(
 ) -> f64 {
     let d = t - DEPTH_OFFSET;
     let level = &tree.levels[t as usize];
-    let own = func_index(level.keys[node as usize], d);
+    let own = func_index(level.key(node), d);
     let wx = fem.window(d, pos[0]);
     let wy = fem.window(d, pos[1]);
     let wz = fem.window(d, pos[2]);

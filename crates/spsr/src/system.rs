@@ -433,14 +433,14 @@ pub fn divergence_constraints(
     v: &[[f32; 3]],
     v_finer: &[[f32; 3]],
     g_finer: Option<&[f64]>,
-) -> (Vec<f64>, Vec<f64>) {
+) -> (Vec<f64>, Vec<f32>) {
     let d = t - DEPTH_OFFSET;
     let level = &tree.levels[t as usize];
     let next = tree.levels.get(t as usize + 1);
     (0..level.len() as u32)
         .into_par_iter()
         .map(|n| {
-            let i = func_index(level.keys[n as usize], d);
+            let i = func_index(level.key(n), d);
             if !tab.range.contains(i) {
                 return (0.0, 0.0);
             }
@@ -465,7 +465,7 @@ pub fn divergence_constraints(
                     if m == NONE {
                         continue;
                     }
-                    let b = level.child[m as usize];
+                    let b = level.child(m);
                     if b == NONE {
                         continue;
                     }
@@ -538,7 +538,7 @@ pub fn divergence_constraints(
                     b += vm[0] * dx * my * mz + vm[1] * mx * dy * mz + vm[2] * mx * my * dz;
                 }
             }
-            (g, b)
+            (g, b as f32)
         })
         .unzip()
 }
@@ -571,7 +571,7 @@ fn restrict_one(
                 if m == NONE {
                     continue;
                 }
-                let b = level.child[m as usize];
+                let b = level.child(m);
                 if b == NONE {
                     continue;
                 }
@@ -586,24 +586,26 @@ fn restrict_one(
 }
 
 /// Prolongs per-node coefficients `coarse` of level `t − 1` to level `t` (pull form),
-/// for functions in `range`; `add` (same level) is added on top.
-pub fn prolong<const K: usize>(
+/// for functions in `range`; `add` (same level) is added on top, and `store` converts each
+/// sum (computed in double precision) to the stored type.
+pub fn prolong<const K: usize, T: Send>(
     tree: &Octree,
     t: u32,
     weights: &Prolong,
     range: Range,
     coarse: impl Fn(u32) -> [f64; K] + Sync,
     add: impl Fn(usize) -> [f64; K] + Sync,
-) -> Vec<[f64; K]> {
+    store: impl Fn([f64; K]) -> T + Sync,
+) -> Vec<T> {
     let d = t - DEPTH_OFFSET;
     let level = &tree.levels[t as usize];
     let parent_level = &tree.levels[t as usize - 1];
     (0..level.len() as u32)
         .into_par_iter()
         .map(|n| {
-            let j = func_index(level.keys[n as usize], d);
+            let j = func_index(level.key(n), d);
             if !range.contains(j) {
-                return [0.0; K];
+                return store([0.0; K]);
             }
             let mut acc = add(n as usize);
             let p = level.brood_parent[(n >> 3) as usize];
@@ -634,7 +636,7 @@ pub fn prolong<const K: usize>(
                     }
                 }
             }
-            acc
+            store(acc)
         })
         .collect()
 }
