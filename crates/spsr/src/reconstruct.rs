@@ -7,8 +7,8 @@ use rayon::prelude::*;
 use crate::bspline::{Basis, Boundary};
 use crate::density::{cell_of, for_each_quadratic_neighbour, merge_samples, Density};
 use crate::evaluate::{CornerField, Evaluator};
-use crate::extract::{extract, ExtractOptions, Leaf};
-use crate::octree::{Octree, TreeRequest, DEPTH_OFFSET, NONE};
+use crate::extract::{extract_blocks, Cells, ExtractOptions};
+use crate::octree::{neighbor_in, window_index, Octree, TreeRequest, DEPTH_OFFSET, NONE};
 use crate::points::is_valid;
 use crate::solver::{solve, Problem};
 use crate::system::{build_clusters, func_index, DepthTables};
@@ -127,43 +127,26 @@ pub fn reconstruct_with_progress(
         progress,
     };
     let eval = Evaluator::new(&tree, fem, &sol);
-    let t_max = tree.depth_count() - 1;
-    // 8. Extraction (§9).
+    // 8. Extraction (§9), block by block; the tree and the solution are released before the
+    //    vertices are numbered.
     timer.start("extraction");
-    let mut leaves = Vec::new();
-    for t in DEPTH_OFFSET..=t_max {
-        let d = t - DEPTH_OFFSET;
-        let level = &tree.levels[t as usize];
-        let n = 1i64 << d;
-        for i in 0..level.len() as u32 {
-            if level.child(i) != NONE {
-                continue;
-            }
-            let k = level.key(i);
-            let o = func_index(k, d);
-            if o.iter().all(|&c| c >= 0 && c < n) {
-                leaves.push(Leaf {
-                    depth: d,
-                    offset: [o[0] as u32, o[1] as u32, o[2] as u32],
-                });
-            }
-        }
-    }
-    let max_leaf_depth = leaves.iter().map(|l| l.depth).max().unwrap_or(0);
+    let cells = TreeCells::new(&tree, params.base_depth());
     let field = CornerField {
         eval: &eval,
-        depth: max_leaf_depth,
+        depth: cells.max_depth,
     };
-    let mut mesh = extract(
-        &leaves,
-        max_leaf_depth,
+    let blocks = extract_blocks(
+        &cells,
         &field,
         iso,
         &ExtractOptions {
             linear_fit: params.linear_fit,
         },
     )?;
-    drop(leaves);
+    drop(cells);
+    drop(sol);
+    drop(tree);
+    let mut mesh = blocks.assemble()?;
     if params.density {
         mesh.density = Some(
             mesh.vertices
@@ -182,6 +165,108 @@ pub fn reconstruct_with_progress(
     stats.stages = timer.stats;
     stats.peak_memory = timer.memory;
     Ok(Reconstruction { mesh, stats })
+}
+
+/// The octree's leaves inside the unit cube, as extraction sees them. Blocks are the cells of
+/// a depth at most the base depth (complete, so every leaf lies in one), chosen so that a
+/// block spans about 32 finest cells per axis.
+struct TreeCells<'a> {
+    tree: &'a Octree,
+    max_depth: u32,
+    block_level: u32,
+    blocks: Vec<u32>,
+}
+
+impl<'a> TreeCells<'a> {
+    /// `base_depth`: a unit depth down to which the tree is complete.
+    fn new(tree: &'a Octree, base_depth: u32) -> Self {
+        let max_depth = tree.depth_count() - 1 - DEPTH_OFFSET;
+        let block_level = max_depth.saturating_sub(5).min(base_depth) + DEPTH_OFFSET;
+        let d = block_level - DEPTH_OFFSET;
+        let level = &tree.levels[block_level as usize];
+        let n = 1i64 << d;
+        let blocks = (0..level.len() as u32)
+            .filter(|&b| {
+                func_index(level.key(b), d)
+                    .iter()
+                    .all(|&c| (0..n).contains(&c))
+            })
+            .collect();
+        Self {
+            tree,
+            max_depth,
+            block_level,
+            blocks,
+        }
+    }
+}
+
+impl Cells for TreeCells<'_> {
+    type Handle = (u32, u32);
+
+    fn max_depth(&self) -> u32 {
+        self.max_depth
+    }
+
+    fn block_count(&self) -> usize {
+        self.blocks.len()
+    }
+
+    fn for_each_leaf(&self, b: usize, f: &mut dyn FnMut((u32, u32), u32, [u32; 3])) {
+        // Depth-first, children in order: Morton order within the block.
+        let mut stack = vec![(self.block_level, self.blocks[b])];
+        while let Some((t, n)) = stack.pop() {
+            let level = &self.tree.levels[t as usize];
+            let c = level.child(n);
+            if c == NONE {
+                let d = t - DEPTH_OFFSET;
+                let o = func_index(level.key(n), d);
+                f((t, n), d, [o[0] as u32, o[1] as u32, o[2] as u32]);
+            } else {
+                for k in (0..8).rev() {
+                    stack.push((t + 1, c * 8 + k));
+                }
+            }
+        }
+    }
+
+    fn refined(&self, (t, n): (u32, u32), depth: u32, offset: [u32; 3]) -> bool {
+        let d = t - DEPTH_OFFSET;
+        let levels = &self.tree.levels;
+        let own = func_index(levels[t as usize].key(n), d);
+        // The cell's ancestor at the leaf's depth is a neighbour of the leaf.
+        let shift = depth.saturating_sub(d);
+        let rel: [i64; 3] = std::array::from_fn(|a| i64::from(offset[a] >> shift) - own[a]);
+        let (mut tt, mut m) = if depth >= d && rel.iter().all(|&r| (-2..=2).contains(&r)) {
+            (t, neighbor_in(&levels[t as usize], n, window_index(rel)))
+        } else {
+            // Not expected (the cell touches the leaf and is no coarser); look it up from the
+            // root.
+            let key: [u64; 3] = std::array::from_fn(|a| u64::from(offset[a]) + (1u64 << depth));
+            let tk = depth + DEPTH_OFFSET;
+            let (reached, node) = self.tree.descend(key, tk, tk);
+            if reached != tk {
+                return false;
+            }
+            (tk, node)
+        };
+        if m == NONE {
+            return false;
+        }
+        while tt < depth + DEPTH_OFFSET {
+            let b = levels[tt as usize].child(m);
+            if b == NONE {
+                return false;
+            }
+            tt += 1;
+            let s = depth + DEPTH_OFFSET - tt;
+            let bits = ((offset[0] >> s) & 1)
+                | (((offset[1] >> s) & 1) << 1)
+                | (((offset[2] >> s) & 1) << 2);
+            m = b * 8 + bits;
+        }
+        levels[tt as usize].child(m) != NONE
+    }
 }
 
 /// Peak memory per octree node over the whole run (solve and extraction), measured on depth-10
