@@ -405,7 +405,7 @@ fn extract_impl(
         Mesh {
             vertices,
             triangles,
-            density: None,
+            ..Default::default()
         },
         n_edge_vertices,
         is_edge,
