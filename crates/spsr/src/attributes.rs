@@ -210,11 +210,13 @@ impl AttributeData {
     }
 
     /// Value `i` as `f64` (exact for every type), or `None` past the end.
+    #[allow(clippy::unnecessary_cast)] // the cast is a no-op only for the `F64` variant
     pub fn get(&self, i: usize) -> Option<f64> {
         each!(self, v => v.get(i).map(|&x| x as f64))
     }
 
     /// All values as `f64`, in order.
+    #[allow(clippy::unnecessary_cast)] // the cast is a no-op only for the `F64` variant
     pub fn iter_f64(&self) -> impl Iterator<Item = f64> + '_ {
         (0..self.len()).map(move |i| each!(self, v => v[i] as f64))
     }

@@ -13,7 +13,7 @@
 //! stored as a normalised `u16` VEC4 (8-bit linear would band the dark tones); alpha is
 //! copied. A mesh far from the origin (see `needs_f64`) is written relative to its bounding
 //! box centre, with that centre as the node's translation, so `f32` keeps its precision.
-//! A mesh without triangles gives a file with an empty scene.
+//! A mesh without triangles gives a file with nothing but its `asset` description.
 
 use std::fmt::Write as _;
 use std::io::Write;
@@ -108,11 +108,13 @@ fn position(v: &[f64; 3], shift: [f64; 3]) -> [f32; 3] {
 }
 
 fn json(mesh: &Mesh, shift: Option<[f64; 3]>) -> String {
-    let mut j = String::from(r#"{"asset":{"version":"2.0","generator":"spsr"},"scene":0,"#);
+    let mut j = String::from(r#"{"asset":{"version":"2.0","generator":"spsr"}"#);
     if !has_geometry(mesh) {
-        j.push_str(r#""scenes":[{}]}"#);
+        // Scenes are optional, and a scene without nodes trips some readers.
+        j.push('}');
         return j;
     }
+    j.push_str(r#","scene":0,"#);
     let nv = mesh.vertices.len();
     let s = shift.unwrap_or([0.0; 3]);
     let mut lo = [f32::INFINITY; 3];
@@ -297,8 +299,8 @@ mod tests {
     }
 
     #[test]
-    fn empty_meshes_have_an_empty_scene() {
+    fn empty_meshes_have_no_scene() {
         let j = json(&Mesh::default(), None);
-        assert!(j.ends_with(r#""scenes":[{}]}"#), "{j}");
+        assert_eq!(j, r#"{"asset":{"version":"2.0","generator":"spsr"}}"#);
     }
 }

@@ -220,14 +220,23 @@ fn extra_fields(header: &::las::Header, extra_len: usize) -> Vec<Extra> {
     out
 }
 
-fn las_err(path: &Path, e: ::las::Error, done: u64, total: u64) -> Error {
-    match e {
-        ::las::Error::Io(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => parse_err(
+/// Maps a `las` error; `points` is `(points read, points declared)` once the header is read.
+fn las_err(path: &Path, e: ::las::Error, points: Option<(u64, u64)>) -> Error {
+    let eof = |io: &std::io::Error| io.kind() == std::io::ErrorKind::UnexpectedEof;
+    match (e, points) {
+        (::las::Error::Io(io), None) if eof(&io) => parse_err(
             path,
-            format!("the file is truncated: it ends within points {done} to {} (0-based) of the {total} its header declares", (done + CHUNK_POINTS).min(total).saturating_sub(1)),
+            "not a valid LAS/LAZ file: the file ends inside its header".into(),
         ),
-        ::las::Error::Io(io) => io_err(path, io),
-        other => parse_err(path, format!("not a valid LAS/LAZ file: {other}")),
+        (::las::Error::Io(io), Some((done, total))) if eof(&io) => parse_err(
+            path,
+            format!(
+                "the file is truncated: it ends within points {done} to {} (0-based) of the {total} its header declares",
+                (done + CHUNK_POINTS).min(total).saturating_sub(1)
+            ),
+        ),
+        (::las::Error::Io(io), _) => io_err(path, io),
+        (other, _) => parse_err(path, format!("not a valid LAS/LAZ file: {other}")),
     }
 }
 
@@ -263,7 +272,7 @@ fn read(
     file_len: u64,
     need_normals: bool,
 ) -> Result<PointCloud> {
-    let mut las = Reader::new(reader).map_err(|e| las_err(path, e, 0, 0))?;
+    let mut las = Reader::new(reader).map_err(|e| las_err(path, e, None))?;
     let header = las.header().clone();
     let format = *header.point_format();
     let total = header.number_of_points();
@@ -323,7 +332,7 @@ fn read(
     loop {
         let got = las
             .fill_points(CHUNK_POINTS, &mut pd)
-            .map_err(|e| las_err(path, e, done, total))?;
+            .map_err(|e| las_err(path, e, Some((done, total))))?;
         if got == 0 {
             break;
         }
