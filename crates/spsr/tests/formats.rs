@@ -1091,3 +1091,65 @@ fn glb_holds_positions_normals_colours_density_and_indices() {
     let glb = parse_glb(&fs::read(&p).unwrap());
     assert!(glb.json.get("meshes").is_none() && glb.bin.is_empty());
 }
+
+// ---------------------------------------------------------------------------------------------
+// Damaged files: every truncation and many byte changes give a result or an error, never a
+// panic (a panic fails the test).
+
+#[test]
+fn damaged_files_of_every_format_never_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
+    let ply = dir.path().join("c.ply");
+    write_cloud(&ply, &sample_cloud(6), &WriteOptions::default()).unwrap();
+    let ascii = dir.path().join("a.ply");
+    write_cloud(&ascii, &sample_cloud(3), &WriteOptions { ascii: true }).unwrap();
+    let las = dir.path().join("c.las");
+    write_las(&las, 5, true);
+    let laz = dir.path().join("c.laz");
+    write_las(&laz, 50, true);
+    let e57 = dir.path().join("c.e57");
+    write_e57(&e57);
+    let mut pcds = Vec::new();
+    for (name, kind) in [
+        ("a.pcd", pcd_rs::DataKind::Ascii),
+        ("b.pcd", pcd_rs::DataKind::Binary),
+        ("c.pcd", pcd_rs::DataKind::BinaryCompressed),
+    ] {
+        let p = dir.path().join(name);
+        write_pcd(&p, kind, 40);
+        pcds.push(p);
+    }
+    for p in [ply, ascii, las, laz, e57].into_iter().chain(pcds) {
+        let bytes = fs::read(&p).unwrap();
+        files.push((p, bytes));
+    }
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut rand = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    for (path, bytes) in &files {
+        let name = path.file_name().unwrap().to_str().unwrap();
+        let damaged = dir.path().join(format!("damaged-{name}"));
+        let step = (bytes.len() / 150).max(1);
+        let mut cases: Vec<Vec<u8>> = (0..bytes.len())
+            .step_by(step)
+            .map(|n| bytes[..n].to_vec())
+            .collect();
+        for _ in 0..150 {
+            let mut b = bytes.clone();
+            for _ in 0..1 + rand() % 4 {
+                let i = (rand() % b.len() as u64) as usize;
+                b[i] = rand() as u8;
+            }
+            cases.push(b);
+        }
+        for case in cases {
+            fs::write(&damaged, &case).unwrap();
+            let _ = read_cloud(&damaged);
+        }
+    }
+}
