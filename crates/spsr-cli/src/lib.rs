@@ -33,13 +33,16 @@ const RECONSTRUCT_LONG_ABOUT: &str = "\
 Reconstruct a watertight triangle mesh from an oriented point cloud (Screened Poisson Surface \
 Reconstruction, Kazhdan & Hoppe 2013).
 
-Input: a PLY file in any encoding (ASCII, binary little- or big-endian) whose vertex element has \
-x, y, z and nx, ny, nz properties, or a text file with one point per line: x y z nx ny nz. Normals \
-must point outward. Points with non-finite coordinates or zero-length normals are dropped with a \
-warning.
+Input: points with normals (nx ny nz) in one of these formats, recognised by their first bytes or \
+else by extension: PLY (any encoding), LAS or LAZ (.las, .laz; normals as extra bytes such as \
+NormalX/NormalY/NormalZ), E57 (.e57; every scan, moved by its pose; normals from the surface-normals \
+extension), PCD (.pcd; ascii, binary or binary_compressed, fields normal_x normal_y normal_z), or \
+text with one point per line: x y z nx ny nz, optionally followed by r g b. Normals must point \
+outward. Points with non-finite coordinates or zero-length normals are dropped with a warning.
 
-Output: binary little-endian PLY by default, ASCII PLY with --ascii, Wavefront OBJ when the output \
-name ends in .obj. The output file appears only once it is complete; on any error no output file \
+Output, chosen by the output name's extension: .ply (binary little-endian, ASCII with --ascii; also \
+used for any other extension), .obj (Wavefront OBJ), .stl (binary STL, ASCII with --ascii), .glb \
+(glTF 2.0 binary). The output file appears only once it is complete; on any error no output file \
 is left behind. The output must not be the input file.";
 
 /// Command-line arguments of `spsr`.
@@ -92,11 +95,11 @@ impl From<BoundaryArg> for spsr::Boundary {
 /// Arguments of `spsr reconstruct`. Defaults mirror [`spsr::Params::default`].
 #[derive(Debug, Args)]
 pub struct ReconstructArgs {
-    /// Oriented point cloud: PLY (any encoding) or text with `x y z nx ny nz` per line.
+    /// Oriented point cloud: PLY, LAS/LAZ, E57, PCD, or text with `x y z nx ny nz` per line.
     #[arg(value_name = "INPUT")]
     pub input: PathBuf,
 
-    /// Output mesh: PLY, or OBJ when the name ends in .obj.
+    /// Output mesh, by extension: .ply (also any other name), .obj, .stl or .glb.
     #[arg(short, long, value_name = "OUTPUT")]
     pub output: PathBuf,
 
@@ -191,7 +194,7 @@ pub struct ReconstructArgs {
     #[arg(long, value_name = "N", value_parser = parse_threads)]
     pub threads: Option<usize>,
 
-    /// Write ASCII PLY instead of binary little-endian PLY (no effect on .obj) [default: off]
+    /// Write ASCII PLY or STL instead of binary (no effect on .obj and .glb) [default: off]
     #[arg(long)]
     pub ascii: bool,
 

@@ -322,6 +322,11 @@ fn help_lists_every_flag_with_its_default() {
         "2013 paper",
         "Exit codes",
         ".obj",
+        ".stl",
+        ".glb",
+        "LAS or LAZ",
+        "E57",
+        "PCD",
         "nx ny nz",
     ] {
         assert!(help.contains(needle), "help lacks {needle:?}");
@@ -405,6 +410,48 @@ fn obj_extension_writes_obj() {
     assert!(text.lines().any(|l| l.starts_with("v ")), "no vertices");
     assert!(text.lines().any(|l| l.starts_with("f ")), "no faces");
     assert!(!text.starts_with("ply"));
+}
+
+#[test]
+fn stl_and_glb_extensions_write_stl_and_glb() {
+    let (_dir, output, _) = reconstruct_sphere("out.stl", &[]);
+    let bytes = fs::read(&output).unwrap();
+    let n = u32::from_le_bytes([bytes[80], bytes[81], bytes[82], bytes[83]]) as usize;
+    assert!(n > 0 && bytes.len() == 84 + 50 * n, "binary STL");
+    let (_dir, output, _) = reconstruct_sphere("out.stl", &["--ascii"]);
+    assert!(fs::read_to_string(&output).unwrap().starts_with("solid"));
+    let (_dir, output, _) = reconstruct_sphere("out.glb", &[]);
+    assert!(fs::read(&output).unwrap().starts_with(b"glTF"));
+}
+
+#[test]
+fn text_and_pcd_inputs_are_recognised() {
+    let points = sphere(3000);
+    let dir = TempDir::new().unwrap();
+    let mut text = String::new();
+    for (p, n) in &points {
+        text += &format!("{} {} {} {} {} {}\n", p[0], p[1], p[2], n[0], n[1], n[2]);
+    }
+    let xyz = dir.path().join("in.xyz");
+    fs::write(&xyz, &text).unwrap();
+    let pcd = dir.path().join("in.pcd");
+    let head = format!(
+        "VERSION .7\nFIELDS x y z normal_x normal_y normal_z\nSIZE 4 4 4 4 4 4\n\
+         TYPE F F F F F F\nWIDTH {}\nDATA ascii\n",
+        points.len()
+    );
+    fs::write(&pcd, head + &text).unwrap();
+    for input in [&xyz, &pcd] {
+        let output = dir.path().join("out.ply");
+        let out = spsr(&["reconstruct", s(input), "-o", s(&output), "--depth", "5"]);
+        assert!(
+            out.status.success(),
+            "{}: {}",
+            input.display(),
+            stderr(&out)
+        );
+        assert!(element_count(&ply_header(&output), "face") > 0);
+    }
 }
 
 #[test]

@@ -14,6 +14,7 @@
 // Numeric kernels index several parallel arrays by axis; explicit index loops read best there.
 #![allow(clippy::needless_range_loop)]
 
+pub mod attributes;
 pub mod bspline;
 mod density;
 mod error;
@@ -33,5 +34,5 @@ pub use bspline::Boundary;
 pub use error::{Error, Result};
 pub use mesh::Mesh;
 pub use params::{Params, MAX_DEPTH};
-pub use points::PointCloud;
+pub use points::{PointCloud, ScanOrigin};
 pub use reconstruct::{reconstruct, reconstruct_with_progress, Reconstruction, Stats};

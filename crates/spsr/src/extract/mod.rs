@@ -443,8 +443,8 @@ impl Blocks {
             vertices.extend_from_slice(&c.owned_pos);
             vertices.extend_from_slice(&c.bary);
             if cfg!(test) {
-                is_edge.extend(std::iter::repeat(true).take(c.owned_pos.len()));
-                is_edge.extend(std::iter::repeat(false).take(c.bary.len()));
+                is_edge.extend(std::iter::repeat_n(true, c.owned_pos.len()));
+                is_edge.extend(std::iter::repeat_n(false, c.bary.len()));
             }
         }
         drop(vt);
@@ -485,7 +485,7 @@ impl Blocks {
             Mesh {
                 vertices,
                 triangles,
-                density: None,
+                ..Default::default()
             },
             n_edge_vertices,
             is_edge,
