@@ -13,6 +13,7 @@ use crate::bspline::Basis;
 use crate::octree::{neighbor_in, window_index, Level, Octree, DEPTH_OFFSET, NONE};
 use crate::system::{
     cluster_offsets, divergence_constraints, func_index, prolong, Clusters, DepthTables,
+    SharedSlice,
 };
 
 /// The screening target τ at the samples (PR18 convention: χ ≈ 1 inside, 0 outside).
@@ -244,40 +245,6 @@ impl<'a> Op<'a> {
         for &(c, bv) in &touched[..k] {
             chi.set(c as usize, chi.get(c as usize) + dx * bv);
         }
-    }
-}
-
-/// A slice shared between threads that write disjoint elements (multi-colour Gauss–Seidel).
-struct SharedSlice {
-    ptr: *mut f64,
-    len: usize,
-}
-
-// SAFETY: access goes through `get`/`set`, whose callers guarantee disjoint writes.
-unsafe impl Sync for SharedSlice {}
-
-impl SharedSlice {
-    fn new(s: &mut [f64]) -> Self {
-        Self {
-            ptr: s.as_mut_ptr(),
-            len: s.len(),
-        }
-    }
-
-    /// # Safety
-    /// No concurrent write to element `i`.
-    #[inline]
-    unsafe fn get(&self, i: usize) -> f64 {
-        debug_assert!(i < self.len);
-        *self.ptr.add(i)
-    }
-
-    /// # Safety
-    /// No concurrent access to element `i`.
-    #[inline]
-    unsafe fn set(&self, i: usize, v: f64) {
-        debug_assert!(i < self.len);
-        *self.ptr.add(i) = v;
     }
 }
 
