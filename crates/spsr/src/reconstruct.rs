@@ -230,6 +230,27 @@ impl Cells for TreeCells<'_> {
         }
     }
 
+    fn refined_around(&self, (t, n): (u32, u32), _depth: u32, _offset: [u32; 3]) -> u32 {
+        let level = &self.tree.levels[t as usize];
+        let next = self.tree.levels.get(t as usize + 1);
+        let mut mask = 0;
+        if next.is_none() {
+            return 0;
+        }
+        for s in 0..27u32 {
+            let o = [
+                i64::from(s % 3) - 1,
+                i64::from((s / 3) % 3) - 1,
+                i64::from(s / 9) - 1,
+            ];
+            let m = neighbor_in(level, n, window_index(o));
+            if m != NONE && level.child(m) != NONE {
+                mask |= 1 << s;
+            }
+        }
+        mask
+    }
+
     fn refined(&self, (t, n): (u32, u32), depth: u32, offset: [u32; 3]) -> bool {
         let d = t - DEPTH_OFFSET;
         let levels = &self.tree.levels;

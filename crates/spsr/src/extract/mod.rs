@@ -78,6 +78,24 @@ pub trait Cells: Sync {
     /// Whether the cell of `depth` and `offset` (inside the unit cube) exists and has
     /// children. The cell touches the closure of the leaf `near` and is no coarser than it.
     fn refined(&self, near: Self::Handle, depth: u32, offset: [u32; 3]) -> bool;
+
+    /// Bit `(dx+1) + 3(dy+1) + 9(dz+1)` is set when the cell of the leaf's own depth at the
+    /// leaf's offset plus `(dx, dy, dz)` (inside the unit cube) is refined.
+    fn refined_around(&self, leaf: Self::Handle, depth: u32, offset: [u32; 3]) -> u32 {
+        let n = 1i64 << depth;
+        let mut mask = 0;
+        for s in 0..27u32 {
+            let q: [i64; 3] = std::array::from_fn(|a| {
+                i64::from(offset[a]) + i64::from((s / 3u32.pow(a as u32)) % 3) - 1
+            });
+            if q.iter().all(|&c| (0..n).contains(&c))
+                && self.refined(leaf, depth, q.map(|c| c as u32))
+            {
+                mask |= 1 << s;
+            }
+        }
+        mask
+    }
 }
 
 /// Options of [`extract`].
@@ -224,6 +242,38 @@ struct Ctx<'a, C: Cells> {
     full: u32,
     inv: f64,
     linear: bool,
+}
+
+/// The leaf being polygonised: its handle, depth, offset, and which same-depth cells around it
+/// are refined (see [`Cells::refined_around`]).
+#[derive(Clone, Copy)]
+struct Here<H> {
+    h: H,
+    depth: u32,
+    offset: [u32; 3],
+    around: u32,
+}
+
+impl<H: Copy> Here<H> {
+    /// Whether the cell of `depth` and `offset` is refined, answered from `around` when the
+    /// cell has the leaf's depth.
+    #[inline]
+    fn refined<C: Cells<Handle = H>>(&self, cells: &C, depth: u32, offset: [u32; 3]) -> bool {
+        if depth == self.depth {
+            let mut s = 0;
+            let mut mul = 1;
+            for a in 0..3 {
+                let r = i64::from(offset[a]) - i64::from(self.offset[a]) + 1;
+                if !(0..3).contains(&r) {
+                    return cells.refined(self.h, depth, offset);
+                }
+                s += r as u32 * mul;
+                mul *= 3;
+            }
+            return self.around >> s & 1 != 0;
+        }
+        cells.refined(self.h, depth, offset)
+    }
 }
 
 /// One crossing on a finest edge, as seen by a leaf.
@@ -520,6 +570,16 @@ fn process_leaf<C: Cells>(
     if s == 1 && (inside == 0 || inside == 0xff) {
         return; // finest leaf: nothing can cross its boundary
     }
+    let around = ctx.cells.refined_around(h, depth, offset);
+    if around == 0 && (inside == 0 || inside == 0xff) {
+        return; // no finer neighbour: the leaf's boundary has only its own corners
+    }
+    let here = Here {
+        h,
+        depth,
+        offset,
+        around,
+    };
     sc.cross.clear();
     sc.segs.clear();
     for n in 0..3 {
@@ -534,7 +594,7 @@ fn process_leaf<C: Cells>(
                 cidx[c0 | 1 << u | 1 << v],
                 cidx[c0 | 1 << v],
             ];
-            face(ctx, sc, h, origin, s, n, side == 0, Some(known));
+            face(ctx, sc, &here, origin, s, n, side == 0, Some(known));
         }
     }
     if sc.segs.is_empty() || sc.bad {
@@ -555,7 +615,7 @@ fn depth_of(ctx_max: u32, size: u32) -> u32 {
 fn face<C: Cells>(
     ctx: &Ctx<C>,
     sc: &mut Scratch<C::Handle>,
-    h: C::Handle,
+    here: &Here<C::Handle>,
     origin: [u32; 3],
     size: u32,
     n: usize,
@@ -574,19 +634,19 @@ fn face<C: Cells>(
         if let Some(a) = across {
             let mut cell = origin.map(|x| x / size);
             cell[n] = a / size;
-            if ctx.cells.refined(h, k, cell) {
+            if here.refined(ctx.cells, k, cell) {
                 let half = size / 2;
                 for (du, dv) in [(0, 0), (1, 0), (1, 1), (0, 1)] {
                     let mut o = origin;
                     o[u] += du * half;
                     o[v] += dv * half;
-                    face(ctx, sc, h, o, half, n, flip, None);
+                    face(ctx, sc, here, o, half, n, flip, None);
                 }
                 return;
             }
         }
     }
-    piece(ctx, sc, h, origin, size, n, flip, known);
+    piece(ctx, sc, here, origin, size, n, flip, known);
 }
 
 /// Whether the midpoint of the dyadic segment from `a` (length `len` along `axis`, towards +
@@ -594,7 +654,7 @@ fn face<C: Cells>(
 /// segment is refined.
 fn segment_split<C: Cells>(
     ctx: &Ctx<C>,
-    h: C::Handle,
+    here: &Here<C::Handle>,
     a: [u32; 3],
     axis: usize,
     forward: bool,
@@ -620,7 +680,7 @@ fn segment_split<C: Cells>(
             cell[axis] = e[axis] / len;
             cell[u] = cu;
             cell[v] = cv;
-            if ctx.cells.refined(h, k, cell) {
+            if here.refined(ctx.cells, k, cell) {
                 return true;
             }
         }
@@ -634,13 +694,13 @@ fn segment_split<C: Cells>(
 fn split_side<C: Cells>(
     ctx: &Ctx<C>,
     sc: &mut Scratch<C::Handle>,
-    h: C::Handle,
+    here: &Here<C::Handle>,
     a: [u32; 3],
     axis: usize,
     forward: bool,
     len: u32,
 ) {
-    if len <= 1 || !segment_split(ctx, h, a, axis, forward, len) {
+    if len <= 1 || !segment_split(ctx, here, a, axis, forward, len) {
         return;
     }
     let half = len / 2;
@@ -650,10 +710,10 @@ fn split_side<C: Cells>(
     } else {
         m[axis] -= half;
     }
-    split_side(ctx, sc, h, a, axis, forward, half);
+    split_side(ctx, sc, here, a, axis, forward, half);
     let i = sc.corners.get(ctx, m);
     sc.bv.push((m, i));
-    split_side(ctx, sc, h, m, axis, forward, half);
+    split_side(ctx, sc, here, m, axis, forward, half);
 }
 
 /// Marching squares on one face piece; appends its oriented segments and crossings.
@@ -661,7 +721,7 @@ fn split_side<C: Cells>(
 fn piece<C: Cells>(
     ctx: &Ctx<C>,
     sc: &mut Scratch<C::Handle>,
-    h: C::Handle,
+    here: &Here<C::Handle>,
     origin: [u32; 3],
     size: u32,
     n: usize,
@@ -683,7 +743,7 @@ fn piece<C: Cells>(
     let sides = [(u, true), (v, true), (u, false), (v, false)];
     for (c, &(axis, fwd)) in sides.iter().enumerate() {
         sc.bv.push((p[c], idx[c]));
-        split_side(ctx, sc, h, p[c], axis, fwd, size);
+        split_side(ctx, sc, here, p[c], axis, fwd, size);
     }
     let d = &sc.corners.d;
     let first = d[sc.bv[0].1 as usize] > 0.0;
