@@ -186,6 +186,76 @@ impl<'a> Op<'a> {
             .collect()
     }
 
+    /// The level's matrix `L + S` with one fixed-width row per node (the stiffness window's
+    /// slots; `NONE` columns where a neighbour is missing or not an unknown). Worth building
+    /// for the base solve, whose conjugate gradients apply the operator a hundred times.
+    fn assemble(&self, valid: &[bool]) -> FixedRows {
+        let width = self.win.len();
+        let mut slot_of = [usize::MAX; 125];
+        for (k, &(w, _)) in self.win.iter().enumerate() {
+            slot_of[w] = k;
+        }
+        let k = usize::from(self.degree);
+        let rows: Vec<(Vec<u32>, Vec<f64>)> = (0..self.level.len() as u32)
+            .into_par_iter()
+            .map(|n| {
+                let mut cols = vec![NONE; width];
+                let mut vals = vec![0.0; width];
+                if !valid[n as usize] {
+                    return (cols, vals);
+                }
+                let i = self.index(n);
+                let interior = self.tab.range.interior(i, 3);
+                for (slot, &(w, o)) in self.win.iter().enumerate() {
+                    let m = neighbor_in(self.level, n, w);
+                    if m != NONE && valid[m as usize] {
+                        cols[slot] = m;
+                        vals[slot] = if interior {
+                            self.tab.stencil[w]
+                        } else {
+                            self.tab.stiffness(i, o)
+                        };
+                    }
+                }
+                self.for_each_cluster(n, i, |c, bv| {
+                    let c = c as usize;
+                    let w_c = self.cl.omega[c] * bv;
+                    let f = self.cl.first[c];
+                    let v = &self.cl.vals[c];
+                    for z in 0..=k {
+                        for y in 0..=k {
+                            for x in 0..=k {
+                                let o = [
+                                    i64::from(f[0]) + x as i64 - i[0],
+                                    i64::from(f[1]) + y as i64 - i[1],
+                                    i64::from(f[2]) + z as i64 - i[2],
+                                ];
+                                let slot = slot_of[window_index(o)];
+                                if slot != usize::MAX && cols[slot] != NONE {
+                                    vals[slot] += w_c
+                                        * f64::from(v[0][x])
+                                        * f64::from(v[1][y])
+                                        * f64::from(v[2][z]);
+                                }
+                            }
+                        }
+                    }
+                });
+                (cols, vals)
+            })
+            .collect();
+        let mut out = FixedRows {
+            width,
+            cols: Vec::with_capacity(rows.len() * width),
+            vals: Vec::with_capacity(rows.len() * width),
+        };
+        for (c, v) in rows {
+            out.cols.extend_from_slice(&c);
+            out.vals.extend_from_slice(&v);
+        }
+        out
+    }
+
     /// Multi-colour Gauss–Seidel sweeps (ALGORITHM.md §7.1). Nodes are coloured by their
     /// function index modulo `degree + 1` per axis: two nodes of one colour then share no
     /// stiffness entry and no screening cluster, so a colour is relaxed in parallel without
@@ -248,6 +318,30 @@ impl<'a> Op<'a> {
     }
 }
 
+/// A sparse matrix with the same number of slots in every row.
+struct FixedRows {
+    width: usize,
+    cols: Vec<u32>,
+    vals: Vec<f64>,
+}
+
+impl FixedRows {
+    /// `y = A x`.
+    fn apply(&self, x: &[f64]) -> Vec<f64> {
+        self.cols
+            .par_chunks(self.width)
+            .zip(self.vals.par_chunks(self.width))
+            .map(|(c, v)| {
+                c.iter()
+                    .zip(v)
+                    .filter(|(&c, _)| c != NONE)
+                    .map(|(&c, &v)| v * x[c as usize])
+                    .sum()
+            })
+            .collect()
+    }
+}
+
 /// `Σ_j B_j(p_c) x_j` over the level's functions around cluster `c`.
 fn cluster_value(level: &Level, cl: &Clusters, c: usize, d: u32, degree: u8, x: &[f64]) -> f64 {
     let node = cl.node[c];
@@ -297,39 +391,57 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
         .sum()
 }
 
-/// Conjugate gradients on `op` to relative residual `tol`.
-fn conjugate_gradients(op: &Op, b: &[f64], valid: &[bool], max_iter: usize, tol: f64) -> Vec<f64> {
+/// Conjugate gradients on `op`, preconditioned by its diagonal (Jacobi), to relative residual
+/// `tol` (measured in the unpreconditioned norm).
+fn conjugate_gradients(
+    apply: impl Fn(&[f64]) -> Vec<f64>,
+    diag: &[f32],
+    b: &[f64],
+    valid: &[bool],
+    max_iter: usize,
+    tol: f64,
+) -> Vec<f64> {
     let n = b.len();
+    let inv: Vec<f64> = diag
+        .iter()
+        .zip(valid)
+        .map(|(&d, &v)| if v && d > 0.0 { 1.0 / f64::from(d) } else { 0.0 })
+        .collect();
     let mut x = vec![0.0; n];
     let mut r = b.to_vec();
-    let mut p = r.clone();
-    let mut rr = dot(&r, &r);
-    let target = tol * tol * rr;
-    if rr == 0.0 {
+    let mut z: Vec<f64> = r.iter().zip(&inv).map(|(r, m)| r * m).collect();
+    let mut p = z.clone();
+    let mut rz = dot(&r, &z);
+    let target = tol * tol * dot(&r, &r);
+    if target == 0.0 {
         return x;
     }
     for _ in 0..max_iter {
-        let ap = op.apply(&p, valid);
+        let ap = apply(&p);
         let pap = dot(&p, &ap);
         if pap <= 0.0 || !pap.is_finite() {
             break;
         }
-        let alpha = rr / pap;
+        let alpha = rz / pap;
         x.par_iter_mut()
             .zip(&p)
             .for_each(|(xi, pi)| *xi += alpha * pi);
         r.par_iter_mut()
             .zip(&ap)
             .for_each(|(ri, ai)| *ri -= alpha * ai);
-        let rr_new = dot(&r, &r);
-        if rr_new <= target {
+        if dot(&r, &r) <= target {
             break;
         }
-        let beta = rr_new / rr;
-        rr = rr_new;
-        p.par_iter_mut()
+        z.par_iter_mut()
             .zip(&r)
-            .for_each(|(pi, ri)| *pi = ri + beta * *pi);
+            .zip(&inv)
+            .for_each(|((zi, ri), mi)| *zi = ri * mi);
+        let rz_new = dot(&r, &z);
+        let beta = rz_new / rz;
+        rz = rz_new;
+        p.par_iter_mut()
+            .zip(&z)
+            .for_each(|(pi, zi)| *pi = zi + beta * *pi);
     }
     x
 }
@@ -417,7 +529,15 @@ pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
                 }
             }
         }
-        let x = conjugate_gradients(&op, &b, &valid, 3000, 1e-7);
+        // A base level of up to 2^18 nodes (depth 5: 46,656) is assembled once; larger ones
+        // (a deep --full-depth) are applied matrix-free to bound memory.
+        let diag = op.diagonal();
+        let x = if op.level.len() <= 1 << 18 {
+            let a = op.assemble(&valid);
+            conjugate_gradients(|x| a.apply(x), &diag, &b, &valid, 3000, 1e-7)
+        } else {
+            conjugate_gradients(|x| op.apply(x, &valid), &diag, &b, &valid, 3000, 1e-7)
+        };
         sol.x[tb] = to_f32(&x);
         sol.p[tb] = to_f32(&x);
         p_prev = x;
