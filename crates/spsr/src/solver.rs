@@ -581,7 +581,8 @@ pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
                 let c = ((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2)) as usize;
                 let ps = &tab.pstencil[c];
                 let pv = &tab.pvstencil[c];
-                for w in 0..125usize {
+                for &w in &tab.pnonzero[c] {
+                    let w = usize::from(w);
                     let q = neighbor_in(parent_level, par, w);
                     if q == NONE {
                         continue;

@@ -117,6 +117,8 @@ pub struct DepthTables {
     pub pstencil: Box<[[f64; 125]; 8]>,
     /// Interior parent V stencils, by child parity, component and parent window index.
     pub pvstencil: Box<[[[f64; 125]; 3]; 8]>,
+    /// By child parity, the parent window indices where `pstencil` or `pvstencil` is nonzero.
+    pub pnonzero: [Vec<u8>; 8],
     /// FEM values of this depth against V functions one depth finer.
     pub cvmass: CoarseFine,
     /// FEM derivatives of this depth against V functions one depth finer.
@@ -225,7 +227,16 @@ impl DepthTables {
         }
         let cvmass = CoarseFine::new(fem, d, &table(fem, vb, d + 1, false, Integrand::ValueValue));
         let cvderiv = CoarseFine::new(fem, d, &table(fem, vb, d + 1, false, Integrand::DerivValue));
+        let pnonzero: [Vec<u8>; 8] = std::array::from_fn(|c| {
+            (0..125u8)
+                .filter(|&w| {
+                    let w = usize::from(w);
+                    pstencil[c][w] != 0.0 || pvstencil[c].iter().any(|a| a[w] != 0.0)
+                })
+                .collect()
+        });
         Self {
+            pnonzero,
             cvmass,
             cvderiv,
             range: Range { lo, hi },
