@@ -372,8 +372,8 @@ fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     let cloud = spsr::io::read_points(input).map_err(fail)?;
     let reading = t.elapsed();
 
-    let result =
-        spsr::reconstruct_with_progress(&cloud, &params, &|s| progress.stage(s)).map_err(fail)?;
+    // The cloud is handed over so that it is released once the points are normalised.
+    let result = spsr::reconstruct_owned(cloud, &params, &|s| progress.stage(s)).map_err(fail)?;
 
     progress.stage("writing");
     let t = Instant::now();

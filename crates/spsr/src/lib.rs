@@ -35,4 +35,6 @@ pub use error::{Error, Result};
 pub use mesh::Mesh;
 pub use params::{Params, MAX_DEPTH};
 pub use points::{PointCloud, ScanOrigin};
-pub use reconstruct::{reconstruct, reconstruct_with_progress, Reconstruction, Stats};
+pub use reconstruct::{
+    reconstruct, reconstruct_owned, reconstruct_with_progress, Reconstruction, Stats,
+};

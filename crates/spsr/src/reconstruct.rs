@@ -109,7 +109,25 @@ pub fn reconstruct_with_progress(
     params: &Params,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<Reconstruction> {
-    let imp = solve_implicit(points, params, progress)?;
+    reconstruct_input(Input::Borrowed(points), params, progress)
+}
+
+/// As [`reconstruct_with_progress`], taking the cloud by value: it is released as soon as
+/// the points are normalised, which lowers the peak memory of a large run by the cloud's size.
+pub fn reconstruct_owned(
+    points: PointCloud,
+    params: &Params,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<Reconstruction> {
+    reconstruct_input(Input::Owned(points), params, progress)
+}
+
+fn reconstruct_input(
+    input: Input,
+    params: &Params,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<Reconstruction> {
+    let imp = solve_implicit_from(input, params, progress)?;
     let Implicit {
         tree,
         sol,
@@ -395,11 +413,37 @@ fn outlier_warning(points: &PointCloud, valid: &[usize], side: f64, depth: u32) 
 }
 
 /// Stages 1–7 of the pipeline: everything up to and including the iso-value.
+#[cfg_attr(not(test), allow(dead_code))]
 pub(crate) fn solve_implicit(
     points: &PointCloud,
     params: &Params,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<Implicit> {
+    solve_implicit_from(Input::Borrowed(points), params, progress)
+}
+
+/// The points handed to the pipeline: an owned cloud is released as soon as its unit-cube
+/// copy exists, which lowers the peak memory by the cloud's size.
+pub(crate) enum Input<'a> {
+    Borrowed(&'a PointCloud),
+    Owned(PointCloud),
+}
+
+impl Input<'_> {
+    fn cloud(&self) -> &PointCloud {
+        match self {
+            Input::Borrowed(c) => c,
+            Input::Owned(c) => c,
+        }
+    }
+}
+
+fn solve_implicit_from(
+    input: Input,
+    params: &Params,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<Implicit> {
+    let points = input.cloud();
     params.validate()?;
     if points.positions.len() != points.normals.len() {
         return Err(Error::LengthMismatch {
@@ -471,6 +515,8 @@ pub(crate) fn solve_implicit(
             )
         })
         .collect();
+    let n_points = points.len();
+    drop(input);
     timer.stop("preparing points");
 
     // 2. Samples and density (§3.3, §3.5).
@@ -526,7 +572,7 @@ pub(crate) fn solve_implicit(
         }
     }
     let closed = req.close(base, base);
-    check_memory(&closed.level_counts(), points.len(), params)?;
+    check_memory(&closed.level_counts(), n_points, params)?;
     let tree = Octree::materialize(closed);
     timer.stop("octree");
 
@@ -584,13 +630,18 @@ pub(crate) fn solve_implicit(
         ));
     }
     let mean_area = sum_wa / sum_w;
+    // From here on only the samples' positions and weights are needed.
+    let n_samples = samples.len();
+    let positions: Vec<[f64; 3]> = samples.iter().map(|s| s.pos).collect();
+    let weights: Vec<f64> = samples.iter().map(|s| s.weight).collect();
+    drop(splats);
+    drop(queries);
+    drop(samples);
     timer.stop("splatting");
 
     // 5. Screening clusters (§3.7).
     timer.start("clusters");
     let t_max = tree.depth_count() - 1;
-    let positions: Vec<[f64; 3]> = samples.iter().map(|s| s.pos).collect();
-    let weights: Vec<f64> = samples.iter().map(|s| s.weight).collect();
     let leaf_of: Vec<(u32, u32)> = positions
         .par_iter()
         .map(|p| {
@@ -667,9 +718,9 @@ pub(crate) fn solve_implicit(
         width,
         origin,
         stats: Stats {
-            points: points.len(),
+            points: n_points,
             dropped,
-            samples: samples.len(),
+            samples: n_samples,
             nodes_per_depth,
             iso_value: iso,
             mean_sample_depth: sum_depth / sum_w,

@@ -24,7 +24,8 @@ pub const TAU: f64 = 0.5;
 pub struct Solution {
     /// Coefficients solved at each level (empty below the base level).
     pub x: Vec<Vec<f32>>,
-    /// Cumulative solution of all levels up to and including this one, prolonged to it.
+    /// Cumulative solution of all levels up to and including this one, prolonged to it
+    /// (empty below the base level and at the deepest level, which evaluation never reads).
     pub p: Vec<Vec<f32>>,
     /// Level of the base solve.
     pub base_level: u32,
@@ -137,7 +138,7 @@ impl<'a> Op<'a> {
             if m == NONE {
                 continue;
             }
-            let c = self.cl.of_node.get(m as usize).copied().unwrap_or(NONE);
+            let c = self.cl.of_node.get(m);
             if c != NONE {
                 f(c, self.cl.basis_value(c as usize, i, self.degree));
             }
@@ -160,16 +161,16 @@ impl<'a> Op<'a> {
     }
 
     /// χ_d at every cluster from the level's coefficients.
-    fn cluster_values(&self, x: &[f64]) -> Vec<f64> {
+    fn cluster_values(&self, x: impl Fn(usize) -> f64 + Sync) -> Vec<f64> {
         (0..self.cl.pos.len())
             .into_par_iter()
-            .map(|c| cluster_value(self.level, self.cl, c, self.d, self.degree, x))
+            .map(|c| cluster_value(self.level, self.cl, c, self.d, self.degree, &x))
             .collect()
     }
 
     /// `y = (L + S) x`.
     fn apply(&self, x: &[f64], valid: &[bool]) -> Vec<f64> {
-        let chi = self.cluster_values(x);
+        let chi = self.cluster_values(|n| x[n]);
         (0..self.level.len() as u32)
             .into_par_iter()
             .map(|n| {
@@ -259,59 +260,74 @@ impl<'a> Op<'a> {
     /// Multi-colour Gauss–Seidel sweeps (ALGORITHM.md §7.1). Nodes are coloured by their
     /// function index modulo `degree + 1` per axis: two nodes of one colour then share no
     /// stiffness entry and no screening cluster, so a colour is relaxed in parallel without
-    /// races, and the result does not depend on the thread count.
-    fn gauss_seidel(&self, r: &[f32], x: &mut [f64], diag: &[f32], iters: u32) {
+    /// races, and the result does not depend on the thread count. For degree 1 the colour of
+    /// node `8b + c` is its child position `c` (a function index's parity is its key's), so
+    /// colour classes need no lists.
+    fn gauss_seidel(&self, r: &[f32], x: &mut [f32], iters: u32) {
         let m = i64::from(self.degree) + 1;
-        let ncol = (m * m * m) as usize;
-        let mut colours: Vec<Vec<u32>> = vec![Vec::new(); ncol];
-        for n in 0..self.level.len() as u32 {
-            if diag[n as usize] > 0.0 {
+        let colours: Vec<Vec<u32>> = if self.degree == 1 {
+            Vec::new()
+        } else {
+            let mut colours = vec![Vec::new(); (m * m * m) as usize];
+            for n in 0..self.level.len() as u32 {
                 let i = self.index(n);
-                let c = i[0].rem_euclid(m) + m * (i[1].rem_euclid(m) + m * i[2].rem_euclid(m));
-                colours[c as usize].push(n);
+                if self.tab.range.contains(i) {
+                    let c = i[0].rem_euclid(m) + m * (i[1].rem_euclid(m) + m * i[2].rem_euclid(m));
+                    colours[c as usize].push(n);
+                }
             }
-        }
-        let mut chi = self.cluster_values(x);
+            colours
+        };
+        let mut chi = self.cluster_values(|n| f64::from(x[n]));
         let xs = SharedSlice::new(x);
         let cs = SharedSlice::new(&mut chi);
+        let broods = (self.level.len() / 8) as u32;
         for _ in 0..iters {
-            for list in &colours {
-                list.par_iter().with_min_len(256).for_each(|&n| {
-                    // SAFETY: within one colour, node `n` is the only one that writes x[n] or
-                    // the χ of its clusters, and no node reads another same-colour node's
-                    // coefficient or clusters (see the colouring argument above).
-                    unsafe {
-                        self.relax(
-                            n,
-                            f64::from(r[n as usize]),
-                            f64::from(diag[n as usize]),
-                            &xs,
-                            &cs,
-                        )
-                    };
-                });
+            // SAFETY (both loops): within one colour, node `n` is the only one that writes
+            // x[n] or the χ of its clusters, and no node reads another same-colour node's
+            // coefficient or clusters (see the colouring argument above).
+            if self.degree == 1 {
+                for c in 0..8u32 {
+                    (0..broods).into_par_iter().with_min_len(256).for_each(|b| {
+                        let n = 8 * b + c;
+                        unsafe { self.relax(n, f64::from(r[n as usize]), &xs, &cs) };
+                    });
+                }
+            } else {
+                for list in &colours {
+                    list.par_iter().with_min_len(256).for_each(|&n| {
+                        unsafe { self.relax(n, f64::from(r[n as usize]), &xs, &cs) };
+                    });
+                }
             }
         }
     }
 
-    /// One Gauss–Seidel update of node `n`.
+    /// One Gauss–Seidel update of node `n` (nothing for a node without a function). The
+    /// diagonal `L_nn + Σ_c ω_c B_n(p_c)²` is summed on the way.
     ///
     /// # Safety
     /// No other thread may concurrently write `x[n]`, any `x[m]` this row reads, or the
     /// cluster values of the clusters around `n`.
     #[inline]
-    unsafe fn relax(&self, n: u32, r: f64, dg: f64, x: &SharedSlice, chi: &SharedSlice) {
+    unsafe fn relax(&self, n: u32, r: f64, x: &SharedSlice<f32>, chi: &SharedSlice<f64>) {
         let i = self.index(n);
-        let mut s = self.stiffness_row(n, i, |m| x.get(m));
+        if !self.tab.range.contains(i) {
+            return;
+        }
+        let mut s = self.stiffness_row(n, i, |m| f64::from(x.get(m)));
+        let mut dg = self.tab.stiffness(i, [0, 0, 0]);
         let mut touched: [(u32, f64); 27] = [(0, 0.0); 27];
         let mut k = 0;
         self.for_each_cluster(n, i, |c, bv| {
-            s += self.cl.omega[c as usize] * bv * chi.get(c as usize);
+            let w = self.cl.omega[c as usize] * bv;
+            s += w * chi.get(c as usize);
+            dg += w * bv;
             touched[k] = (c, bv);
             k += 1;
         });
         let dx = (r - s) / dg;
-        x.set(n as usize, x.get(n as usize) + dx);
+        x.set(n as usize, (f64::from(x.get(n as usize)) + dx) as f32);
         for &(c, bv) in &touched[..k] {
             chi.set(c as usize, chi.get(c as usize) + dx * bv);
         }
@@ -343,7 +359,14 @@ impl FixedRows {
 }
 
 /// `Σ_j B_j(p_c) x_j` over the level's functions around cluster `c`.
-fn cluster_value(level: &Level, cl: &Clusters, c: usize, d: u32, degree: u8, x: &[f64]) -> f64 {
+fn cluster_value(
+    level: &Level,
+    cl: &Clusters,
+    c: usize,
+    d: u32,
+    degree: u8,
+    x: &impl Fn(usize) -> f64,
+) -> f64 {
     let node = cl.node[c];
     let own = func_index(level.key(node), d);
     let f = cl.first[c];
@@ -369,7 +392,7 @@ fn cluster_value(level: &Level, cl: &Clusters, c: usize, d: u32, degree: u8, x: 
                 s += f64::from(v[0][xx as usize])
                     * f64::from(v[1][y as usize])
                     * f64::from(v[2][z as usize])
-                    * x[m as usize];
+                    * x(m as usize);
             }
         }
     }
@@ -405,7 +428,13 @@ fn conjugate_gradients(
     let inv: Vec<f64> = diag
         .iter()
         .zip(valid)
-        .map(|(&d, &v)| if v && d > 0.0 { 1.0 / f64::from(d) } else { 0.0 })
+        .map(|(&d, &v)| {
+            if v && d > 0.0 {
+                1.0 / f64::from(d)
+            } else {
+                0.0
+            }
+        })
         .collect();
     let mut x = vec![0.0; n];
     let mut r = b.to_vec();
@@ -645,15 +674,20 @@ pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
             })
             .collect();
         tcons[t] = Vec::new();
-        let diag = op.diagonal();
+        if t == max_level {
+            // The coarser V has entered the right-hand side for the last time.
+            vc = Vec::new();
+        }
         let dd = t as u32 - DEPTH_OFFSET;
         lap(format!("depth {dd}: right-hand side"), &mut clock);
-        let mut x = vec![0.0; level.len()];
-        op.gauss_seidel(&r, &mut x, &diag, p.iters);
+        let mut x = vec![0.0f32; level.len()];
+        op.gauss_seidel(&r, &mut x, p.iters);
+        drop(r);
         lap(format!("depth {dd}: Gauss-Seidel"), &mut clock);
-        // Cumulative solution and V at this level. The cascade carries the cumulative
-        // solution in double precision; the stored copy is single precision.
-        sol.x[t] = to_f32(&x);
+        // Cumulative solution and V at this level, for the next level. The cascade carries
+        // the cumulative solution in double precision; the stored copy is single precision.
+        // The deepest level needs neither (evaluation reads a leaf's parent's cumulative
+        // solution).
         if t < max_level {
             let cum = prolong::<1, f64>(
                 tree,
@@ -661,10 +695,9 @@ pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
                 &tab.prolong,
                 tab.range,
                 |q| [pc[q as usize]],
-                |n| [x[n]],
+                |n| [f64::from(x[n])],
                 |c| c[0],
             );
-            drop(x);
             sol.p[t] = to_f32(&cum);
             p_prev = cum;
             let vt = std::mem::take(&mut v[t]);
@@ -678,17 +711,8 @@ pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
                 |n| vt.get(n).map_or([0.0; 3], |v| v.map(f64::from)),
                 |c| c.map(|x| x as f32),
             );
-        } else {
-            sol.p[t] = prolong::<1, f32>(
-                tree,
-                t as u32,
-                &tab.prolong,
-                tab.range,
-                |q| [pc[q as usize]],
-                |n| [x[n]],
-                |c| c[0] as f32,
-            );
         }
+        sol.x[t] = x;
         lap(format!("depth {dd}: prolongation"), &mut clock);
     }
     sol.timings = timings;

@@ -290,8 +290,8 @@ fn stiffness_3d(mass: &Table1D, stiff: &Table1D, i: [i64; 3], o: [i64; 3]) -> f6
 /// Screening clusters of one level (ALGORITHM.md §3.7).
 #[derive(Debug, Default, Clone)]
 pub struct Clusters {
-    /// Cluster index of each node of the level, or [`NONE`].
-    pub of_node: Vec<u32>,
+    /// Cluster index of each node of the level.
+    pub of_node: NodeRank,
     /// Node of each cluster.
     pub node: Vec<u32>,
     /// Weighted mean position, unit-cube coordinates.
@@ -303,6 +303,46 @@ pub struct Clusters {
     pub first: Vec<[i32; 3]>,
     /// Basis values per axis (see `first`).
     pub vals: Vec<[[f32; 3]; 3]>,
+}
+
+/// The rank of each member of a set of node indices (a bitmap with a running count per 64
+/// nodes: 1.5 bits per node instead of a 32-bit index per node).
+#[derive(Debug, Default, Clone)]
+pub struct NodeRank {
+    bits: Vec<u64>,
+    before: Vec<u32>,
+}
+
+impl NodeRank {
+    /// The set of `members` (strictly increasing) among `len` nodes; member `k` has rank `k`.
+    pub fn new(len: usize, members: impl Iterator<Item = u32>) -> Self {
+        let words = len.div_ceil(64);
+        let mut bits = vec![0u64; words];
+        for m in members {
+            bits[(m >> 6) as usize] |= 1 << (m & 63);
+        }
+        let mut before = Vec::with_capacity(words);
+        let mut count = 0u32;
+        for w in &bits {
+            before.push(count);
+            count += w.count_ones();
+        }
+        Self { bits, before }
+    }
+
+    /// Rank of node `m`, or [`NONE`] if it is not a member.
+    #[inline]
+    pub fn get(&self, m: u32) -> u32 {
+        let k = (m >> 6) as usize;
+        let Some(&word) = self.bits.get(k) else {
+            return NONE;
+        };
+        let bit = 1u64 << (m & 63);
+        if word & bit == 0 {
+            return NONE;
+        }
+        self.before[k] + (word & (bit - 1)).count_ones()
+    }
 }
 
 impl Clusters {
@@ -368,12 +408,11 @@ pub fn build_clusters(
         let d = t as u32 - DEPTH_OFFSET;
         let scale = omega_scale * (1i64 << d) as f64;
         let mut cl = Clusters {
-            of_node: vec![NONE; tree.levels[t].len()],
+            of_node: NodeRank::new(tree.levels[t].len(), merged.iter().map(|e| e.0)),
             ..Default::default()
         };
-        for (c, &(n, w, wp)) in merged.iter().enumerate() {
+        for &(n, w, wp) in &merged {
             let p = [wp[0] / w, wp[1] / w, wp[2] / w];
-            cl.of_node[n as usize] = c as u32;
             let mut first = [0i32; 3];
             let mut vals = [[0.0f32; 3]; 3];
             for a in 0..3 {
@@ -559,16 +598,16 @@ fn push_finer_v(
 
 /// A slice shared between threads that write disjoint elements (multi-colour Gauss–Seidel,
 /// coloured accumulation).
-pub(crate) struct SharedSlice {
-    ptr: *mut f64,
+pub(crate) struct SharedSlice<T> {
+    ptr: *mut T,
     len: usize,
 }
 
 // SAFETY: access goes through `get`/`set`, whose callers guarantee disjoint writes.
-unsafe impl Sync for SharedSlice {}
+unsafe impl<T: Send> Sync for SharedSlice<T> {}
 
-impl SharedSlice {
-    pub(crate) fn new(s: &mut [f64]) -> Self {
+impl<T: Copy> SharedSlice<T> {
+    pub(crate) fn new(s: &mut [T]) -> Self {
         Self {
             ptr: s.as_mut_ptr(),
             len: s.len(),
@@ -578,7 +617,7 @@ impl SharedSlice {
     /// # Safety
     /// No concurrent write to element `i`.
     #[inline]
-    pub(crate) unsafe fn get(&self, i: usize) -> f64 {
+    pub(crate) unsafe fn get(&self, i: usize) -> T {
         debug_assert!(i < self.len);
         *self.ptr.add(i)
     }
@@ -586,7 +625,7 @@ impl SharedSlice {
     /// # Safety
     /// No concurrent access to element `i`.
     #[inline]
-    pub(crate) unsafe fn set(&self, i: usize, v: f64) {
+    pub(crate) unsafe fn set(&self, i: usize, v: T) {
         debug_assert!(i < self.len);
         *self.ptr.add(i) = v;
     }
