@@ -55,6 +55,8 @@ pub struct Problem<'a> {
 
 /// Operator of one level.
 struct Op<'a> {
+    tree: &'a Octree,
+    t: u32,
     level: &'a Level,
     d: u32,
     tab: &'a DepthTables,
@@ -90,6 +92,8 @@ impl<'a> Op<'a> {
             }
         }
         Op {
+            tree: p.tree,
+            t,
             level: &p.tree.levels[t as usize],
             d: t - DEPTH_OFFSET,
             tab,
@@ -257,48 +261,77 @@ impl<'a> Op<'a> {
         out
     }
 
-    /// Multi-colour Gauss–Seidel sweeps (ALGORITHM.md §7.1). Nodes are coloured by their
-    /// function index modulo `degree + 1` per axis: two nodes of one colour then share no
-    /// stiffness entry and no screening cluster, so a colour is relaxed in parallel without
-    /// races, and the result does not depend on the thread count. For degree 1 the colour of
-    /// node `8b + c` is its child position `c` (a function index's parity is its key's), so
-    /// colour classes need no lists.
+    /// Multi-colour Gauss–Seidel sweeps (ALGORITHM.md §7.1), relaxed block by block.
+    ///
+    /// Nodes are coloured by their function index modulo `degree + 1` per axis: two nodes of
+    /// one colour share no stiffness entry and no screening cluster. For degree 1 the colour
+    /// of node `8b + c` is its child position `c` (a function index's parity is its key's).
+    ///
+    /// For locality the level is cut into blocks: the nodes below one ancestor four levels
+    /// up, contiguous in the level's Morton order. Blocks are coloured by their ancestor's key
+    /// parity, so two blocks of one colour are at least 17 nodes apart, far more than the two
+    /// nodes over which a relaxation reads or writes coefficients and cluster values. A sweep
+    /// relaxes the blocks colour by colour, blocks of one colour in parallel, and inside a
+    /// block the node colours one after the other: a block's data is read once per sweep
+    /// rather than once per node colour. The order depends only on the tree, so the result
+    /// does not depend on the thread count.
     fn gauss_seidel(&self, r: &[f32], x: &mut [f32], iters: u32) {
-        let m = i64::from(self.degree) + 1;
-        let colours: Vec<Vec<u32>> = if self.degree == 1 {
-            Vec::new()
-        } else {
-            let mut colours = vec![Vec::new(); (m * m * m) as usize];
-            for n in 0..self.level.len() as u32 {
-                let i = self.index(n);
-                if self.tab.range.contains(i) {
-                    let c = i[0].rem_euclid(m) + m * (i[1].rem_euclid(m) + m * i[2].rem_euclid(m));
-                    colours[c as usize].push(n);
+        let up = 4.min(self.t);
+        let nb = self.level.len() / 8;
+        let mut blocks: [Vec<(u32, u32)>; 8] = Default::default();
+        let mut start = 0usize;
+        let mut current = NONE;
+        let mut colour = 0usize;
+        for b in 0..=nb {
+            let anc = (b < nb).then(|| {
+                let mut a = self.level.brood_parent[b];
+                for k in 1..up {
+                    a = self.tree.parent(self.t - k, a);
+                }
+                a
+            });
+            if anc != Some(current) {
+                if current != NONE {
+                    blocks[colour].push((start as u32, b as u32));
+                }
+                if let Some(a) = anc {
+                    current = a;
+                    start = b;
+                    let k = self.tree.levels[(self.t - up) as usize].key(a);
+                    colour = ((k[0] & 1) | (k[1] & 1) << 1 | (k[2] & 1) << 2) as usize;
                 }
             }
-            colours
-        };
+        }
+        let m = i64::from(self.degree) + 1;
+        let node_colours = (m * m * m) as u32;
         let mut chi = self.cluster_values(|n| f64::from(x[n]));
         let xs = SharedSlice::new(x);
         let cs = SharedSlice::new(&mut chi);
-        let broods = (self.level.len() / 8) as u32;
         for _ in 0..iters {
-            // SAFETY (both loops): within one colour, node `n` is the only one that writes
-            // x[n] or the χ of its clusters, and no node reads another same-colour node's
-            // coefficient or clusters (see the colouring argument above).
-            if self.degree == 1 {
-                for c in 0..8u32 {
-                    (0..broods).into_par_iter().with_min_len(256).for_each(|b| {
-                        let n = 8 * b + c;
-                        unsafe { self.relax(n, f64::from(r[n as usize]), &xs, &cs) };
-                    });
-                }
-            } else {
-                for list in &colours {
-                    list.par_iter().with_min_len(256).for_each(|&n| {
-                        unsafe { self.relax(n, f64::from(r[n as usize]), &xs, &cs) };
-                    });
-                }
+            for list in &blocks {
+                list.par_iter().for_each(|&(b0, b1)| {
+                    for c in 0..node_colours {
+                        for b in b0..b1 {
+                            for k in 0..8 {
+                                let n = 8 * b + k;
+                                let i = self.index(n);
+                                let colour = if self.degree == 1 {
+                                    k
+                                } else {
+                                    (i[0].rem_euclid(m)
+                                        + m * (i[1].rem_euclid(m) + m * i[2].rem_euclid(m)))
+                                        as u32
+                                };
+                                if colour != c {
+                                    continue;
+                                }
+                                // SAFETY: only this block's task touches the coefficients
+                                // and cluster values within two nodes of its nodes (above).
+                                unsafe { self.relax(n, i, f64::from(r[n as usize]), &xs, &cs) };
+                            }
+                        }
+                    }
+                });
             }
         }
     }
@@ -310,13 +343,23 @@ impl<'a> Op<'a> {
     /// No other thread may concurrently write `x[n]`, any `x[m]` this row reads, or the
     /// cluster values of the clusters around `n`.
     #[inline]
-    unsafe fn relax(&self, n: u32, r: f64, x: &SharedSlice<f32>, chi: &SharedSlice<f64>) {
-        let i = self.index(n);
+    unsafe fn relax(
+        &self,
+        n: u32,
+        i: [i64; 3],
+        r: f64,
+        x: &SharedSlice<f32>,
+        chi: &SharedSlice<f64>,
+    ) {
         if !self.tab.range.contains(i) {
             return;
         }
         let mut s = self.stiffness_row(n, i, |m| f64::from(x.get(m)));
-        let mut dg = self.tab.stiffness(i, [0, 0, 0]);
+        let mut dg = if self.tab.range.interior(i, 3) {
+            self.tab.stencil[62]
+        } else {
+            self.tab.stiffness(i, [0, 0, 0])
+        };
         let mut touched: [(u32, f64); 27] = [(0, 0.0); 27];
         let mut k = 0;
         self.for_each_cluster(n, i, |c, bv| {
