@@ -543,3 +543,34 @@ fn max_memory_needs_a_size() {
     ]);
     assert_fails(&out, 2, &["512M"], &output);
 }
+
+#[test]
+fn output_files_are_byte_identical_for_1_2_and_7_threads() {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("in.ply");
+    write_ascii_ply(&input, &sphere(20_000));
+    for degree in ["1", "2"] {
+        let mut files = Vec::new();
+        for threads in ["1", "2", "7"] {
+            let out = dir.path().join(format!("d{degree}-t{threads}.ply"));
+            let run = spsr(&[
+                "reconstruct",
+                s(&input),
+                "-o",
+                s(&out),
+                "--depth",
+                "7",
+                "--degree",
+                degree,
+                "--density",
+                "--threads",
+                threads,
+            ]);
+            assert!(run.status.success(), "{}", stderr(&run));
+            files.push(fs::read(&out).unwrap());
+        }
+        assert!(files[0].len() > 1000);
+        assert!(files[0] == files[1], "degree {degree}: 2 threads differ from 1");
+        assert!(files[0] == files[2], "degree {degree}: 7 threads differ from 1");
+    }
+}
