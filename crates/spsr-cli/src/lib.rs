@@ -166,6 +166,31 @@ pub struct ReconstructArgs {
     #[arg(long)]
     pub confidence: bool,
 
+    /// Use this per-point property (e.g. confidence or quality) as each point's weight
+    /// instead; points whose value is not positive are dropped. spsr's own [default: none]
+    #[arg(long, value_name = "NAME")]
+    pub confidence_property: Option<String>,
+
+    /// Write per-vertex normals (nx ny nz) computed from the gradient of the implicit
+    /// function. Off by default, as PoissonRecon 18 (--normals) [default: off]
+    #[arg(long)]
+    pub normals: bool,
+
+    /// Do not carry the points' attributes (colours and any other numeric property) onto the
+    /// mesh. spsr carries them by default; PoissonRecon 18 only with --colors [default: off]
+    #[arg(long)]
+    pub no_attributes: bool,
+
+    /// Pull factor of the attribute interpolation: larger values keep attributes sharper
+    /// and stop them bleeding between nearby surfaces. Default as PoissonRecon 18 (--dataX)
+    #[arg(
+        long,
+        value_name = "X",
+        default_value_t = 32.0,
+        allow_negative_numbers = true
+    )]
+    pub data_pull: f64,
+
     /// Compute per-vertex density (estimated sampling depth) and write it as the PLY vertex
     /// property `density`. Off by default, as PoissonRecon 18 [default: off]
     #[arg(long)]
@@ -256,6 +281,10 @@ impl ReconstructArgs {
             linear_fit: self.linear_fit,
             max_memory: self.max_memory,
             two_level_splat: self.two_level_splat,
+            attributes: !self.no_attributes,
+            data_pull: self.data_pull,
+            normals: self.normals,
+            confidence_property: self.confidence_property.clone(),
         }
     }
 }

@@ -570,7 +570,105 @@ fn output_files_are_byte_identical_for_1_2_and_7_threads() {
             files.push(fs::read(&out).unwrap());
         }
         assert!(files[0].len() > 1000);
-        assert!(files[0] == files[1], "degree {degree}: 2 threads differ from 1");
-        assert!(files[0] == files[2], "degree {degree}: 7 threads differ from 1");
+        assert!(
+            files[0] == files[1],
+            "degree {degree}: 2 threads differ from 1"
+        );
+        assert!(
+            files[0] == files[2],
+            "degree {degree}: 7 threads differ from 1"
+        );
     }
+}
+
+#[test]
+fn colours_normals_and_confidence_reach_the_output() {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("coloured.ply");
+    let points = sphere(20_000);
+    let mut text = format!(
+        "ply\nformat ascii 1.0\nelement vertex {}\n\
+         property float x\nproperty float y\nproperty float z\n\
+         property float nx\nproperty float ny\nproperty float nz\n\
+         property uchar red\nproperty uchar green\nproperty uchar blue\n\
+         property float quality\nend_header\n",
+        points.len()
+    );
+    for (p, n) in &points {
+        let red = if p[0] > 1.0 { 255 } else { 0 };
+        text += &format!(
+            "{} {} {} {} {} {} {red} 0 {} 1\n",
+            p[0],
+            p[1],
+            p[2],
+            n[0],
+            n[1],
+            n[2],
+            255 - red
+        );
+    }
+    fs::write(&input, text).unwrap();
+    let out = dir.path().join("mesh.ply");
+    let run = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&out),
+        "--depth",
+        "6",
+        "--normals",
+        "--confidence-property",
+        "quality",
+        "--ascii",
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let mesh = spsr_read_mesh(&out);
+    assert!(mesh.normals.is_some(), "normals written");
+    let red = mesh
+        .attributes
+        .iter()
+        .find(|a| a.name == "red")
+        .expect("red kept");
+    assert_eq!(red.data.scalar_type(), spsr::attributes::ScalarType::U8);
+    let header = fs::read_to_string(&out).unwrap();
+    for prop in [
+        "property float nx",
+        "property uchar red",
+        "property uchar blue",
+        "property float quality",
+    ] {
+        assert!(header.contains(prop), "missing {prop}");
+    }
+    // Without attributes the mesh has only its geometry; a missing property is refused.
+    let plain = dir.path().join("plain.ply");
+    let run = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&plain),
+        "--depth",
+        "5",
+        "--no-attributes",
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    assert!(spsr_read_mesh(&plain).attributes.is_empty());
+    let bad = dir.path().join("bad.ply");
+    let run = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&bad),
+        "--confidence-property",
+        "weight",
+    ]);
+    assert_fails(
+        &run,
+        USAGE,
+        &["--confidence-property", "weight", "quality"],
+        &bad,
+    );
+}
+
+fn spsr_read_mesh(path: &Path) -> spsr::Mesh {
+    spsr::io::read_mesh(path).unwrap()
 }

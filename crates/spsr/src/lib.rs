@@ -16,6 +16,7 @@
 
 pub mod attributes;
 pub mod bspline;
+mod data;
 mod density;
 mod error;
 mod evaluate;

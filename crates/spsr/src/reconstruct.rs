@@ -4,8 +4,10 @@ use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
 
+use crate::attributes::{Attribute, AttributeData};
 use crate::bspline::{Basis, Boundary};
-use crate::density::{cell_of, for_each_quadratic_neighbour, merge_samples, Density};
+use crate::data::DataField;
+use crate::density::{cell_of, for_each_quadratic_neighbour, merge_samples_grouped, Density};
 use crate::evaluate::{CornerField, Evaluator};
 use crate::extract::{extract_blocks, Cells, ExtractOptions};
 use crate::octree::{neighbor_in, window_index, Octree, TreeRequest, DEPTH_OFFSET, NONE};
@@ -91,6 +93,10 @@ pub(crate) struct Implicit {
     pub width: f64,
     pub origin: [f64; 3],
     pub stats: Stats,
+    /// The cloud's attributes summed up the tree, when they are carried onto the mesh.
+    pub data: Option<DataField>,
+    /// Name and type of each carried attribute (empty columns), in channel order.
+    pub attribute_types: Vec<Attribute>,
 }
 
 impl Implicit {
@@ -137,6 +143,8 @@ fn reconstruct_input(
         width,
         origin,
         mut stats,
+        data,
+        attribute_types,
     } = imp;
     let mut timer = Timer {
         stats: std::mem::take(&mut stats.stages),
@@ -145,8 +153,7 @@ fn reconstruct_input(
         progress,
     };
     let eval = Evaluator::new(&tree, fem, &sol);
-    // 8. Extraction (§9), block by block; the tree and the solution are released before the
-    //    vertices are numbered.
+    // 8. Extraction (§9), block by block.
     timer.start("extraction");
     let cells = TreeCells::new(&tree, params.base_depth());
     let field = CornerField {
@@ -159,12 +166,42 @@ fn reconstruct_input(
         iso,
         &ExtractOptions {
             linear_fit: params.linear_fit,
+            normals: params.normals,
         },
     )?;
     drop(cells);
-    drop(sol);
-    drop(tree);
-    let mut mesh = blocks.assemble()?;
+    let mut mesh = if data.is_some() {
+        // Per-vertex values that need the solution and the tree: computed before they go.
+        let mut mesh = blocks.assemble()?;
+        if let Some(data) = &data {
+            let k = data.channels();
+            let mut values = vec![0.0f64; mesh.vertices.len() * k];
+            values
+                .par_chunks_mut(k)
+                .zip(&mesh.vertices)
+                .for_each(|(out, p)| data.eval(&tree, *p, out));
+            mesh.attributes = attribute_types
+                .iter()
+                .enumerate()
+                .map(|(c, a)| {
+                    Attribute::new(
+                        a.name.clone(),
+                        a.data
+                            .like_from_f64(values.iter().skip(c).step_by(k).copied()),
+                    )
+                })
+                .collect();
+        }
+        drop(data);
+        drop(sol);
+        drop(tree);
+        mesh
+    } else {
+        // The tree and the solution are released before the vertices are numbered.
+        drop(sol);
+        drop(tree);
+        blocks.assemble()?
+    };
     if params.density {
         mesh.density = Some(
             mesh.vertices
@@ -465,8 +502,41 @@ fn solve_implicit_from(
 
     // 1. Filter, bounding cube, unit-cube transform (§3.1, §3.2).
     timer.start("preparing points");
+    // Per-point weights from a named property, when asked for.
+    let confidence = match &params.confidence_property {
+        Some(name) => Some(points.attribute(name).ok_or_else(|| {
+            let have: Vec<&str> = points.attributes.iter().map(|a| a.name.as_str()).collect();
+            Error::InvalidParameter {
+                name: "--confidence-property",
+                message: format!(
+                    "the points have no property '{name}' (they have: {})",
+                    if have.is_empty() {
+                        "none".to_string()
+                    } else {
+                        have.join(", ")
+                    }
+                ),
+            }
+        })?),
+        None => None,
+    };
+    let weight_of = |i: usize| -> f64 {
+        match confidence {
+            Some(a) => a.data.get(i).unwrap_or(f64::NAN),
+            None if params.confidence => {
+                let n = points.normals[i];
+                (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt()
+            }
+            None => 1.0,
+        }
+    };
     let valid: Vec<usize> = (0..points.len())
-        .filter(|&i| is_valid(&points.positions[i], &points.normals[i]))
+        .filter(|&i| {
+            is_valid(&points.positions[i], &points.normals[i]) && {
+                let w = weight_of(i);
+                w.is_finite() && w > 0.0
+            }
+        })
         .collect();
     let dropped = points.len() - valid.len();
     if valid.len() < MIN_POINTS {
@@ -507,7 +577,7 @@ fn solve_implicit_from(
             let p = points.positions[i];
             let n = points.normals[i];
             let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            let w = if params.confidence { len } else { 1.0 };
+            let w = weight_of(i);
             (
                 std::array::from_fn(|a| ((p[a] - origin[a]) / width).clamp(0.0, 1.0)),
                 [n[0] / len, n[1] / len, n[2] / len],
@@ -515,13 +585,53 @@ fn solve_implicit_from(
             )
         })
         .collect();
+    // Attributes carried onto the mesh: one f64 channel per attribute, per valid point.
+    let columns: Vec<&Attribute> = if params.attributes {
+        points
+            .attributes
+            .iter()
+            .filter(|a| a.data.len() == points.len())
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let attribute_types: Vec<Attribute> = columns
+        .iter()
+        .map(|a| Attribute::new(a.name.clone(), AttributeData::new(a.data.scalar_type())))
+        .collect();
+    let channels = attribute_types.len();
+    let point_values: Vec<f64> = if channels > 0 {
+        valid
+            .iter()
+            .flat_map(|&i| columns.iter().map(move |a| a.data.get(i).unwrap_or(0.0)))
+            .collect()
+    } else {
+        Vec::new()
+    };
     let n_points = points.len();
     drop(input);
     timer.stop("preparing points");
 
     // 2. Samples and density (§3.3, §3.5).
     timer.start("density");
-    let samples = merge_samples(&unit, depth);
+    let (samples, sample_of) = merge_samples_grouped(&unit, depth, channels > 0);
+    // Each sample's attributes: the weighted mean over its points.
+    let mut sample_values = vec![0.0f64; samples.len() * channels];
+    for (p, &s) in sample_of.iter().enumerate() {
+        if s == u32::MAX {
+            continue;
+        }
+        let w = unit[p].2 / samples[s as usize].weight;
+        let row = &mut sample_values[s as usize * channels..(s as usize + 1) * channels];
+        for (o, v) in row
+            .iter_mut()
+            .zip(&point_values[p * channels..(p + 1) * channels])
+        {
+            *o += w * v;
+        }
+    }
+    drop(sample_of);
+    drop(point_values);
     drop(unit);
     let density = Density::build(&samples, params.kernel_depth(), params.samples_per_node);
     let queries: Vec<_> = samples.par_iter().map(|s| density.query(s.pos)).collect();
@@ -655,6 +765,17 @@ fn solve_implicit_from(
             )
         })
         .collect();
+    let data = (channels > 0).then(|| {
+        DataField::build(
+            &tree,
+            &leaf_of,
+            &weights,
+            &sample_values,
+            channels,
+            params.data_pull,
+        )
+    });
+    drop(sample_values);
     let alpha = params.alpha();
     let clusters = if alpha > 0.0 {
         build_clusters(
@@ -728,6 +849,8 @@ fn solve_implicit_from(
             stages: timer.stats,
             peak_memory: timer.memory,
         },
+        data,
+        attribute_types,
     })
 }
 

@@ -103,6 +103,10 @@ pub trait Cells: Sync {
 pub struct ExtractOptions {
     /// Place iso-vertices by linear interpolation instead of the quadratic fit.
     pub linear_fit: bool,
+    /// Give every vertex a unit normal: `−∇χ` interpolated linearly between the gradients at
+    /// the ends of its edge (as PoissonRecon 18 does); a barycentre vertex gets the mean of its
+    /// polygon's vertex normals.
+    pub normals: bool,
 }
 
 /// Largest supported `max_depth` (coordinates must fit the 20-bit key fields).
@@ -242,6 +246,7 @@ struct Ctx<'a, C: Cells> {
     full: u32,
     inv: f64,
     linear: bool,
+    normals: bool,
 }
 
 /// The leaf being polygonised: its handle, depth, offset, and which same-depth cells around it
@@ -340,6 +345,7 @@ struct Scratch<H> {
     cr: Vec<(u64, bool)>,
     cross: Vec<Crossing>,
     pos: Vec<[f64; 3]>,
+    nrm: Vec<[f64; 3]>,
     segs: Vec<(u64, u64)>,
     used: Vec<bool>,
     poly: Vec<u32>,
@@ -355,6 +361,7 @@ impl<H> Default for Scratch<H> {
             cr: Vec::new(),
             cross: Vec::new(),
             pos: Vec::new(),
+            nrm: Vec::new(),
             segs: Vec::new(),
             used: Vec::new(),
             poly: Vec::new(),
@@ -368,7 +375,9 @@ impl<H> Default for Scratch<H> {
 struct ChunkOut {
     owned_keys: Vec<u64>,
     owned_pos: Vec<[f64; 3]>,
+    owned_nrm: Vec<[f32; 3]>,
     bary: Vec<[f64; 3]>,
+    bary_nrm: Vec<[f32; 3]>,
     tris: Vec<[u64; 3]>,
     bad: bool,
 }
@@ -418,6 +427,7 @@ pub fn extract_blocks<C: Cells>(
         full: 1u32 << max_depth,
         inv: 1.0 / (1u64 << max_depth) as f64,
         linear: opts.linear_fit,
+        normals: opts.normals,
     };
     let chunks: Vec<ChunkOut> = (0..cells.block_count())
         .into_par_iter()
@@ -476,6 +486,10 @@ impl Blocks {
         });
         let mut triangles: Vec<[u32; 3]> =
             Vec::with_capacity(chunks.iter().map(|c| c.tris.len()).sum());
+        let with_normals = chunks
+            .iter()
+            .any(|c| !c.owned_nrm.is_empty() || !c.bary_nrm.is_empty());
+        let mut normals: Vec<[f32; 3]> = Vec::with_capacity(if with_normals { total } else { 0 });
         let mut vertices = Vec::with_capacity(total);
         let mut is_edge = Vec::with_capacity(if cfg!(test) { total } else { 0 });
         let mut unowned = false;
@@ -492,6 +506,10 @@ impl Blocks {
             }));
             vertices.extend_from_slice(&c.owned_pos);
             vertices.extend_from_slice(&c.bary);
+            if with_normals {
+                normals.extend_from_slice(&c.owned_nrm);
+                normals.extend_from_slice(&c.bary_nrm);
+            }
             if cfg!(test) {
                 is_edge.extend(std::iter::repeat_n(true, c.owned_pos.len()));
                 is_edge.extend(std::iter::repeat_n(false, c.bary.len()));
@@ -512,13 +530,18 @@ impl Blocks {
         if used.iter().any(|&u| !u) {
             let mut remap = vec![u32::MAX; vertices.len()];
             let mut kept = Vec::with_capacity(vertices.len());
+            let mut kept_nrm = Vec::with_capacity(normals.len());
             for (i, v) in vertices.iter().enumerate() {
                 if used[i] {
                     remap[i] = kept.len() as u32;
                     kept.push(*v);
+                    if with_normals {
+                        kept_nrm.push(normals[i]);
+                    }
                 }
             }
             vertices = kept;
+            normals = kept_nrm;
             if cfg!(test) {
                 is_edge = is_edge
                     .iter()
@@ -535,6 +558,7 @@ impl Blocks {
             Mesh {
                 vertices,
                 triangles,
+                normals: with_normals.then_some(normals),
                 ..Default::default()
             },
             n_edge_vertices,
@@ -856,7 +880,11 @@ fn edge_root(x0: f64, x1: f64, g0: f64, g1: f64, linear: bool) -> f64 {
 }
 
 /// The iso-vertex position on a crossing's edge.
-fn crossing_point<C: Cells>(ctx: &Ctx<C>, corners: &mut CornerCache, c: &Crossing) -> [f64; 3] {
+fn crossing_point<C: Cells>(
+    ctx: &Ctx<C>,
+    corners: &mut CornerCache,
+    c: &Crossing,
+) -> ([f64; 3], [f64; 3]) {
     let axis = c.axis as usize;
     let (x0, x1) = (corners.d[c.i0 as usize], corners.d[c.i1 as usize]);
     let h = c.len as f64 * ctx.inv;
@@ -869,7 +897,26 @@ fn crossing_point<C: Cells>(ctx: &Ctx<C>, corners: &mut CornerCache, c: &Crossin
     };
     let mut p = c.lo.map(|x| x as f64 * ctx.inv);
     p[axis] += t * h;
-    p
+    let mut n = [0.0; 3];
+    if ctx.normals {
+        let (g0, g1) = (corners.grad(ctx, c.i0), corners.grad(ctx, c.i1));
+        let g: [f64; 3] = std::array::from_fn(|a| -((1.0 - t) * g0[a] + t * g1[a]));
+        let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        if len > 0.0 && len.is_finite() {
+            n = g.map(|x| x / len);
+        }
+    }
+    (p, n)
+}
+
+/// A unit vector as `f32`, or zero when `v` has no direction.
+fn unit_f32(v: [f64; 3]) -> [f32; 3] {
+    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    if len > 0.0 && len.is_finite() {
+        v.map(|x| (x / len) as f32)
+    } else {
+        [0.0; 3]
+    }
 }
 
 /// Whether the leaf at `lo` (size `s`) owns the edge vertex of `c`: it contains the edge's
@@ -897,13 +944,20 @@ fn finish_leaf<C: Cells>(
     sc.cross.sort_unstable_by_key(|c| c.key);
     sc.cross.dedup_by_key(|c| c.key);
     sc.pos.clear();
+    sc.nrm.clear();
     for k in 0..sc.cross.len() {
         let c = sc.cross[k];
-        let p = crossing_point(ctx, &mut sc.corners, &c);
+        let (p, n) = crossing_point(ctx, &mut sc.corners, &c);
         sc.pos.push(p);
+        if ctx.normals {
+            sc.nrm.push(n);
+        }
         if owns(ctx, lo, s, &c) {
             out.owned_keys.push(c.key);
             out.owned_pos.push(p);
+            if ctx.normals {
+                out.owned_nrm.push(unit_f32(n));
+            }
         }
     }
     sc.segs.sort_unstable();
@@ -1000,6 +1054,16 @@ fn triangulate<H>(sc: &mut Scratch<H>, lo: [u32; 3], s: u32, out: &mut ChunkOut)
         let b = b.map(|x| x / k as f64);
         let r = BARY | out.bary.len() as u64;
         out.bary.push(b);
+        if !sc.nrm.is_empty() {
+            let mut n = [0.0; 3];
+            for i in 0..k {
+                let v = sc.nrm[poly[i] as usize];
+                for a in 0..3 {
+                    n[a] += v[a];
+                }
+            }
+            out.bary_nrm.push(unit_f32(n));
+        }
         for i in 0..k {
             out.tris.push([r, key(i), key((i + 1) % k)]);
         }
