@@ -339,6 +339,7 @@ impl Failure {
             | E::MissingNormals { .. }
             | E::TooFewPoints { .. }
             | E::Degenerate(_)
+            | E::InvalidMesh(_)
             | E::LengthMismatch { .. } => exit::DATA,
             E::ResourceLimit { .. } => exit::RESOURCE,
             _ => exit::DATA,
@@ -553,9 +554,12 @@ with every per-vertex value interpolated), and the part below V is removed. Then
 smaller than --min-island-area of the total area are removed, and removed regions inside kept \
 surface smaller than --hole-area are restored, as PoissonRecon's SurfaceTrimmer does.
 
---trim auto sets V = median - 4 x max(MAD, 0.25) of the area-weighted vertex densities (MAD: the \
-median absolute deviation): well below the density of sampled surface, so a scan's sampled parts \
-and moderate gaps stay. -v prints the value chosen.
+--trim auto sets V = median - max(1, 4 x MAD) of the area-weighted vertex densities (MAD: the \
+median absolute deviation): it removes surface with fewer than a quarter of the typical samples \
+per area (further below for unevenly sampled scans), which keeps everything that was sampled, \
+including the rims of real openings. A gap in a scan of a surface that continues looks like an \
+opening; auto removes the fill of a large gap too. To keep it, give a lower V (-v prints the \
+median density; e.g. median - 3.5 keeps the fill of a gap a fifth of the object's size).
 
 Input: a PLY mesh with a vertex property `density`, as written by `spsr reconstruct --density`. \
 Output, by extension: .ply (binary, ASCII with --ascii; also any other name), .obj, .stl, .glb. The \
