@@ -44,6 +44,7 @@
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 
+use rayon::slice::ParallelSliceMut;
 use rustc_hash::FxHashMap;
 
 use crate::attributes::{Attribute, AttributeData};
@@ -192,6 +193,14 @@ fn check_mesh(mesh: &Mesh) -> Result<&[f32]> {
     if mesh.triangles.is_empty() {
         return Err(invalid_mesh("the mesh has no triangles".into()));
     }
+    // Each triangle adds at most two cut vertices (each shared edge's counts for both).
+    if nv as u64 + 2 * mesh.triangles.len() as u64 > u64::from(u32::MAX) {
+        return Err(invalid_mesh(format!(
+            "the mesh is too large to trim: {nv} vertices and {} triangles could need more \
+             than 2^32 vertices after cutting",
+            mesh.triangles.len()
+        )));
+    }
     if let Some((f, t)) = mesh
         .triangles
         .iter()
@@ -271,7 +280,7 @@ fn weighted_densities(mesh: &Mesh, density: &[f32]) -> (Vec<(f64, f64)>, f64) {
         .filter(|(_, &w)| w > 0.0)
         .map(|(&d, &w)| (f64::from(d), w))
         .collect();
-    pairs.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
+    pairs.par_sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
     let total = pairs.iter().map(|p| p.1).sum();
     (pairs, total)
 }
@@ -336,14 +345,13 @@ pub fn auto_threshold(mesh: &Mesh) -> Result<AutoThreshold> {
         .iter()
         .map(|&(d, w)| ((d - median).abs(), w))
         .collect();
-    dev.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
+    dev.par_sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
     let mad = weighted_quantile(&dev, total, 0.5);
     let threshold = (median - (AUTO_MAD_FACTOR * mad).max(AUTO_MIN_OFFSET)) as f32;
-    let below: f64 = pairs
+    let below = pairs
         .iter()
         .take_while(|p| p.0 < f64::from(threshold))
-        .map(|p| p.1)
-        .sum();
+        .fold(0.0, |acc, p| acc + p.1);
     Ok(AutoThreshold {
         threshold,
         median,
@@ -484,7 +492,8 @@ fn select(
             }
         }
     }
-    edges.sort_unstable();
+    // Equal entries are identical, so the order (and the result) does not depend on threads.
+    edges.par_sort_unstable();
     let mut face_parent: Vec<u32> = (0..nf as u32).collect();
     let mut across: Vec<(u32, u32)> = Vec::new();
     let mut i = 0;
@@ -506,7 +515,8 @@ fn select(
         i = j;
     }
     drop(edges);
-    // Components numbered in the order of their first triangle.
+    // Components numbered in the order of their first triangle. A set's root is its lowest
+    // triangle, so `comp_of[root]` is set (to the new number) before any other member asks.
     let mut comp_of = vec![u32::MAX; nf];
     let mut comp_area: Vec<f64> = Vec::new();
     let mut comp_keep: Vec<bool> = Vec::new();
@@ -577,9 +587,16 @@ fn select(
             lists.push(std::mem::take(&mut neighbours[n as usize]));
             root = union(&mut parent, root, n);
         }
-        let mut merged: Vec<u32> = lists.into_iter().flatten().collect();
-        merged.sort_unstable();
-        merged.dedup();
+        // The neighbours' lists, the longest one extended by the others (entries that now
+        // point inside the merged component, or twice to one neighbour, are resolved when
+        // the list is next read), so each entry is copied O(log n) times in all.
+        let longest = (0..lists.len())
+            .max_by_key(|&i| (lists[i].len(), Reverse(i)))
+            .unwrap_or(0);
+        let mut merged = lists.swap_remove(longest);
+        for l in lists {
+            merged.extend(l);
+        }
         comp_area[root as usize] = area;
         comp_keep[root as usize] = side;
         neighbours[root as usize] = merged;
