@@ -478,9 +478,12 @@ fn a_filled_scanning_gap_survives_a_conservative_value() {
     let fill = area_in_ball(&mesh);
     assert!(fill > 0.01 * mesh.area(), "the gap was filled: {fill}");
 
-    // Conservative: 3 units (64 times fewer samples per area) below the typical density.
+    // The conservative value the documentation suggests for keeping such fills: 3.5 units
+    // (about 128 times fewer samples per area) below the typical density. (The fill dips
+    // about 2.6 units here, the bunny's bottom less, so on this mesh nothing is cut; `auto`
+    // cuts both, as documented: no density rule tells an occlusion from an opening.)
     let typical = auto_threshold(&mesh).unwrap().median;
-    let (out, _) = trim(&mesh, &value((typical - 3.0) as f32)).unwrap();
+    let (out, _) = trim(&mesh, &value((typical - 3.5) as f32)).unwrap();
     assert!(area_in_ball(&out) > 0.999 * fill);
     for &b in &boundary_vertices(&out) {
         let p = out.vertices[b as usize];
