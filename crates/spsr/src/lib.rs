@@ -30,6 +30,7 @@ pub mod points;
 mod reconstruct;
 mod solver;
 mod system;
+pub mod trim;
 
 pub use bspline::Boundary;
 pub use error::{Error, Result};
