@@ -1,0 +1,852 @@
+"""Screened Poisson surface reconstruction from Python.
+
+spsr turns an oriented point cloud (points with outward normals) into a watertight triangle
+mesh by the method of Kazhdan & Hoppe (ACM Transactions on Graphics, 2013), with the
+parameters and defaults of the reference implementation, PoissonRecon 18. The work is done
+by the Rust library of the same name; NumPy arrays go in and come out.
+
+Examples
+--------
+>>> import numpy as np, spsr
+>>> rng = np.random.default_rng(0)
+>>> normals = rng.normal(size=(20000, 3))
+>>> normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+>>> mesh = spsr.reconstruct(normals, normals, depth=6)   # unit sphere: points == normals
+>>> mesh.vertices.shape[1], mesh.faces.dtype
+(3, dtype('int32'))
+
+Functions
+---------
+reconstruct
+    Oriented points to a watertight mesh.
+trim
+    Remove the surface invented where there were no samples (needs a density).
+eval
+    Score a mesh against a reference mesh or sphere.
+read_points, read_mesh, write_mesh, write_points
+    Files: PLY, text, LAS/LAZ, E57 and PCD point clouds in; PLY, OBJ, STL and GLB meshes out.
+
+Errors are raised as ``ValueError`` (bad arrays or parameters), ``OSError`` (files),
+``FileFormatError`` (malformed files; both of those) and ``MemoryError`` (a run that would
+exceed ``max_memory``), with the messages of the ``spsr`` command line. The GIL is released
+while the library works, and Ctrl-C stops a reconstruction (``KeyboardInterrupt``).
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _spsr
+
+if TYPE_CHECKING:  # pragma: no cover
+    import numpy.typing as npt
+
+    ArrayLike = npt.ArrayLike
+else:
+    ArrayLike = Any
+
+__all__ = [
+    "MAX_DEPTH",
+    "FileFormatError",
+    "Mesh",
+    "PointCloud",
+    "eval",
+    "read_mesh",
+    "read_points",
+    "reconstruct",
+    "trim",
+    "write_mesh",
+    "write_points",
+]
+
+__version__: str = _spsr.__version__
+
+#: Deepest octree depth accepted by :func:`reconstruct`.
+MAX_DEPTH: int = _spsr.MAX_DEPTH
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+class FileFormatError(OSError, ValueError):
+    """A file's content is malformed (bad header, truncated body, unparsable number), or a
+    point file has no normals where they are needed.
+
+    Both an ``OSError`` (a problem with a file) and a ``ValueError`` (bad data), like
+    ``io.UnsupportedOperation``.
+    """
+
+
+# --------------------------------------------------------------------------------------
+# Array helpers
+
+_FLOATS = (np.dtype(np.float32), np.dtype(np.float64))
+_COLUMN_TYPES = tuple(
+    np.dtype(t)
+    for t in (np.uint8, np.int8, np.uint16, np.int16, np.uint32, np.int32, np.float32, np.float64)
+)
+_COLOR_FAMILIES = (
+    ("red", "green", "blue", "alpha"),
+    ("r", "g", "b", "a"),
+    ("diffuse_red", "diffuse_green", "diffuse_blue", "diffuse_alpha"),
+)
+
+
+def _native(a: np.ndarray) -> np.ndarray:
+    """`a` in native byte order and aligned (a copy only when it is not)."""
+    if a.dtype.isnative and a.flags.aligned:
+        return a
+    return np.require(a, a.dtype.newbyteorder("="), ["A"])
+
+
+def _real_array(x: ArrayLike, what: str) -> np.ndarray:
+    try:
+        a = np.asarray(x)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{what} must be an array of numbers: {e}") from None
+    if a.dtype.kind not in "biuf":
+        raise ValueError(f"{what} must hold real numbers, got dtype {a.dtype}")
+    return _native(a)
+
+
+def _rows3(x: ArrayLike, what: str, count: Optional[int] = None, count_of: str = "") -> np.ndarray:
+    """An (N, 3) float32 or float64 array; float32 and float64 input is used as it is."""
+    a = _real_array(x, what)
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"{what} must be an array of shape (N, 3), got shape {a.shape}")
+    if a.dtype not in _FLOATS:
+        a = a.astype(np.float64)
+    if count is not None and a.shape[0] != count:
+        raise ValueError(f"{what} has {a.shape[0]} rows but there are {count} {count_of}")
+    return a
+
+
+def _column(x: ArrayLike, what: str, count: int, count_of: str) -> np.ndarray:
+    """A 1-D array in one of the library's attribute types."""
+    a = _real_array(x, what)
+    if a.ndim != 1:
+        raise ValueError(f"{what} must be a 1-D array, got shape {a.shape}")
+    if a.shape[0] != count:
+        raise ValueError(f"{what} has {a.shape[0]} values but there are {count} {count_of}")
+    if a.dtype not in _COLUMN_TYPES:
+        if a.dtype.kind == "b":
+            a = a.astype(np.uint8)
+        elif a.dtype.kind == "f":
+            a = a.astype(np.float32 if a.dtype.itemsize < 4 else np.float64)
+        elif a.size == 0 or (a.min() >= np.iinfo(np.int32).min and a.max() <= np.iinfo(np.int32).max):
+            a = a.astype(np.int32)
+        else:
+            a = a.astype(np.float64)
+    return a
+
+
+def _color_columns(colors: ArrayLike, count: int, count_of: str) -> List[Tuple[str, np.ndarray]]:
+    """(N, 3) or (N, 4) colours as `red green blue [alpha]` columns of one type: integers in
+    the full range of their type (uint8: 0-255), floats in [0, 1]."""
+    a = _real_array(colors, "colors")
+    if a.ndim != 2 or a.shape[1] not in (3, 4):
+        raise ValueError(f"colors must be an array of shape (N, 3) or (N, 4), got shape {a.shape}")
+    if a.shape[0] != count:
+        raise ValueError(f"colors has {a.shape[0]} rows but there are {count} {count_of}")
+    if a.dtype not in (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32), np.dtype(np.float64)):
+        if a.dtype.kind == "f":
+            a = a.astype(np.float32)
+        elif a.size and (a.min() < 0 or a.max() > 65535):
+            raise ValueError("colors: integer colours must lie in 0-255 (uint8) or 0-65535 (uint16)")
+        else:
+            a = a.astype(np.uint8 if a.size == 0 or a.max() <= 255 else np.uint16)
+    names = _COLOR_FAMILIES[0][: a.shape[1]]
+    return [(name, np.ascontiguousarray(a[:, k])) for k, name in enumerate(names)]
+
+
+def _split_colors(columns: Sequence[Tuple[str, np.ndarray]]) -> Tuple[Optional[np.ndarray], Dict[str, np.ndarray]]:
+    """Colour channels found among `columns` (stacked as (N, 3) or (N, 4)), and the rest."""
+    by_name = {name.lower(): (name, array) for name, array in columns}
+    for family in _COLOR_FAMILIES:
+        if all(n in by_name for n in family[:3]):
+            names = [n for n in family if n in by_name]
+            channels = [by_name[n][1] for n in names]
+            if len({c.dtype for c in channels}) == 1:
+                colors = np.stack(channels, axis=1)
+            else:  # mixed types: floats in [0, 1]
+                colors = np.stack([_unit(c) for c in channels], axis=1)
+            taken = {by_name[n][0] for n in names}
+            rest = {name: array for name, array in columns if name not in taken}
+            return colors, rest
+    return None, dict(columns)
+
+
+def _unit(c: np.ndarray) -> np.ndarray:
+    if c.dtype.kind in "iu":
+        return np.clip(c / np.iinfo(c.dtype).max, 0.0, 1.0).astype(np.float32)
+    return np.clip(c, 0.0, 1.0).astype(np.float32)
+
+
+def _columns(
+    colors: Optional[ArrayLike],
+    attributes: Optional[Mapping[str, ArrayLike]],
+    count: int,
+    count_of: str,
+) -> List[Tuple[str, np.ndarray]]:
+    out: List[Tuple[str, np.ndarray]] = []
+    if colors is not None:
+        out.extend(_color_columns(colors, count, count_of))
+    for name, values in (attributes or {}).items():
+        if not isinstance(name, str) or not name:
+            raise ValueError(f"attribute names must be non-empty strings, got {name!r}")
+        out.append((name, _column(values, f"attribute '{name}'", count, count_of)))
+    seen = set()
+    for name, _ in out:
+        if name.lower() in seen:
+            raise ValueError(f"attribute '{name}' is given twice (colors are named red, green, blue, alpha)")
+        seen.add(name.lower())
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# Meshes and point clouds
+
+
+class Mesh:
+    """A triangle mesh: vertices, faces and optional per-vertex data.
+
+    Parameters
+    ----------
+    vertices : array_like, shape (V, 3)
+        Vertex positions (kept as float32 or float64; other numbers become float64).
+    faces : array_like of int, shape (M, 3)
+        Triangles as vertex indices, counter-clockwise seen from outside.
+    normals : array_like, shape (V, 3), optional
+        Per-vertex normals.
+    density : array_like, shape (V,), optional
+        Per-vertex density (the estimated sampling depth) as computed by
+        ``reconstruct(..., density=True)``; :func:`trim` needs it.
+    colors : array_like, shape (V, 3) or (V, 4), optional
+        Per-vertex colours: uint8 (0-255), uint16 (0-65535) or floats in [0, 1].
+    attributes : mapping of str to array_like, shape (V,), optional
+        Other per-vertex values, each kept in its own numeric type.
+
+    Attributes
+    ----------
+    vertices : numpy.ndarray, shape (V, 3)
+        float64 for meshes made by spsr.
+    faces : numpy.ndarray of int32, shape (M, 3)
+        For meshes made by spsr (Open3D's index type).
+    normals : numpy.ndarray of float32, shape (V, 3), or None
+        Unit normals (``reconstruct(..., vertex_normals=True)``).
+    density : numpy.ndarray of float32, shape (V,), or None
+        ``reconstruct(..., density=True)``.
+    colors : numpy.ndarray, shape (V, 3) or (V, 4), or None
+        Colours interpolated from the points' colours, in the points' colour type.
+    attributes : dict of str to numpy.ndarray
+        Other per-vertex values interpolated from the points (or read from a file).
+    stats : dict or None
+        For meshes returned by :func:`reconstruct`: ``points``, ``dropped``, ``samples``,
+        ``iso_value``, ``mean_sample_depth``, ``nodes_per_depth``, ``stages`` (name and
+        seconds of each stage), ``peak_memory`` (bytes after each stage, or None),
+        ``warnings`` and ``trim`` (the trimming's figures, or None). For meshes returned by
+        :func:`trim`: ``trim``.
+
+    Examples
+    --------
+    >>> import numpy as np, spsr
+    >>> tetra = spsr.Mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]],
+    ...                   [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    >>> tetra
+    Mesh(4 vertices, 4 faces)
+    """
+
+    __slots__ = ("vertices", "faces", "normals", "density", "colors", "attributes", "stats")
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: Optional[np.ndarray]
+    density: Optional[np.ndarray]
+    colors: Optional[np.ndarray]
+    attributes: Dict[str, np.ndarray]
+    stats: Optional[Dict[str, Any]]
+
+    def __init__(
+        self,
+        vertices: ArrayLike,
+        faces: ArrayLike,
+        *,
+        normals: Optional[ArrayLike] = None,
+        density: Optional[ArrayLike] = None,
+        colors: Optional[ArrayLike] = None,
+        attributes: Optional[Mapping[str, ArrayLike]] = None,
+    ) -> None:
+        self.vertices = _rows3(vertices, "vertices")
+        n = self.vertices.shape[0]
+        f = _real_array(faces, "faces")
+        if f.size == 0 and f.ndim <= 2:
+            f = f.reshape(0, 3)
+        if f.ndim != 2 or f.shape[1] != 3:
+            raise ValueError(f"faces must be an integer array of shape (M, 3), got shape {f.shape}")
+        if f.dtype.kind not in "iu":
+            raise ValueError(f"faces must hold integers, got dtype {f.dtype}")
+        if f.size and (f.min() < 0 or f.max() >= n):
+            bad = int(f.min()) if f.min() < 0 else int(f.max())
+            raise ValueError(f"faces refer to vertex {bad}, but there are {n} vertices")
+        self.faces = f
+        self.normals = None if normals is None else _rows3(normals, "normals", n, "vertices")
+        self.density = (
+            None if density is None else _column(density, "density", n, "vertices").astype(np.float32, copy=False)
+        )
+        self.colors = None
+        if colors is not None:
+            _color_columns(colors, n, "vertices")  # checks
+            self.colors = np.asarray(colors)
+        self.attributes = {
+            name: array for name, array in _columns(None, attributes, n, "vertices")
+        }
+        self.stats = None
+
+    @classmethod
+    def _from_native(cls, d: Dict[str, Any]) -> "Mesh":
+        mesh = cls.__new__(cls)
+        mesh.vertices = d["vertices"]
+        mesh.faces = d["faces"]
+        mesh.normals = d["normals"]
+        mesh.density = d["density"]
+        mesh.colors, mesh.attributes = _split_colors(d["attributes"])
+        mesh.stats = d.get("stats")
+        return mesh
+
+    def _native(self) -> Tuple[Any, ...]:
+        n = self.vertices.shape[0]
+        columns = _columns(self.colors, self.attributes, n, "vertices")
+        density = None if self.density is None else np.asarray(self.density, dtype=np.float32)
+        return (self.vertices, self.faces, self.normals, density, columns)
+
+    def __repr__(self) -> str:
+        extra = [
+            name
+            for name in ("normals", "density", "colors")
+            if getattr(self, name) is not None
+        ] + sorted(self.attributes)
+        more = f"; {', '.join(extra)}" if extra else ""
+        return f"Mesh({self.vertices.shape[0]} vertices, {self.faces.shape[0]} faces{more})"
+
+    def to_open3d(self) -> Any:
+        """The mesh as an ``open3d.geometry.TriangleMesh`` (needs the ``open3d`` package).
+
+        Vertex normals and colours are copied when present (colours as floats in [0, 1]).
+        """
+        import open3d as o3d  # noqa: PLC0415 (optional dependency)
+
+        m = o3d.geometry.TriangleMesh(
+            o3d.utility.Vector3dVector(np.asarray(self.vertices, dtype=np.float64)),
+            o3d.utility.Vector3iVector(np.asarray(self.faces, dtype=np.int32)),
+        )
+        if self.normals is not None:
+            m.vertex_normals = o3d.utility.Vector3dVector(np.asarray(self.normals, dtype=np.float64))
+        if self.colors is not None:
+            rgb = np.stack([_unit(np.asarray(self.colors)[:, k]) for k in range(3)], axis=1)
+            m.vertex_colors = o3d.utility.Vector3dVector(rgb.astype(np.float64))
+        return m
+
+    def to_trimesh(self) -> Any:
+        """The mesh as a ``trimesh.Trimesh`` (needs the ``trimesh`` package), without
+        processing (no vertex merging); normals and colours are passed on when present."""
+        import trimesh  # noqa: PLC0415 (optional dependency)
+
+        kwargs: Dict[str, Any] = {"process": False}
+        if self.normals is not None:
+            kwargs["vertex_normals"] = self.normals
+        if self.colors is not None:
+            c = np.asarray(self.colors)
+            if c.dtype != np.uint8:
+                c = np.stack([_unit(c[:, k]) for k in range(c.shape[1])], axis=1)
+                c = np.round(c * 255).astype(np.uint8)
+            kwargs["vertex_colors"] = c
+        return trimesh.Trimesh(vertices=self.vertices, faces=self.faces, **kwargs)
+
+
+class PointCloud:
+    """Points read from a file by :func:`read_points`.
+
+    Attributes
+    ----------
+    points : numpy.ndarray of float64, shape (N, 3)
+        Positions, in the file's frame and units.
+    normals : numpy.ndarray of float64, shape (N, 3), or None
+        Normals, when the file has them.
+    colors : numpy.ndarray, shape (N, 3) or (N, 4), or None
+        Colours, in the file's type (uint8 0-255, uint16 0-65535, floats in [0, 1]).
+    attributes : dict of str to numpy.ndarray
+        Every other numeric per-point property, in its own type (intensity, confidence, ...).
+    scan_origins : list of (int, tuple of float)
+        For files that record where the scanner stood (E57 poses, PCD viewpoints): the
+        first point of each scan and the sensor position.
+
+    Notes
+    -----
+    ``spsr.reconstruct(cloud)`` takes the normals, colours and attributes from the cloud.
+    Invalid points (non-finite values, zero normals) are kept, so that the cloud matches
+    the file point for point; the reconstruction drops them with a warning.
+    """
+
+    __slots__ = ("points", "normals", "colors", "attributes", "scan_origins")
+
+    points: np.ndarray
+    normals: Optional[np.ndarray]
+    colors: Optional[np.ndarray]
+    attributes: Dict[str, np.ndarray]
+    scan_origins: List[Tuple[int, Tuple[float, float, float]]]
+
+    def __init__(
+        self,
+        points: ArrayLike,
+        normals: Optional[ArrayLike] = None,
+        *,
+        colors: Optional[ArrayLike] = None,
+        attributes: Optional[Mapping[str, ArrayLike]] = None,
+    ) -> None:
+        self.points = _rows3(points, "points")
+        n = self.points.shape[0]
+        self.normals = None if normals is None else _rows3(normals, "normals", n, "points")
+        self.colors = None
+        if colors is not None:
+            _color_columns(colors, n, "points")
+            self.colors = np.asarray(colors)
+        self.attributes = dict(_columns(None, attributes, n, "points"))
+        self.scan_origins = []
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+    def __repr__(self) -> str:
+        extra = [n for n in ("normals", "colors") if getattr(self, n) is not None] + sorted(self.attributes)
+        more = f"; {', '.join(extra)}" if extra else ""
+        return f"PointCloud({len(self)} points{more})"
+
+
+# --------------------------------------------------------------------------------------
+# Functions
+
+
+def _parse_size(size: Union[int, str, None]) -> Optional[int]:
+    """`max_memory`: bytes, or a size such as '512M' or '8G' (binary units, as the CLI)."""
+    if size is None:
+        return None
+    if isinstance(size, bool):
+        raise TypeError("max_memory must be a number of bytes or a size such as '8G'")
+    if isinstance(size, str):
+        t = size.strip()
+        body = t.upper()
+        if body.endswith("IB"):
+            body = body[:-2]
+        body = body.rstrip("B")
+        mul = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}.get(body[-1:], 1)
+        if mul != 1:
+            body = body[:-1]
+        try:
+            v = float(body.strip())
+        except ValueError:
+            raise ValueError(f"invalid parameter --max-memory: '{t}' is not a size such as 512M or 8G") from None
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError("invalid parameter --max-memory: must be a positive size")
+        return int(v * mul)
+    try:
+        return int(size.__index__())  # type: ignore[union-attr]
+    except AttributeError:
+        raise TypeError("max_memory must be a number of bytes or a size such as '8G'") from None
+
+
+def reconstruct(
+    points: Union[ArrayLike, PointCloud],
+    normals: Optional[ArrayLike] = None,
+    *,
+    depth: int = 8,
+    full_depth: Optional[int] = None,
+    samples_per_node: float = 1.5,
+    point_weight: Optional[float] = None,
+    degree: int = 1,
+    boundary: str = "neumann",
+    scale: float = 1.1,
+    iters: int = 8,
+    confidence: bool = False,
+    density: bool = False,
+    linear_fit: bool = False,
+    max_memory: Union[int, str, None] = None,
+    two_level_splat: bool = False,
+    attributes: bool = True,
+    data_pull: float = 32.0,
+    vertex_normals: bool = False,
+    confidence_property: Optional[str] = None,
+    colors: Optional[ArrayLike] = None,
+    weights: Optional[ArrayLike] = None,
+    point_attributes: Optional[Mapping[str, ArrayLike]] = None,
+    trim: Union[float, str, None] = None,
+    min_island_area: float = 0.001,
+    hole_area: float = 0.001,
+    threads: Optional[int] = None,
+) -> Mesh:
+    """Reconstruct a watertight triangle mesh from oriented points.
+
+    Every keyword mirrors a field of the Rust ``spsr::Params`` (and a flag of
+    ``spsr reconstruct``) with the same default.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3), or PointCloud
+        Point positions. float32 and float64 arrays (any strides) are read in place, other
+        numbers are converted to float64. A :class:`PointCloud` (from :func:`read_points`)
+        brings its normals, colours and attributes, unless given here.
+    normals : array_like, shape (N, 3)
+        Outward normals, one per point; need not be unit length (with ``confidence`` their
+        length is the point's weight). Points with non-finite values or zero normals are
+        dropped with a ``RuntimeWarning``.
+    depth : int, default 8
+        Maximum octree depth; the finest cells are 1/2**depth of the bounding cube. At most
+        :data:`MAX_DEPTH` (18). PoissonRecon 6 and 18.
+    full_depth : int, optional
+        The octree is complete down to this depth, where the coarse solve happens.
+        Default 5, or ``depth`` when that is smaller.
+    samples_per_node : float, default 1.5
+        Target samples per octree node (PoissonRecon 18; version 6 used 1.0).
+    point_weight : float, optional
+        Screening weight alpha; 0 gives the unscreened 2006 method. Default 2 * degree.
+    degree : {1, 2}, default 1
+        B-spline degree (PoissonRecon 18; the 2013 paper uses 2).
+    boundary : {"neumann", "dirichlet", "free"}, default "neumann"
+        Boundary condition on the bounding cube.
+    scale : float, default 1.1
+        Bounding cube side = largest side of the points' bounding box * scale.
+    iters : int, default 8
+        Gauss-Seidel sweeps per depth.
+    confidence : bool, default False
+        Use each normal's length as the point's weight.
+    density : bool, default False
+        Compute the per-vertex density (estimated sampling depth; one unit more means 4
+        times more samples per area) into ``Mesh.density``.
+    linear_fit : bool, default False
+        Place vertices by linear interpolation along cell edges (PoissonRecon's
+        ``--linearFit``) instead of the quadratic fit.
+    max_memory : int or str, optional
+        Refuse (``MemoryError``), before building the octree, a run whose estimated peak
+        memory exceeds this many bytes (or a size such as ``"512M"``, ``"8G"``). Default:
+        the memory the machine has available.
+    two_level_splat : bool, default False
+        Split each sample between the two depths around its estimated depth (2006 paper,
+        PoissonRecon 6) instead of splatting it whole at the depth above (PoissonRecon 18).
+    attributes : bool, default True
+        Interpolate the points' colours and other attributes onto the mesh vertices
+        (``False`` is the command line's ``--no-attributes``).
+    data_pull : float, default 32
+        Pull factor of the attribute interpolation (PoissonRecon 18's ``--dataX``).
+    vertex_normals : bool, default False
+        Compute unit per-vertex normals from the implicit function's gradient into
+        ``Mesh.normals`` (``spsr::Params::normals``, the command line's ``--normals``).
+    confidence_property : str, optional
+        Use this per-point attribute (from ``point_attributes`` or the cloud) as each
+        point's weight. Points whose value is not a positive finite number are dropped.
+    colors : array_like, shape (N, 3) or (N, 4), optional
+        Per-point colours: uint8 (0-255), uint16 (0-65535) or floats in [0, 1]; the mesh's
+        colours come back in the same type.
+    weights : array_like, shape (N,), optional
+        Per-point weights (confidence values); the same as an attribute named
+        ``confidence`` together with ``confidence_property="confidence"``.
+    point_attributes : mapping of str to array_like, shape (N,), optional
+        Other per-point values to interpolate onto the mesh, each in its own numeric type;
+        they come back in ``Mesh.attributes``.
+    trim : float or "auto", optional
+        Trim the mesh where the density is below this value (see :func:`trim`). The
+        density is computed for it; ``Mesh.density`` is set only with ``density=True``.
+    min_island_area, hole_area : float, default 0.001
+        With ``trim``: see :func:`trim`.
+    threads : int, optional
+        Worker threads (default: all cores). The result does not depend on it.
+
+    Returns
+    -------
+    Mesh
+        ``vertices`` (float64, (V, 3)), ``faces`` (int32, (M, 3)), ``density``,
+        ``normals``, ``colors`` and ``attributes`` as requested, and ``stats``.
+
+    Raises
+    ------
+    ValueError
+        Bad arrays or parameter values, too few usable points (at least 4), points that
+        span no volume.
+    MemoryError
+        The estimated memory of the run exceeds ``max_memory``.
+    KeyboardInterrupt
+        Ctrl-C; the reconstruction stops at its next stage or solver depth.
+
+    Examples
+    --------
+    >>> mesh = spsr.reconstruct(points, normals, depth=9, density=True)
+    >>> mesh.vertices.shape, mesh.faces.shape, mesh.density.shape
+    """
+    cloud: Optional[PointCloud] = points if isinstance(points, PointCloud) else None
+    if cloud is not None:
+        positions: np.ndarray = cloud.points
+        if normals is None:
+            normals = cloud.normals
+        if colors is None:
+            colors = cloud.colors
+        if point_attributes is None:
+            point_attributes = cloud.attributes
+    else:
+        positions = _rows3(points, "points")
+    n = positions.shape[0]
+    if normals is None:
+        raise ValueError(
+            "the points have no normals (nx, ny, nz); spsr needs oriented points: pass normals= "
+            "(an (N, 3) array of outward normals)"
+        )
+    normal_rows = _rows3(normals, "normals")
+    if normal_rows.shape[0] != n:
+        # The library's own message.
+        raise ValueError(f"length mismatch: {n} positions but {normal_rows.shape[0]} normals")
+    point_attributes = dict(point_attributes or {})
+    weight_name = None
+    if weights is not None:
+        weight_name = "confidence"
+        if any(k.lower() == weight_name for k in point_attributes):
+            raise ValueError("weights= and an attribute named 'confidence' cannot be used together")
+        if confidence_property is not None:
+            raise ValueError("weights= and confidence_property= cannot be used together; give one")
+        point_attributes[weight_name] = weights
+        confidence_property = weight_name
+    columns = _columns(colors, point_attributes, n, "points")
+    out = _spsr.reconstruct(
+        positions,
+        normal_rows,
+        columns,
+        depth=depth,
+        full_depth=full_depth,
+        samples_per_node=samples_per_node,
+        point_weight=point_weight,
+        degree=degree,
+        boundary=boundary,
+        scale=scale,
+        iters=iters,
+        confidence=confidence,
+        density=density,
+        linear_fit=linear_fit,
+        max_memory=_parse_size(max_memory),
+        two_level_splat=two_level_splat,
+        attributes=attributes,
+        data_pull=data_pull,
+        vertex_normals=vertex_normals,
+        confidence_property=confidence_property,
+        threads=threads,
+        trim=trim,
+        min_island_area=min_island_area,
+        hole_area=hole_area,
+    )
+    if weight_name is not None:
+        out["attributes"] = [(k, v) for k, v in out["attributes"] if k != weight_name]
+    mesh = Mesh._from_native(out)
+    stats = mesh.stats or {}
+    if stats.get("dropped"):
+        warnings.warn(
+            f"{stats['dropped']} of {stats['points']} points dropped "
+            "(non-finite coordinates or zero-length normals)",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    for w in stats.get("warnings", []):
+        warnings.warn(w, RuntimeWarning, stacklevel=2)
+    return mesh
+
+
+def _mesh_arg(mesh: Union[Mesh, PathLike], what: str) -> Mesh:
+    if isinstance(mesh, Mesh):
+        return mesh
+    if isinstance(mesh, (str, os.PathLike)):
+        return read_mesh(mesh)
+    raise TypeError(f"{what} must be an spsr.Mesh or the path of a PLY mesh, got {type(mesh).__name__}")
+
+
+def trim(
+    mesh: Union[Mesh, PathLike],
+    threshold: Union[float, str] = "auto",
+    *,
+    min_island_area: float = 0.001,
+    hole_area: float = 0.001,
+    threads: Optional[int] = None,
+) -> Mesh:
+    """Remove the surface that a reconstruction invented where there were no samples.
+
+    The mesh is cut along the line where the density equals ``threshold`` (new vertices on
+    the crossing edges, every per-vertex value interpolated) and the part below is removed;
+    then kept pieces smaller than ``min_island_area`` of the total area are removed and
+    removed regions inside kept surface smaller than ``hole_area`` are restored, as
+    PoissonRecon's SurfaceTrimmer does.
+
+    Parameters
+    ----------
+    mesh : Mesh or path
+        A mesh with a density: ``reconstruct(..., density=True)``, or a PLY file with a
+        vertex property ``density`` (``spsr reconstruct --density``).
+    threshold : float or "auto", default "auto"
+        The density level. ``"auto"`` takes median - max(1, 4 * MAD) of the area-weighted
+        vertex densities.
+    min_island_area : float, default 0.001
+        Fraction of the total area, in [0, 1).
+    hole_area : float, default 0.001
+        Fraction of the total area, in [0, 1).
+    threads : int, optional
+        Worker threads (default: all cores).
+
+    Returns
+    -------
+    Mesh
+        The trimmed mesh; ``stats["trim"]`` holds the threshold used (and the median and MAD
+        for ``"auto"``), the areas and the counts of cut vertices, islands and holes.
+
+    Raises
+    ------
+    ValueError
+        The mesh has no density or no triangles, or a parameter is out of range.
+    """
+    m = _mesh_arg(mesh, "mesh")
+    out = _spsr.trim(m._native(), threshold, min_island_area, hole_area, threads)
+    stats = {"trim": out.pop("trim")}
+    result = Mesh._from_native(out)
+    result.stats = stats
+    return result
+
+
+def eval(  # noqa: A001 (the command line's name)
+    mesh: Union[Mesh, PathLike],
+    reference: Union[Mesh, PathLike, None] = None,
+    *,
+    sphere: Optional[Sequence[float]] = None,
+    samples: int = 1_000_000,
+    seed: int = 1,
+    threads: Optional[int] = None,
+) -> Dict[str, Any]:
+    """Score a mesh against a reference surface, as ``spsr eval --json``.
+
+    Both surfaces are sampled area-uniformly (``samples`` points each, fixed seed) and
+    exact point-to-triangle distances are measured.
+
+    Parameters
+    ----------
+    mesh : Mesh or path
+        The mesh to score (a PLY file when a path).
+    reference : Mesh or path, optional
+        The ground-truth mesh.
+    sphere : (cx, cy, cz, r), optional
+        An analytic sphere as the reference instead (give one of ``reference`` and
+        ``sphere``).
+    samples : int, default 1000000
+        Samples per surface.
+    seed : int, default 1
+        Seed of the sampling.
+    threads : int, optional
+        Worker threads (default: all cores). The result does not depend on it.
+
+    Returns
+    -------
+    dict
+        The fields of ``spsr eval --json``: ``chamfer`` and ``hausdorff`` (and ``*_rel``,
+        relative to the reference's bounding-box diagonal), ``mesh_to_reference_mean`` /
+        ``_max``, ``reference_to_mesh_mean`` / ``_max``, F-scores at 0.5 % and 1 % of the
+        diagonal (``fscore_0_5``, ``precision_0_5``, ``recall_0_5``, ``fscore_1``, ...),
+        normal consistency, areas, and the mesh's topology (``closed``,
+        ``edge_manifold``, ``vertex_manifold``, ``components``, ``euler``, ...).
+    """
+    import json
+
+    m = _mesh_arg(mesh, "mesh")
+    ref = None if reference is None else _mesh_arg(reference, "reference")._native()
+    sph = None
+    if sphere is not None:
+        s = [float(v) for v in sphere]
+        if len(s) != 4:
+            raise ValueError(f"sphere must be (cx, cy, cz, r), got {len(s)} values instead of 4")
+        sph = ((s[0], s[1], s[2]), s[3])
+    if seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed}")
+    result: Dict[str, Any] = json.loads(_spsr.evaluate(m._native(), ref, sph, samples, seed, threads))
+    return result
+
+
+def read_points(path: PathLike) -> PointCloud:
+    """Read a point cloud: PLY, text (``.xyz``, ``.txt``, ``.csv``, ...), LAS/LAZ, E57 or PCD.
+
+    The format is recognised by the file's first bytes, else by its extension; anything
+    else is read as text.
+
+    Returns
+    -------
+    PointCloud
+        ``normals`` is None when the file has none.
+
+    Raises
+    ------
+    OSError
+        The file cannot be opened or read.
+    FileFormatError
+        The file is malformed (the message names what is wrong and where).
+    """
+    d = _spsr.read_cloud(os.fspath(path))
+    cloud = PointCloud.__new__(PointCloud)
+    cloud.points = d["positions"]
+    cloud.normals = d["normals"]
+    cloud.colors, cloud.attributes = _split_colors(d["attributes"])
+    cloud.scan_origins = [(int(i), tuple(o)) for i, o in d["scan_origins"]]
+    return cloud
+
+
+def read_mesh(path: PathLike) -> Mesh:
+    """Read a PLY triangle mesh (polygons are fan-triangulated).
+
+    A vertex property ``density`` fills ``Mesh.density``, ``nx ny nz`` fill
+    ``Mesh.normals``, colour properties ``Mesh.colors`` and every other scalar vertex
+    property ``Mesh.attributes``.
+    """
+    return Mesh._from_native(_spsr.read_mesh(os.fspath(path)))
+
+
+def write_mesh(path: PathLike, mesh: Mesh, *, ascii: bool = False) -> None:
+    """Write a mesh, in the format its extension names.
+
+    ``.obj`` (Wavefront OBJ with vertex colours and normals), ``.stl`` (binary, or ASCII),
+    ``.glb`` (glTF 2.0 binary), anything else PLY (binary little endian, or ASCII) with
+    normals, colours, attributes and density. The file appears only when complete (written
+    to a temporary file in the same folder, then renamed).
+
+    Raises
+    ------
+    OSError
+        The folder does not exist or is not writable, or the path is a folder.
+    """
+    if not isinstance(mesh, Mesh):
+        raise TypeError(f"mesh must be an spsr.Mesh, got {type(mesh).__name__}")
+    _spsr.write_mesh(os.fspath(path), mesh._native(), bool(ascii))
+
+
+def write_points(
+    path: PathLike,
+    points: Union[ArrayLike, PointCloud],
+    normals: Optional[ArrayLike] = None,
+    *,
+    colors: Optional[ArrayLike] = None,
+    attributes: Optional[Mapping[str, ArrayLike]] = None,
+    ascii: bool = False,
+) -> None:
+    """Write a point cloud as PLY, with normals, colours and attributes in their own types.
+
+    Written atomically, like :func:`write_mesh`. ``points`` may be a :class:`PointCloud`.
+    """
+    if isinstance(points, PointCloud):
+        cloud = points
+        normals = cloud.normals if normals is None else normals
+        colors = cloud.colors if colors is None else colors
+        attributes = cloud.attributes if attributes is None else attributes
+        positions = cloud.points
+    else:
+        positions = _rows3(points, "points")
+    n = positions.shape[0]
+    normal_rows = None if normals is None else _rows3(normals, "normals", n, "points")
+    _spsr.write_points(os.fspath(path), positions, normal_rows, _columns(colors, attributes, n, "points"), bool(ascii))
