@@ -322,9 +322,12 @@ fn attributes_in(list: Vec<(String, Bound<'_, PyAny>)>, n: usize) -> PyResult<Ve
 }
 
 fn vector1<T: Element + Copy>(array: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<T>> {
-    let a = array
-        .cast::<PyArray1<T>>()
-        .map_err(|_| value_error(format!("{what} must be a 1-D array of {}", T::get_dtype(array.py()))))?;
+    let a = array.cast::<PyArray1<T>>().map_err(|_| {
+        value_error(format!(
+            "{what} must be a 1-D array of {}",
+            T::get_dtype(array.py())
+        ))
+    })?;
     let ro = a.readonly();
     let view: ArrayView1<'_, T> = ro.as_array();
     Ok(view.iter().copied().collect())
@@ -676,7 +679,9 @@ fn trim<'py>(
     threads: Option<i64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let threshold = threshold_arg(Some(&threshold))?.ok_or_else(|| {
-        value_error("invalid parameter --trim: give a density value (a number such as 6.5) or 'auto'")
+        value_error(
+            "invalid parameter --trim: give a density value (a number such as 6.5) or 'auto'",
+        )
     })?;
     let params = TrimParams {
         threshold,
@@ -824,7 +829,9 @@ fn write_points(
     let positions = rows3(&points, "points")?;
     let n = positions.len();
     let mut cloud = match normals {
-        Some(a) => PointCloud::new(positions, rows3(&a, "normals")?).map_err(|e| to_py_err(py, e))?,
+        Some(a) => {
+            PointCloud::new(positions, rows3(&a, "normals")?).map_err(|e| to_py_err(py, e))?
+        }
         None => PointCloud::from_positions(positions),
     };
     cloud.attributes = attributes_in(attributes, n)?;
@@ -844,7 +851,11 @@ fn cli_main(py: Python<'_>, argv: Vec<String>) -> PyResult<u8> {
         Err(e) => {
             // --help and --version print to stdout and succeed; errors print usage.
             let _ = e.print();
-            return Ok(if e.use_stderr() { e.exit_code() as u8 } else { 0 });
+            return Ok(if e.use_stderr() {
+                e.exit_code() as u8
+            } else {
+                0
+            });
         }
     };
     let code = py.detach(move || match spsr_cli::run(&cli) {
