@@ -186,6 +186,70 @@ def generate(name, shape, count, cache):
     return path, gt
 
 
+def read_mesh_ply(path):
+    """Vertices and triangles of a binary little-endian PLY with float x y z first and a
+    `list uchar int` face element (the layout of ../shared/data/gt)."""
+    import numpy as np
+
+    with open(path, "rb") as f:
+        header = []
+        while True:
+            line = f.readline().decode("ascii").strip()
+            header.append(line)
+            if line == "end_header":
+                break
+        body = f.read()
+    nv = nf = 0
+    vprops = 0
+    current = None
+    for line in header:
+        w = line.split()
+        if w[:1] == ["format"] and w[1] != "binary_little_endian":
+            raise ValueError(f"{path}: only binary little-endian PLY is read here")
+        if w[:1] == ["element"]:
+            current = w[1]
+            if current == "vertex":
+                nv = int(w[2])
+            elif current == "face":
+                nf = int(w[2])
+        elif w[:1] == ["property"] and current == "vertex":
+            if w[1] != "float":
+                raise ValueError(f"{path}: vertex properties must be float")
+            vprops += 1
+    verts = np.frombuffer(body, dtype="<f4", count=nv * vprops).reshape(nv, vprops)[:, :3].astype(np.float64)
+    rec = np.frombuffer(body, dtype=[("n", "u1"), ("i", "<i4", (3,))], count=nf, offset=nv * vprops * 4)
+    if nf and not (rec["n"] == 3).all():
+        raise ValueError(f"{path}: only triangles are read here")
+    return verts, rec["i"].astype(np.int64)
+
+
+def sample_gt(name, gt_path, count, cache):
+    """`count` oriented points area-uniform on a ground-truth mesh (fixed seed from the name),
+    each with its triangle's unit normal, as the shared data's own samples were made."""
+    import numpy as np
+    import zlib
+
+    os.makedirs(cache, exist_ok=True)
+    path = os.path.join(cache, f"{name}.ply")
+    if os.path.exists(path):
+        return path
+    v, f = read_mesh_ply(gt_path)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    cross = np.cross(b - a, c - a)
+    area = np.linalg.norm(cross, axis=1)
+    keep = area > 0
+    a, b, c, cross, area = a[keep], b[keep], c[keep], cross[keep], area[keep]
+    rng = np.random.default_rng([20261124, zlib.crc32(name.encode())])
+    tri = rng.choice(len(area), size=count, p=area / area.sum())
+    r1, r2 = rng.random(count), rng.random(count)
+    s = np.sqrt(r1)
+    u, w = 1 - s, s * r2
+    pts = u[:, None] * a[tri] + (s * (1 - r2))[:, None] * b[tri] + w[:, None] * c[tri]
+    nrm = cross[tri] / area[tri, None]
+    write_points_ply(path, pts, nrm, f"generated {name}: {count} points area-uniform on {os.path.basename(gt_path)}, triangle normals")
+    return path
+
+
 def resolve_input(name, data, cache):
     """Returns dict(name, path, points, gt, source) or raises ValueError."""
     if data:
@@ -212,6 +276,19 @@ def resolve_input(name, data, cache):
             gt=dict(kind="mesh", path=os.path.join(ROOT, "crates", "spsr", "tests", "data", "bunny_gt.ply"), about="crates/spsr/tests/data/bunny_gt.ply"),
             source="repository: examples/bunny.ply",
         )
+    m = re.fullmatch(r"([a-z_]+?)_(\d+(?:\.\d+)?[km]?)", name)
+    if data and m and m.group(1) not in ("sphere", "torus") and parse_count(m.group(2)):
+        gt_path = os.path.join(data, "gt", m.group(1) + ".ply")
+        if os.path.exists(gt_path):
+            count = parse_count(m.group(2))
+            path = sample_gt(name, gt_path, count, cache)
+            return dict(
+                name=name,
+                path=path,
+                points=count,
+                gt=dict(kind="mesh", path=gt_path, about=f"gt/{m.group(1)}.ply"),
+                source=f"sampled by the harness from gt/{m.group(1)}.ply (area-uniform, triangle normals, fixed seed)",
+            )
     m = re.fullmatch(r"(sphere|torus)_(\w+)", name)
     count = parse_count(m.group(2)) if m else None
     if m and count:
@@ -558,8 +635,13 @@ def main():
         versions[tool] = info.get("version")
         if tool in args.tools and "error" in info:
             unavailable[tool] = "not installed: " + (install_log_reason(args.venv, module) or info["error"])
+    for tool in ("pypoisson2", "open3d", "pymeshlab"):
+        if versions.get(tool):
+            versions[tool] = f"{tool} {versions[tool]}"
     if versions.get("pypoisson2"):
         versions["pypoisson2"] += " (PoissonRecon 18.74)"
+    if versions.get("poisson_reconstruction"):
+        versions["poisson_reconstruction"] = "crate " + versions["poisson_reconstruction"]
     for lib in ("numpy", "matplotlib"):
         versions[lib] = pv.get(lib, {}).get("version")
 
@@ -579,6 +661,7 @@ def main():
             print("bench:", e, flush=True)
     cases = sorted((c for c in cases if c[0] in resolved), key=lambda c: (resolved[c[0]]["points"] or 0, c[1], c[0]))
 
+    machine_info = machine()
     env = dict(os.environ, OMP_NUM_THREADS=str(args.threads), RAYON_NUM_THREADS=str(args.threads), PYTHONDONTWRITEBYTECODE="1")
     env.pop("OMP_WAIT_POLICY", None)
     if args.omp_wait_policy.lower() != "unset":
@@ -682,9 +765,9 @@ def main():
         name=name,
         started=start_time.isoformat(timespec="seconds"),
         finished=end_time.isoformat(timespec="seconds"),
-        machine=dict(machine(), load_average_at_end=os.getloadavg()),
+        machine=dict(machine_info, load_average_at_end=os.getloadavg()),
         versions=versions,
-        command="bash bench/run.sh " + " ".join(sys.argv[1:]),
+        command=" ".join(["bash bench/run.sh"] + sys.argv[1:]),
         data="shared" if shared else "generated (no shared data found at %s)" % args.data,
         inputs={n: {k: v for k, v in r.items() if k != "path"} | dict(path=os.path.relpath(r["path"], ROOT) if r["path"].startswith(ROOT) else r["path"]) for n, r in resolved.items()},
         parameters=dict(params(args, "D"), reps=args.reps, timeout_s=args.timeout, max_rss_gib=args.max_rss_gib,
@@ -739,15 +822,15 @@ def write_markdown(res, path):
         f"- Date: {res['started']} to {res['finished']}",
         f"- Machine: {m.get('cpu', '?')}, {m['cores']} cores, {m.get('memory_gib', '?')} GiB; {m['os']}; load average "
         f"{' / '.join(f'{x:.2f}' for x in m['load_average_at_start'])} at start, {' / '.join(f'{x:.2f}' for x in m['load_average_at_end'])} at end "
-        "(other jobs may have shared the machine)",
+        "(other jobs may have shared the machine)" + (f"; note: {m['note']}" if m.get("note") else ""),
         f"- Command: `{res['command']}`",
         f"- Inputs: {res['data']}; " + "; ".join(f"{n}: {i['points']:,} points, {i['source']}, ground truth {i['gt']['about'] if i['gt'] else 'none'}" for n, i in res["inputs"].items()),
         f"- Parameters: depth D as listed, degree {p['degree']}, point weight (alpha) {p['point_weight']:g}, samples per node {p['samples_per_node']:g}, "
-        f"{p['boundary']} boundary, scale {p['scale']:g}, full depth {p['full_depth']}, {p['iters']} iterations, {p['threads']} threads "
+        f"{p['boundary']} boundary, scale {p['scale']:g}, full depth min({p['full_depth']}, D), {p['iters']} iterations, {p['threads']} threads "
         f"(environment: {', '.join(f'{k}={v}' for k, v in p.get('environment', {}).items())}); "
         f"median of up to {p['reps']} repetitions (a case whose first run took over {p['slow_s']:g} s ran once), "
         f"time limit {p['timeout_s']:g} s and memory limit {p['max_rss_gib']:g} GiB per run",
-        "- Versions: " + "; ".join(f"{LABELS.get(t, t)} {res['versions'].get(t) or 'n/a'}" for t in res["tools"]) + f"; numpy {v.get('numpy')}, matplotlib {v.get('matplotlib')}; {m.get('rustc', '')}",
+        "- Versions: " + "; ".join(f"{LABELS.get(t, t)}: {res['versions'].get(t) or 'n/a'}" for t in res["tools"]) + f"; numpy {v.get('numpy')}, matplotlib {v.get('matplotlib')}; {m.get('rustc', '')}",
         f"- Scoring: `spsr eval` with {p['eval_samples']:,} area-uniform samples per surface (fixed seed); distances relative to the ground truth's bounding-box diagonal; "
         "Chamfer = mean of the two directions' mean distances, Hausdorff = largest sampled distance, F-score at 0.5 % and 1 % of the diagonal",
         "",
@@ -762,7 +845,8 @@ def write_markdown(res, path):
     for r in rows:
         head = f"| {r['input']} | {r['depth']} | {r['label']} |"
         if "failed" in r:
-            lines.append(head + f" failed: {r['failed']} | | | | | | | | | | |")
+            why = r["failed"] if r["failed"].startswith("skipped") else "failed: " + r["failed"]
+            lines.append(head + f" {why} | | | | | | | | | | |")
             continue
         sc = r.get("score") or {}
         if "error" in sc:
@@ -775,9 +859,11 @@ def write_markdown(res, path):
     lines += ["", "## What each tool was given", ""]
     for t, info in res["tools"].items():
         given = dict(info["given"])
-        got = next((r.get("given") for r in res["rows"] if r["tool"] == t and r.get("given")), None)
+        got = [r for r in res["rows"] if r["tool"] == t and r.get("given")]
         if got:
-            given = got
+            # What the runner reported, from the deepest case, with the depth written as D.
+            deepest = max(got, key=lambda r: r["depth"])
+            given = {k: ("D" if k == "depth" else v) for k, v in deepest["given"].items()}
         fixed = next((r.get("fixed") for r in res["rows"] if r["tool"] == t and r.get("fixed")), None)
         cm = dict(info.get("cannot_match") or {})
         if fixed:
@@ -824,7 +910,11 @@ def plots(res, stem):
 
     def sci_axis(axis):
         axis.set_major_locator(LogLocator(base=10, subs=subs(axis)))
-        axis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:.1e}".replace("e-0", "e-").replace(".0e", "e")))
+        def sci(x, _):
+            mantissa, exponent = f"{x:.2e}".split("e")
+            return f"{mantissa.rstrip('0').rstrip('.')}e{int(exponent)}"
+
+        axis.set_major_formatter(FuncFormatter(sci))
         axis.set_minor_formatter(NullFormatter())
 
     ok = [r for r in res["rows"] if "wall_s" in r]
@@ -893,11 +983,16 @@ def plots(res, stem):
 
     # 3. Accuracy against time: relative Chamfer distance, one panel per input, depths labelled.
     scored = [r for r in ok if r.get("score") and "chamfer_rel" in r["score"]]
-    acc_inputs = sorted({r["input"] for r in scored}, key=lambda n: res["inputs"][n]["points"] or 0)
+    # The inputs of the depth grid first, then the single-depth ones; three panels a row.
+    acc_inputs = sorted({r["input"] for r in scored}, key=lambda n: (n not in grid_inputs, res["inputs"][n]["points"] or 0))
     if acc_inputs:
-        fig, axes = plt.subplots(1, len(acc_inputs), figsize=(max(4.6 * len(acc_inputs), 6), 4.8), squeeze=False)
+        cols = min(3, len(acc_inputs))
+        nrows = (len(acc_inputs) + cols - 1) // cols
+        fig, axes = plt.subplots(nrows, cols, figsize=(max(4.8 * cols, 6), 4.3 * nrows + 0.6), squeeze=False)
+        for ax in axes.flat[len(acc_inputs):]:
+            ax.set_visible(False)
         for j, n in enumerate(acc_inputs):
-            ax = axes[0][j]
+            ax = axes.flat[j]
             for t in tools:
                 pts = sorted((r["depth"], r["wall_s"], r["score"]["chamfer_rel"]) for r in scored if r["tool"] == t and r["input"] == n)
                 if not pts:
@@ -913,7 +1008,8 @@ def plots(res, stem):
             ax.set_ylabel("Chamfer distance / bbox diagonal")
             ax.set_title(f"{n} ({res['inputs'][n]['points']:,} points)", fontsize=10)
             ax.grid(True, which="both", alpha=0.3)
-        axes[0][0].legend(fontsize=8)
+        handles = {h.get_label(): h for ax in axes.flat for h in ax.get_lines()}
+        axes[0][0].legend(handles.values(), handles.keys(), fontsize=8)
         fig.suptitle(f"Accuracy against time (labels: depth; lower left is better)\n({title_tail})", fontsize=10)
         fig.tight_layout()
         written.append(stem + "-accuracy.png")
