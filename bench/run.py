@@ -408,6 +408,14 @@ def spsr_compute_seconds(stderr):
     return None
 
 
+def spsr_profile(stderr):
+    """spsr's own report under -v: octree nodes and each stage's seconds (the per-stage
+    profile kept with every run)."""
+    m = re.search(r"^octree\s+(\d+) nodes", stderr, re.M)
+    stages = {k.strip(): float(v) for k, v in re.findall(r"^\s{2,}([a-z][\w :-]*?)\s{2,}([\d.]+) s", stderr, re.M)}
+    return dict(octree_nodes=int(m.group(1)) if m else None, stages=stages)
+
+
 def command(tool, inp, out, depth, args, py):
     p = params(args, depth)
     if tool == "spsr":
@@ -721,6 +729,7 @@ def main():
                 run = dict(rep=rep, wall_s=r["wall_s"], peak_rss_mib=r["peak_rss_mib"], user_s=r["user_s"], sys_s=r["sys_s"], rss_method=r["rss_method"])
                 if tool == "spsr":
                     run["compute_s"] = spsr_compute_seconds(r["stderr"])
+                    run.update(spsr_profile(r["stderr"]))
                 elif tool == "poisson_reconstruction":
                     m = re.search(r"compute_seconds ([\d.]+)", r["stderr"])
                     run["compute_s"] = float(m.group(1)) if m else None
@@ -745,6 +754,8 @@ def main():
             walls = [r["wall_s"] for r in s["runs"]]
             rss = [r["peak_rss_mib"] for r in s["runs"]]
             comp = [r["compute_s"] for r in s["runs"] if r.get("compute_s") is not None]
+            if s["runs"][0].get("octree_nodes"):
+                row["octree_nodes"] = s["runs"][0]["octree_nodes"]
             row.update(reps=len(walls), wall_s=statistics.median(walls), wall_min_s=min(walls), wall_max_s=max(walls),
                        peak_rss_mib=statistics.median(rss), compute_s=statistics.median(comp) if comp else None)
             if s["score"]:
