@@ -1,0 +1,123 @@
+//! The neighbour graph of a cloud and its minimum spanning forest (Kruskal's algorithm on a
+//! parallel sort, with a union–find).
+
+use rayon::prelude::*;
+
+use super::knn::Neighbours;
+
+/// The undirected edges of the symmetric k-nearest-neighbour graph, as `(i, j)` with
+/// `i < j`, each once, sorted.
+pub(crate) fn symmetric_edges(nb: &Neighbours) -> Vec<(u32, u32)> {
+    let n = nb.radius.len();
+    let mut keys: Vec<u64> = (0..n)
+        .into_par_iter()
+        .flat_map_iter(|i| {
+            nb.of(i).filter(move |&j| j != i).map(move |j| {
+                let (a, b) = if i < j { (i, j) } else { (j, i) };
+                ((a as u64) << 32) | b as u64
+            })
+        })
+        .collect();
+    keys.par_sort_unstable();
+    keys.dedup();
+    keys.into_par_iter()
+        .map(|k| ((k >> 32) as u32, k as u32))
+        .collect()
+}
+
+/// Disjoint sets over `0..n` with path halving and union by size.
+pub(crate) struct UnionFind {
+    parent: Vec<u32>,
+    size: Vec<u32>,
+}
+
+impl UnionFind {
+    pub fn new(n: usize) -> Self {
+        Self {
+            parent: (0..n as u32).collect(),
+            size: vec![1; n],
+        }
+    }
+
+    pub fn find(&mut self, mut x: u32) -> u32 {
+        while self.parent[x as usize] != x {
+            let g = self.parent[self.parent[x as usize] as usize];
+            self.parent[x as usize] = g;
+            x = g;
+        }
+        x
+    }
+
+    /// Joins the sets of `a` and `b`; false when they were already one.
+    pub fn union(&mut self, a: u32, b: u32) -> bool {
+        let (mut a, mut b) = (self.find(a), self.find(b));
+        if a == b {
+            return false;
+        }
+        if self.size[a as usize] < self.size[b as usize] {
+            std::mem::swap(&mut a, &mut b);
+        }
+        self.parent[b as usize] = a;
+        self.size[a as usize] += self.size[b as usize];
+        true
+    }
+}
+
+/// The minimum spanning forest of `n` vertices and weighted `edges` (weights ≥ 0, not NaN),
+/// by Kruskal's algorithm. Ties are broken by the edges' order in `edges`, so the forest is
+/// unique and does not depend on the thread count. Returns the indices of the chosen edges.
+pub(crate) fn spanning_forest(n: usize, edges: &[(u32, u32)], weights: &[f64]) -> Vec<u32> {
+    let mut order: Vec<(u64, u32)> = weights
+        .par_iter()
+        .enumerate()
+        // Non-negative floats order like their bit patterns.
+        .map(|(e, w)| (w.max(0.0).to_bits(), e as u32))
+        .collect();
+    order.par_sort_unstable();
+    let mut sets = UnionFind::new(n);
+    let mut chosen = Vec::with_capacity(n.saturating_sub(1));
+    for (_, e) in order {
+        let (a, b) = edges[e as usize];
+        if sets.union(a, b) {
+            chosen.push(e);
+            if chosen.len() + 1 == n {
+                break;
+            }
+        }
+    }
+    chosen
+}
+
+/// Adjacency lists (compressed rows) of the forest made of `chosen` edges.
+pub(crate) struct Forest {
+    pub start: Vec<u32>,
+    pub adj: Vec<u32>,
+}
+
+impl Forest {
+    pub fn new(n: usize, edges: &[(u32, u32)], chosen: &[u32]) -> Self {
+        let mut start = vec![0u32; n + 1];
+        for &e in chosen {
+            let (a, b) = edges[e as usize];
+            start[a as usize + 1] += 1;
+            start[b as usize + 1] += 1;
+        }
+        for i in 0..n {
+            start[i + 1] += start[i];
+        }
+        let mut fill = start.clone();
+        let mut adj = vec![0u32; 2 * chosen.len()];
+        for &e in chosen {
+            let (a, b) = edges[e as usize];
+            adj[fill[a as usize] as usize] = b;
+            fill[a as usize] += 1;
+            adj[fill[b as usize] as usize] = a;
+            fill[b as usize] += 1;
+        }
+        Self { start, adj }
+    }
+
+    pub fn of(&self, i: usize) -> &[u32] {
+        &self.adj[self.start[i] as usize..self.start[i + 1] as usize]
+    }
+}
