@@ -46,6 +46,72 @@ fn box_mesh(lo: [f64; 3], hi: [f64; 3]) -> Mesh {
     }
 }
 
+/// Deterministic xorshift generator in [0, 1).
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// Synthetic inputs with exact outward normals: `shell:N:GAP` (a hollow ball: spheres of
+/// radius 1 and 1 − GAP, the inner one's normals pointing to the centre) and `plate:N:T`
+/// (a 1 × 1 × T box).
+fn synthetic(spec: &str) -> Result<PointCloud, Box<dyn std::error::Error>> {
+    let parts: Vec<&str> = spec.split(':').collect();
+    let n: usize = parts.get(1).ok_or("N missing")?.parse()?;
+    let t: f64 = parts.get(2).ok_or("size missing")?.parse()?;
+    let mut rng = Rng(0x9e3779b97f4a7c15);
+    let mut pos = Vec::with_capacity(n);
+    let mut nor = Vec::with_capacity(n);
+    match parts[0] {
+        "shell" => {
+            let r2 = (1.0 - t) * (1.0 - t);
+            while pos.len() < n {
+                let v: [f64; 3] = std::array::from_fn(|_| 2.0 * rng.next() - 1.0);
+                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                if !(l > 0.1 && l <= 1.0) {
+                    continue;
+                }
+                let u = v.map(|c| c / l);
+                if rng.next() * (1.0 + r2) < 1.0 {
+                    pos.push(u);
+                    nor.push(u);
+                } else {
+                    pos.push(u.map(|c| c * (1.0 - t)));
+                    nor.push(u.map(|c| -c));
+                }
+            }
+        }
+        "plate" => {
+            let ext = [1.0, 1.0, t];
+            let areas = [ext[1] * ext[2], ext[0] * ext[2], ext[0] * ext[1]];
+            let total: f64 = areas.iter().sum();
+            while pos.len() < n {
+                let mut r = rng.next() * total;
+                let mut a = 0;
+                while a < 2 && r >= areas[a] {
+                    r -= areas[a];
+                    a += 1;
+                }
+                let side = if rng.next() < 0.5 { -1.0 } else { 1.0 };
+                let mut p: [f64; 3] = std::array::from_fn(|b| (rng.next() - 0.5) * ext[b]);
+                p[a] = 0.5 * side * ext[a];
+                let mut nn = [0.0; 3];
+                nn[a] = side;
+                pos.push(p);
+                nor.push(nn);
+            }
+        }
+        _ => return Err(format!("unknown synthetic input {spec}").into()),
+    }
+    Ok(PointCloud::new(pos, nor)?)
+}
+
 fn peak_rss_mib() -> f64 {
     spsr_peak_rss().map_or(f64::NAN, |b| b as f64 / (1u64 << 20) as f64)
 }
@@ -88,7 +154,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .build_global()?;
     let mode = args[2].as_str();
     let t = Instant::now();
-    let cloud = spsr::io::read_points(args[1].as_ref())?;
+    let cloud = match args[1].strip_prefix("synth:") {
+        Some(spec) => synthetic(spec)?,
+        None => spsr::io::read_points(args[1].as_ref())?,
+    };
     let t_read = t.elapsed().as_secs_f64();
     let reference = cloud.normals.clone();
     let mut out = vec![
@@ -100,10 +169,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let normals = if mode == "true" {
         reference.clone()
     } else {
-        let how = if mode == "mst" {
-            Orientation::mst()
-        } else if mode == "global" {
-            Orientation::global()
+        let how = if let Some(k) = mode.strip_prefix("mst") {
+            match k.strip_prefix(':') {
+                Some(k) => Orientation::Mst {
+                    neighbours: k.parse()?,
+                },
+                None => Orientation::mst(),
+            }
+        } else if let Some(d) = mode.strip_prefix("global") {
+            match d.strip_prefix(':') {
+                Some(d) => Orientation::Global {
+                    neighbours: 10,
+                    depth: Some(d.parse()?),
+                    rounds: 4,
+                },
+                None => Orientation::global(),
+            }
         } else if let Some(v) = mode.strip_prefix("viewpoint:") {
             let v = parse3(v)?;
             Orientation::Viewpoint([v[0], v[1], v[2]])

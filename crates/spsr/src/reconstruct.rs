@@ -103,6 +103,29 @@ impl Implicit {
     }
 }
 
+/// The implicit function solved from `cloud` with `params`, sampled at the points `at`:
+/// `(χ, ∇χ)` per point (gradient in world units; χ ≈ 1 inside and 0 outside, so the outward
+/// normal is along −∇χ), and the iso-value γ. Points outside the bounding cube are clamped to
+/// it. Used by the global orientation of normals (`normals::orient`).
+pub(crate) fn implicit_gradients(
+    cloud: &PointCloud,
+    params: &Params,
+    at: &[[f64; 3]],
+) -> Result<(Vec<(f64, [f64; 3])>, f64)> {
+    let imp = solve_implicit(cloud, params, &|_| {})?;
+    let eval = Evaluator::new(&imp.tree, imp.fem, &imp.sol);
+    let samples = at
+        .par_iter()
+        .map(|p| {
+            let u: [f64; 3] =
+                std::array::from_fn(|a| ((p[a] - imp.origin[a]) / imp.width).clamp(0.0, 1.0));
+            let (v, g) = eval.value_grad(u);
+            (v, g.map(|c| c / imp.width))
+        })
+        .collect();
+    Ok((samples, imp.iso))
+}
+
 /// As [`reconstruct`], calling `progress` with the name of each stage as it starts.
 pub fn reconstruct_with_progress(
     points: &PointCloud,

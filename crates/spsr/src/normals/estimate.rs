@@ -131,9 +131,6 @@ fn fit_error(f: &Fit, k: usize) -> f64 {
 /// most `target` (the largest if none is).
 pub(crate) fn choose_k(positions: &[[f64; 3]], tree: &Tree, finite: &[u32], target: f64) -> usize {
     let (flat, errs) = probe(positions, tree, finite);
-    if std::env::var_os("SPSR_DEBUG").is_some() {
-        eprintln!("probe flatness {flat} errors {errs:?}");
-    }
     if flat <= NOISY_FLATNESS {
         return K_LADDER[0];
     }

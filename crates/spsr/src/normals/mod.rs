@@ -128,25 +128,28 @@ pub fn estimate(positions: &[[f64; 3]], params: &NormalParams) -> Result<Estimat
         None => estimate::choose_k(positions, &tree, &finite, params.target_error),
     }
     .min(finite.len() - 1);
-    let fits: Vec<[f64; 3]> = positions
+    // Fits computed in the tree's spatial order, then put in place.
+    let order = tree.points();
+    let fits: Vec<[f64; 3]> = order
         .par_iter()
-        .enumerate()
-        .map_init(Vec::new, |buf, (i, &p)| {
-            if !p.iter().all(|c| c.is_finite()) {
-                return [0.0; 3];
-            }
+        .map_init(Vec::new, |buf, &i| {
+            let p = positions[i as usize];
             tree.nearest(p, k + 1, buf);
-            if let Some(s) = buf.iter().position(|&(j, _)| j as usize == i) {
+            if let Some(s) = buf.iter().position(|&(j, _)| j == i) {
                 buf.remove(s);
             }
             buf.truncate(k);
             estimate::fit_plane(positions, p, buf).normal
         })
         .collect();
+    let mut normals = vec![[0.0; 3]; positions.len()];
+    for (&i, n) in order.iter().zip(fits) {
+        normals[i as usize] = n;
+    }
     let good: Vec<u32> = finite
         .iter()
         .copied()
-        .filter(|&i| fits[i as usize] != [0.0; 3])
+        .filter(|&i| normals[i as usize] != [0.0; 3])
         .collect();
     let degenerate = finite.len() - good.len();
     if good.is_empty() {
@@ -154,7 +157,6 @@ pub fn estimate(positions: &[[f64; 3]], params: &NormalParams) -> Result<Estimat
             "no neighbourhood spans a plane: the points lie on one line or coincide".into(),
         ));
     }
-    let mut normals = fits;
     if degenerate > 0 {
         let good_tree = Tree::new(positions, good);
         let fixes: Vec<(usize, [f64; 3])> = finite
@@ -314,8 +316,7 @@ pub fn orient(
             stats.components = prop.components;
             if let Orientation::Global { depth, rounds, .. } = how {
                 let depth = depth.unwrap_or_else(|| default_global_depth(graph.usable.len()));
-                stats.corrections =
-                    orient::correct(positions, normals, &graph, &prop, depth, *rounds)?;
+                stats.corrections = orient::correct(positions, normals, &graph, depth, *rounds)?;
             }
             stats.flipped = before
                 .iter()
