@@ -95,7 +95,7 @@ pub(crate) fn fit_plane(positions: &[[f64; 3]], p: [f64; 3], nbr: &[(u32, f64)])
     }
     let c = c.map(|x| x / n);
     let (lambda, vecs) = eigen_sym3(&c);
-    let degenerate = !(lambda[2] > 0.0) || lambda[1] <= COLLINEAR * lambda[2];
+    let degenerate = lambda[2].is_nan() || lambda[2] <= 0.0 || lambda[1] <= COLLINEAR * lambda[2];
     Fit {
         normal: if degenerate { [0.0; 3] } else { vecs[0] },
         lambda,
@@ -179,4 +179,69 @@ fn probe(positions: &[[f64; 3]], tree: &Tree, finite: &[u32]) -> (f64, Vec<f64>)
         .map(|l| median(rows.iter().map(|r| r.1[l]).collect()))
         .collect();
     (flat, errs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rotate(m: [[f64; 3]; 3], d: [f64; 3]) -> Sym3 {
+        // m · diag(d) · mᵀ
+        let a = |i: usize, j: usize| (0..3).map(|k| m[i][k] * d[k] * m[j][k]).sum::<f64>();
+        [a(0, 0), a(1, 1), a(2, 2), a(0, 1), a(0, 2), a(1, 2)]
+    }
+
+    #[test]
+    fn jacobi_recovers_eigenpairs_including_repeated_and_zero_ones() {
+        let (c, s) = (0.6f64, 0.8f64);
+        // An orthonormal basis: rotation about z then about x.
+        let rz = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]];
+        let rx = [[1.0, 0.0, 0.0], [0.0, s, -c], [0.0, c, s]];
+        let m: [[f64; 3]; 3] = std::array::from_fn(|i| {
+            std::array::from_fn(|j| (0..3).map(|k| rx[i][k] * rz[k][j]).sum())
+        });
+        for d in [
+            [3.0, 1.0, 0.5],
+            [2.0, 2.0, 0.0],
+            [0.0, 0.0, 0.0],
+            [1.0, 1.0, 1.0],
+            [5.0, 0.0, 0.0],
+        ] {
+            let (vals, vecs) = eigen_sym3(&rotate(m, d));
+            let mut want = d;
+            want.sort_by(f64::total_cmp);
+            for k in 0..3 {
+                assert!((vals[k] - want[k]).abs() < 1e-12, "{d:?}: {vals:?}");
+                let l: f64 = vecs[k].iter().map(|x| x * x).sum();
+                assert!((l - 1.0).abs() < 1e-12);
+            }
+            // Distinct smallest eigenvalue: its vector is the matching column of m.
+            if want[0] < want[1] {
+                let col = (0..3).find(|&k| d[k] == want[0]).unwrap();
+                let dotp: f64 = (0..3).map(|i| vecs[0][i] * m[i][col]).sum();
+                assert!((dotp.abs() - 1.0).abs() < 1e-12, "{d:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn plane_fit_is_exact_on_a_plane_and_degenerate_on_a_line() {
+        let n = [1.0, 2.0, 2.0].map(|c: f64| c / 3.0);
+        // Two vectors spanning the plane n · x = 0.
+        let (u, v) = ([2.0, -1.0, 0.0], [2.0, 4.0, -5.0]);
+        let pts: Vec<[f64; 3]> = (0..30)
+            .map(|i| {
+                let (a, b) = ((i % 6) as f64, (i / 6) as f64 * 0.7);
+                std::array::from_fn(|k| 1e6 + a * u[k] + b * v[k])
+            })
+            .collect();
+        let nbr: Vec<(u32, f64)> = (1..30).map(|j| (j, 0.0)).collect();
+        let f = fit_plane(&pts, pts[0], &nbr);
+        let c: f64 = (0..3).map(|k| f.normal[k] * n[k]).sum();
+        assert!((c.abs() - 1.0).abs() < 1e-12, "{f:?}");
+        let line: Vec<[f64; 3]> = (0..30).map(|i| [i as f64, 0.5 * i as f64, 3.0]).collect();
+        assert_eq!(fit_plane(&line, line[0], &nbr).normal, [0.0; 3]);
+        let same = vec![[1.0, 2.0, 3.0]; 30];
+        assert_eq!(fit_plane(&same, same[0], &nbr).normal, [0.0; 3]);
+    }
 }

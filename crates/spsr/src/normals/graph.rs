@@ -121,3 +121,33 @@ impl Forest {
         &self.adj[self.start[i] as usize..self.start[i + 1] as usize]
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kruskal_finds_the_minimum_forest_with_ties_broken_by_edge_order() {
+        // Two components: a square 0-1-2-3 with a diagonal, and the edge 4-5.
+        let edges = [(0, 1), (1, 2), (2, 3), (0, 3), (0, 2), (4, 5)];
+        let weights = [0.5, 0.1, 0.5, 0.2, 0.1, 0.0];
+        let mut chosen = spanning_forest(6, &edges, &weights);
+        chosen.sort();
+        // 5 (w 0), 1 and 4 (w 0.1), 3 (w 0.2); then every vertex is joined.
+        assert_eq!(chosen, vec![1, 3, 4, 5]);
+        let f = Forest::new(6, &edges, &chosen);
+        assert_eq!(f.of(0), &[3, 2]);
+        assert_eq!(f.of(5), &[4]);
+    }
+
+    #[test]
+    fn union_find_joins_sets() {
+        let mut s = UnionFind::new(5);
+        assert!(s.union(0, 1));
+        assert!(s.union(3, 4));
+        assert!(!s.union(1, 0));
+        assert!(s.union(1, 4));
+        assert_eq!(s.find(0), s.find(3));
+        assert_ne!(s.find(2), s.find(0));
+    }
+}

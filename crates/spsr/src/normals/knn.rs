@@ -171,3 +171,24 @@ pub(crate) fn finite_points(positions: &[[f64; 3]]) -> Vec<u32> {
         .map(|(i, _)| i as u32)
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn neighbours_are_nearest_first_symmetric_in_ties_and_skip_non_finite_points() {
+        // A 1-D lattice with a duplicate and a NaN point.
+        let mut pts: Vec<[f64; 3]> = (0..10).map(|i| [i as f64, 0.0, 0.0]).collect();
+        pts.push([3.0, 0.0, 0.0]);
+        pts.push([f64::NAN, 0.0, 0.0]);
+        let tree = Tree::new(&pts, finite_points(&pts));
+        assert_eq!(tree.len(), 11);
+        let nb = k_nearest(&pts, &tree, 3);
+        // Point 3: its duplicate (10) at 0, then 2 and 4 at distance 1, ordered by index.
+        assert_eq!(nb.of(3).collect::<Vec<_>>(), vec![10, 2, 4]);
+        assert_eq!(nb.radius[3], 1.0);
+        assert_eq!(nb.of(0).collect::<Vec<_>>(), vec![1, 2, 3]);
+        assert_eq!(nb.of(11).count(), 0);
+    }
+}

@@ -10,7 +10,7 @@
 //!   ([`Orientation::Global`]).
 //! - [`compare`] measures normals against reference normals.
 //!
-//! ```ignore
+//! ```
 //! use spsr::normals::{compare, estimate, orient, NormalParams, Orientation};
 //! // A sphere of 2000 points, without normals.
 //! let ga = std::f64::consts::PI * (3.0 - 5f64.sqrt());
@@ -26,7 +26,7 @@
 //! let c = compare(&normals, &pts)?; // on the unit sphere the position is the outward normal
 //! assert!(c.flipped_fraction == 0.0 && c.mean_angle_deg < 2.0);
 //! # Ok::<(), spsr::Error>(())
-//! ```ignore
+//! ```
 //!
 //! Everything here works on plain slices of positions and normals, so that it is independent of
 //! file formats. Results do not depend on the number of threads.

@@ -327,18 +327,18 @@ pub(crate) fn correct(
                 ]
             })
             .collect();
-        let (vals, _) = crate::reconstruct::implicit_gradients(&cloud, &params, &at)?;
+        let vals = crate::reconstruct::implicit_gradients(&cloud, &params, &at)?.values;
         drop(cloud);
-        let mut steps: Vec<f64> = vals.chunks(2).map(|v| v[0].0 - v[1].0).collect();
+        let mut steps: Vec<f64> = vals.chunks(2).map(|v| v[0] - v[1]).collect();
         let mid = steps.len() / 2;
         let a = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
-        if !(a > 0.0) {
+        if a.is_nan() || a <= 0.0 {
             break;
         }
         // +1 where the indicator agrees with the normal, −1 where it does not.
         let mut says = vec![0.0f64; positions.len()];
         for (&i, v) in u.iter().zip(vals.chunks(2)) {
-            says[i as usize] = if verdict(v[0].0, v[1].0, a) == Verdict::Right {
+            says[i as usize] = if verdict(v[0], v[1], a) == Verdict::Right {
                 1.0
             } else {
                 -1.0
@@ -374,4 +374,23 @@ pub(crate) fn correct(
         }
     }
     Ok(flips)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn verdicts_follow_the_indicator_around_the_point() {
+        let a = 1.0;
+        assert_eq!(verdict(1.0, 0.0, a), Verdict::Right);
+        // A noisy point just inside or outside the solid.
+        assert_eq!(verdict(1.0, 0.8, a), Verdict::Right);
+        assert_eq!(verdict(0.2, 0.0, a), Verdict::Right);
+        // A thin part thinner than the probe offset.
+        assert_eq!(verdict(0.1, -0.2, a), Verdict::Right);
+        assert_eq!(verdict(0.0, 1.0, a), Verdict::Reversed);
+        assert_eq!(verdict(2.0, 1.0, a), Verdict::Doubled);
+        assert_eq!(verdict(0.0, -1.0, a), Verdict::Inverted);
+    }
 }

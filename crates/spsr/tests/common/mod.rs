@@ -57,6 +57,7 @@ pub fn torus(n: usize, big: f64, small: f64, seed: u64) -> PointCloud {
     PointCloud::new(pos, nor).unwrap()
 }
 
+#[allow(unused_imports)]
 pub use spsr::metrics::MeshDistance;
 
 /// Asserts the mesh is a closed, oriented 2-manifold; returns its topology.
