@@ -112,6 +112,34 @@ fn synthetic(spec: &str) -> Result<PointCloud, Box<dyn std::error::Error>> {
     Ok(PointCloud::new(pos, nor)?)
 }
 
+/// Positions from an ASCII PLY whose vertices have no normals (the raw Stanford range scans):
+/// the first three numbers of each vertex line.
+fn read_ascii_positions(path: &str) -> Result<Vec<[f64; 3]>, Box<dyn std::error::Error>> {
+    let text = std::fs::read_to_string(path)?;
+    let mut lines = text.lines();
+    let mut count = None;
+    for line in lines.by_ref() {
+        if let Some(n) = line.strip_prefix("element vertex ") {
+            count = Some(n.trim().parse::<usize>()?);
+        }
+        if line.trim() == "end_header" {
+            break;
+        }
+    }
+    let count = count.ok_or("no vertex element")?;
+    lines
+        .take(count)
+        .map(|l| {
+            let v: Vec<f64> = l
+                .split_whitespace()
+                .take(3)
+                .map(str::parse)
+                .collect::<Result<_, _>>()?;
+            Ok([v[0], v[1], v[2]])
+        })
+        .collect()
+}
+
 fn peak_rss_mib() -> f64 {
     spsr_peak_rss().map_or(f64::NAN, |b| b as f64 / (1u64 << 20) as f64)
 }
@@ -137,6 +165,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut samples = 200_000;
     let mut neighbours = None;
     let mut threads = 0;
+    let mut reference_viewpoint = None;
     let mut it = args[3..].iter();
     while let Some(a) = it.next() {
         let v = it.next().ok_or(format!("{a} needs a value"))?;
@@ -146,6 +175,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--samples" => samples = v.parse()?,
             "--neighbours" => neighbours = Some(v.parse()?),
             "--threads" => threads = v.parse()?,
+            "--reference-viewpoint" => reference_viewpoint = Some(v.clone()),
             _ => return Err(format!("unknown option {a}").into()),
         }
     }
@@ -156,7 +186,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let t = Instant::now();
     let cloud = match args[1].strip_prefix("synth:") {
         Some(spec) => synthetic(spec)?,
-        None => spsr::io::read_points(args[1].as_ref())?,
+        None => match spsr::io::read_points(args[1].as_ref()) {
+            Err(spsr::Error::MissingNormals { .. }) => {
+                // No reference normals: the estimated normals oriented towards the sensor
+                // (--reference-viewpoint) serve as the reference.
+                let pos = read_ascii_positions(&args[1])?;
+                let v = parse3(
+                    reference_viewpoint
+                        .as_deref()
+                        .ok_or("the points have no normals: give --reference-viewpoint x,y,z")?,
+                )?;
+                let mut n = estimate(&pos, &NormalParams::default())?.normals;
+                orient(&pos, &mut n, &Orientation::Viewpoint([v[0], v[1], v[2]]))?;
+                PointCloud::new(pos, n)?
+            }
+            other => other?,
+        },
     };
     let t_read = t.elapsed().as_secs_f64();
     let reference = cloud.normals.clone();

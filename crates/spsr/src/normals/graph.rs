@@ -63,20 +63,23 @@ impl UnionFind {
     }
 }
 
-/// The minimum spanning forest of `n` vertices and weighted `edges` (weights ≥ 0, not NaN),
-/// by Kruskal's algorithm. Ties are broken by the edges' order in `edges`, so the forest is
-/// unique and does not depend on the thread count. Returns the indices of the chosen edges.
-pub(crate) fn spanning_forest(n: usize, edges: &[(u32, u32)], weights: &[f64]) -> Vec<u32> {
-    let mut order: Vec<(u64, u32)> = weights
+/// The minimum spanning forest of `n` vertices and weighted `edges` (weights ≥ 0, not NaN;
+/// fewer than 2³² edges), by Kruskal's algorithm. Ties are broken by the edges' order in
+/// `edges`, so the forest is unique and does not depend on the thread count. Returns the
+/// indices of the chosen edges.
+pub(crate) fn spanning_forest(n: usize, edges: &[(u32, u32)], weights: &[f32]) -> Vec<u32> {
+    // One 64-bit key per edge: the weight's bits (non-negative floats order like their bit
+    // patterns), then the edge's index.
+    let mut order: Vec<u64> = weights
         .par_iter()
         .enumerate()
-        // Non-negative floats order like their bit patterns.
-        .map(|(e, w)| (w.max(0.0).to_bits(), e as u32))
+        .map(|(e, w)| (u64::from(w.max(0.0).to_bits()) << 32) | e as u64)
         .collect();
     order.par_sort_unstable();
     let mut sets = UnionFind::new(n);
     let mut chosen = Vec::with_capacity(n.saturating_sub(1));
-    for (_, e) in order {
+    for key in order {
+        let e = key as u32;
         let (a, b) = edges[e as usize];
         if sets.union(a, b) {
             chosen.push(e);
@@ -130,7 +133,7 @@ mod tests {
     fn kruskal_finds_the_minimum_forest_with_ties_broken_by_edge_order() {
         // Two components: a square 0-1-2-3 with a diagonal, and the edge 4-5.
         let edges = [(0, 1), (1, 2), (2, 3), (0, 3), (0, 2), (4, 5)];
-        let weights = [0.5, 0.1, 0.5, 0.2, 0.1, 0.0];
+        let weights = [0.5f32, 0.1, 0.5, 0.2, 0.1, 0.0];
         let mut chosen = spanning_forest(6, &edges, &weights);
         chosen.sort();
         // 5 (w 0), 1 and 4 (w 0.1), 3 (w 0.2); then every vertex is joined.

@@ -29,7 +29,42 @@
 //! ```
 //!
 //! Everything here works on plain slices of positions and normals, so that it is independent of
-//! file formats. Results do not depend on the number of threads.
+//! file formats. Results do not depend on the number of threads: every parallel loop writes
+//! its own outputs, sorts use total orders, and sums run in a fixed order.
+//!
+//! ## How it works
+//!
+//! **Neighbours.** An immutable k-d tree (`kiddo`) over the finite points; queries run in
+//! Z-order (Morton order) of the points, which keeps consecutive queries in the same part of
+//! the tree. Ties in distance are ordered by point index.
+//!
+//! **Estimation.** The normal line of a point is the eigenvector of the smallest eigenvalue of
+//! the covariance of the point and its k nearest neighbours (cyclic Jacobi rotations). The
+//! size k is chosen from the noise ([`NormalParams::neighbours`]). A neighbourhood whose
+//! points all coincide or lie on one line has no such direction: its point takes the normal
+//! of the nearest point whose neighbourhood is a proper plane fit.
+//!
+//! **Propagation ([`Orientation::Mst`]).** The graph joins every point to its 10 nearest
+//! neighbours (symmetrised). Its minimum spanning forest under the weights `1 − |n_i · n_j|`
+//! (Kruskal: one parallel sort of the edges by weight and index, then a union–find) hands the
+//! orientation from point to point along the edges whose normals are most nearly parallel.
+//! Each connected piece is then turned so that `Σ a_i (p_i − g) · n_i > 0`, with `a_i` the
+//! area a point stands for and `g` the centroid of the cloud: for a closed surface this sum
+//! is three times the enclosed volume when the normals point out (the divergence theorem),
+//! whatever `g`. Memory is linear in the number of points (the graph holds about 6 edges per
+//! point); no step is quadratic.
+//!
+//! **Global correction ([`Orientation::Global`]).** Propagation cannot tell two nearby sheets
+//! apart when the neighbour graph joins them (or when each is a piece of its own): the two
+//! sides of a thin part, nested surfaces. The correction reconstructs the indicator
+//! function χ from the current normals by the Poisson solver of this crate, without screening
+//! and with χ = 0 on the boundary of the cube, so that χ is a smoothed winding-number field
+//! of the oriented points (about A inside, 0 outside). It samples χ just behind and just in
+//! front of every point and flips the normals whose neighbourhood mostly finds the indicator
+//! stepping the wrong way, the front inside a region counted twice, or the back outside a
+//! region counted negatively (see `orient::correct`). This repeats, with a fresh
+//! reconstruction each round, until a round flips nothing or after
+//! `rounds` rounds; each normal flips at most once.
 
 mod estimate;
 mod graph;

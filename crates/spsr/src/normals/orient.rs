@@ -139,10 +139,10 @@ pub(crate) fn propagate(
 ) -> Propagation {
     let n = positions.len();
     let units: Vec<[f64; 3]> = normals.par_iter().map(|&v| unit(v)).collect();
-    let weights: Vec<f64> = graph
+    let weights: Vec<f32> = graph
         .edges
         .par_iter()
-        .map(|&(i, j)| 1.0 - dot(units[i as usize], units[j as usize]).abs().min(1.0))
+        .map(|&(i, j)| (1.0 - dot(units[i as usize], units[j as usize]).abs().min(1.0)) as f32)
         .collect();
     let chosen = spanning_forest(n, &graph.edges, &weights);
     let forest = Forest::new(n, &graph.edges, &chosen);
