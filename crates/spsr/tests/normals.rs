@@ -167,6 +167,16 @@ fn viewpoint_and_scan_origins_orient_towards_the_sensor() {
     let c = compare(&n, &nor).unwrap();
     assert_eq!(c.flipped_fraction, 0.0, "{c:?}");
 
+    // Without a viewpoint an open sheet has no outside; the global correction must at least
+    // keep it consistent (all one way).
+    let mut n = est.normals.clone();
+    orient(&pos, &mut n, &Orientation::global()).unwrap();
+    let c = compare(&n, &nor).unwrap();
+    assert!(
+        c.flipped_fraction.min(1.0 - c.flipped_fraction) == 0.0,
+        "{c:?}"
+    );
+
     // The same points as two scans: the first half seen from above, the second from below,
     // so the second half's normals must point down.
     let half = pos.len() / 2;

@@ -231,6 +231,9 @@ const PROBE_MAX_CELLS: f64 = 8.0;
 /// the probes stand off, so that a point displaced by noise still has its front outside.
 const PROBE_SPREADS: f64 = 5.0;
 
+/// The global correction stops after a round that flipped at most one normal in this many.
+const SETTLED: usize = 10_000;
+
 /// Scale of the bounding cube of the global correction's reconstructions (more room than the
 /// reconstruction default 1.1, since the boundary holds χ at 0).
 const GLOBAL_SCALE: f64 = 1.25;
@@ -253,7 +256,9 @@ fn verdict(b: f64, f: f64, a: f64) -> Verdict {
         Verdict::Reversed
     } else if f > 0.5 * a && b - f > 0.5 * a {
         Verdict::Doubled
-    } else if b < 0.5 * a && f < -0.5 * a {
+    } else if b < 0.25 * a && f < -0.5 * a {
+        // Stricter on the back than the front: an open sheet, correctly oriented, has its
+        // winding-number field at about ±A/2 on its two sides.
         Verdict::Inverted
     } else {
         Verdict::Right
@@ -274,7 +279,8 @@ fn verdict(b: f64, f: f64, a: f64) -> Verdict {
 ///   negative solid: a whole part turned inside out.
 ///
 /// A is the median step `b − f` over all points (most normals are right after propagation).
-/// Stops after `rounds` rounds or when a round flips nothing. Returns the flips per round.
+/// Stops after `rounds` rounds or after a round that flipped at most one normal in
+/// [`SETTLED`]. Returns the flips per round.
 pub(crate) fn correct(
     positions: &[[f64; 3]],
     normals: &mut [[f64; 3]],
@@ -369,7 +375,8 @@ pub(crate) fn correct(
             done[i as usize] = true;
         }
         flips.push(wrong.len());
-        if wrong.is_empty() {
+        // A round that changed almost nothing would be followed by one that changes nothing.
+        if wrong.len() * SETTLED <= u.len() {
             break;
         }
     }
@@ -392,5 +399,7 @@ mod tests {
         assert_eq!(verdict(0.0, 1.0, a), Verdict::Reversed);
         assert_eq!(verdict(2.0, 1.0, a), Verdict::Doubled);
         assert_eq!(verdict(0.0, -1.0, a), Verdict::Inverted);
+        // An open sheet: half a step on either side.
+        assert_eq!(verdict(0.5, -0.5, a), Verdict::Right);
     }
 }
