@@ -70,36 +70,103 @@ const COLLINEAR: f64 = 1e-6;
 /// Fits a plane to `p` and the points `nbr` (offsets are taken from `p` so that large
 /// coordinates lose no precision).
 pub(crate) fn fit_plane(positions: &[[f64; 3]], p: [f64; 3], nbr: &[(u32, f64)]) -> Fit {
-    let n = nbr.len() as f64 + 1.0;
+    weighted_fit(positions, p, nbr, |_| 1.0)
+}
+
+/// As [`fit_plane`], with weight `w(k)` for the `k`-th neighbour (the point itself has 1).
+fn weighted_fit(
+    positions: &[[f64; 3]],
+    p: [f64; 3],
+    nbr: &[(u32, f64)],
+    w: impl Fn(usize) -> f64,
+) -> Fit {
+    let mut total = 1.0;
     let mut mean = [0.0; 3];
-    for &(j, _) in nbr {
+    for (k, &(j, _)) in nbr.iter().enumerate() {
         let q = positions[j as usize];
+        let wk = w(k);
+        total += wk;
         for a in 0..3 {
-            mean[a] += q[a] - p[a];
+            mean[a] += wk * (q[a] - p[a]);
         }
     }
-    let mean = mean.map(|m| m / n);
+    let mean = mean.map(|m| m / total);
     let mut c: Sym3 = [0.0; 6];
-    let mut add = |d: [f64; 3]| {
-        c[0] += d[0] * d[0];
-        c[1] += d[1] * d[1];
-        c[2] += d[2] * d[2];
-        c[3] += d[0] * d[1];
-        c[4] += d[0] * d[2];
-        c[5] += d[1] * d[2];
+    let mut add = |d: [f64; 3], wk: f64| {
+        c[0] += wk * d[0] * d[0];
+        c[1] += wk * d[1] * d[1];
+        c[2] += wk * d[2] * d[2];
+        c[3] += wk * d[0] * d[1];
+        c[4] += wk * d[0] * d[2];
+        c[5] += wk * d[1] * d[2];
     };
-    add([-mean[0], -mean[1], -mean[2]]);
-    for &(j, _) in nbr {
+    add([-mean[0], -mean[1], -mean[2]], 1.0);
+    for (k, &(j, _)) in nbr.iter().enumerate() {
         let q = positions[j as usize];
-        add(std::array::from_fn(|a| q[a] - p[a] - mean[a]));
+        add(std::array::from_fn(|a| q[a] - p[a] - mean[a]), w(k));
     }
-    let c = c.map(|x| x / n);
+    let c = c.map(|x| x / total);
     let (lambda, vecs) = eigen_sym3(&c);
     let degenerate = lambda[2].is_nan() || lambda[2] <= 0.0 || lambda[1] <= COLLINEAR * lambda[2];
     Fit {
         normal: if degenerate { [0.0; 3] } else { vecs[0] },
         lambda,
     }
+}
+
+/// Reweighting rounds of [`refine`]; measured, the angles settle after 4–5.
+const REFINE_ROUNDS: usize = 5;
+
+/// Width of the Gaussian weight of [`refine`], in robust scales of the residuals. Measured
+/// (mean angle to the true normals): narrower weights follow facets and creases more closely
+/// (fandisk 2.1° at 2, 1.5° at 0.5, 2.7° without refinement) but lose accuracy on smooth
+/// and scanned surfaces (torus 0.39° at 2, 0.54° at 0.5, 0.33° without; kitten 2.0°, 2.5°,
+/// 2.2°); 2 improves all but the analytic shapes.
+const REFINE_WIDTH: f64 = 2.0;
+
+/// Refits the plane of a clean neighbourhood with the neighbours weighted by how well they
+/// lie on the plane through the point itself (iteratively reweighted least squares with a
+/// Gaussian weight whose width follows the median residual). Where the neighbourhood spans a
+/// crease, or several facets of a faceted surface, the fit settles on the piece the point is
+/// on instead of averaging the pieces; on a smooth surface it leans towards the nearest
+/// neighbours. Keeps the previous normal if a refit degenerates.
+pub(crate) fn refine(
+    positions: &[[f64; 3]],
+    p: [f64; 3],
+    nbr: &[(u32, f64)],
+    fit: Fit,
+) -> [f64; 3] {
+    let mut n = fit.normal;
+    if n == [0.0; 3] || nbr.is_empty() {
+        return n;
+    }
+    let radius = nbr.iter().map(|e| e.1).fold(0.0, f64::max).sqrt();
+    let mut r: Vec<f64> = vec![0.0; nbr.len()];
+    let mut abs: Vec<f64> = vec![0.0; nbr.len()];
+    for _ in 0..REFINE_ROUNDS {
+        for (k, &(j, _)) in nbr.iter().enumerate() {
+            let q = positions[j as usize];
+            r[k] = (q[0] - p[0]) * n[0] + (q[1] - p[1]) * n[1] + (q[2] - p[2]) * n[2];
+            abs[k] = r[k].abs();
+        }
+        let m = abs.len() / 2;
+        let mad = *abs.select_nth_unstable_by(m, f64::total_cmp).1;
+        // Robust scale of the residuals (1.4826 × median for a normal distribution), kept
+        // above rounding level.
+        let h = (1.4826 * mad).max(1e-9 * radius);
+        let width = REFINE_WIDTH * h;
+        let f = weighted_fit(positions, p, nbr, |k| (-0.5 * (r[k] / width).powi(2)).exp());
+        if f.normal == [0.0; 3] {
+            break;
+        }
+        let s = if f.normal[0] * n[0] + f.normal[1] * n[1] + f.normal[2] * n[2] < 0.0 {
+            -1.0
+        } else {
+            1.0
+        };
+        n = f.normal.map(|c| s * c);
+    }
+    n
 }
 
 /// Ladder of neighbourhood sizes the automatic choice picks from; the first is the size for
@@ -129,16 +196,22 @@ fn fit_error(f: &Fit, k: usize) -> f64 {
 /// The automatic neighbourhood size: the first of [`K_LADDER`] for clean clouds; for noisy
 /// ones (see [`NOISY_FLATNESS`]) the smallest whose median estimated angular error is at
 /// most `target` (the largest if none is).
-pub(crate) fn choose_k(positions: &[[f64; 3]], tree: &Tree, finite: &[u32], target: f64) -> usize {
+/// Also says whether the cloud is clean.
+pub(crate) fn choose_k(
+    positions: &[[f64; 3]],
+    tree: &Tree,
+    finite: &[u32],
+    target: f64,
+) -> (usize, bool) {
     let (flat, errs) = probe(positions, tree, finite);
     if flat <= NOISY_FLATNESS {
-        return K_LADDER[0];
+        return (K_LADDER[0], true);
     }
     let l = errs
         .iter()
         .position(|&e| e <= target)
         .unwrap_or(K_LADDER.len() - 1);
-    K_LADDER[l]
+    (K_LADDER[l], false)
 }
 
 /// On a fixed sample of points: the median flatness `λ0/λ1` of the smallest neighbourhoods,

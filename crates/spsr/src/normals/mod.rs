@@ -40,7 +40,10 @@
 //!
 //! **Estimation.** The normal line of a point is the eigenvector of the smallest eigenvalue of
 //! the covariance of the point and its k nearest neighbours (cyclic Jacobi rotations). The
-//! size k is chosen from the noise ([`NormalParams::neighbours`]). A neighbourhood whose
+//! size k is chosen from the noise ([`NormalParams::neighbours`]). On clean clouds the fit is
+//! refined by iteratively reweighted least squares, the weights falling with the distance of
+//! each neighbour from the plane through the point (Gaussian, width twice the robust scale
+//! of those distances), so that a point near a crease fits its own side. A neighbourhood whose
 //! points all coincide or lie on one line has no such direction: its point takes the normal
 //! of the nearest point whose neighbourhood is a proper plane fit.
 //!
@@ -124,6 +127,11 @@ pub const MIN_POINTS: usize = 3;
 
 /// Estimates a normal line at every point from a plane fitted to its nearest neighbours.
 ///
+/// On clouds classified as clean (see [`NormalParams::neighbours`]) each fit is then
+/// refined by reweighting the neighbours by their distance to the plane through the point,
+/// which keeps creases and facets from being averaged away; on noisy clouds that would follow
+/// the noise, so the plain fit stands.
+///
 /// Points with a non-finite coordinate are skipped: they are nobody's neighbour and get the
 /// zero normal (which the reconstruction then drops). A point whose neighbourhood spans no
 /// plane (all its neighbours coincide with it or lie on one line) takes the normal of the
@@ -158,11 +166,9 @@ pub fn estimate(positions: &[[f64; 3]], params: &NormalParams) -> Result<Estimat
         });
     }
     let tree = Tree::new(positions, finite.clone());
-    let k = match params.neighbours {
-        Some(k) => k,
-        None => estimate::choose_k(positions, &tree, &finite, params.target_error),
-    }
-    .min(finite.len() - 1);
+    let (auto_k, clean) = estimate::choose_k(positions, &tree, &finite, params.target_error);
+    let k = params.neighbours.unwrap_or(auto_k).min(finite.len() - 1);
+    let refine = clean;
     // Fits computed in the tree's spatial order, then put in place.
     let order = tree.points();
     let fits: Vec<[f64; 3]> = order
@@ -174,7 +180,12 @@ pub fn estimate(positions: &[[f64; 3]], params: &NormalParams) -> Result<Estimat
                 buf.remove(s);
             }
             buf.truncate(k);
-            estimate::fit_plane(positions, p, buf).normal
+            let fit = estimate::fit_plane(positions, p, buf);
+            if refine {
+                estimate::refine(positions, p, buf, fit)
+            } else {
+                fit.normal
+            }
         })
         .collect();
     let mut normals = vec![[0.0; 3]; positions.len()];
