@@ -94,7 +94,10 @@ pub struct NormalParams {
     /// The angular error (radians) of the plane fits that the automatic neighbourhood size
     /// aims at on noisy clouds, as estimated from the spread of the points: noise σ across a
     /// disc of radius r and k points tilts the fitted plane by about `2σ / (r √k)`. Default
-    /// 0.05, which on the noisy bunny sets picks the size within 0.5° of the most accurate.
+    /// 0.03. Measured on the bunny with noise of 0.25 % and 0.5 % of its diagonal, it picks
+    /// 128 and 192 neighbours, whose normals give the reconstructions closest to the true
+    /// surface (4 % and 3 % closer than with 64 and 128 neighbours, which are the sizes of
+    /// smallest angle to the sets' own, perturbed, normals).
     pub target_error: f64,
 }
 
@@ -102,7 +105,7 @@ impl Default for NormalParams {
     fn default() -> Self {
         Self {
             neighbours: None,
-            target_error: 0.05,
+            target_error: 0.03,
         }
     }
 }
