@@ -252,6 +252,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let c = compare(&normals, &reference)?;
         out.extend([
             format!("\"neighbours\": {}", est.neighbours),
+            format!("\"noisy\": {}", est.noisy),
             format!("\"degenerate\": {}", est.degenerate),
             format!("\"components\": {}", stats.components),
             format!("\"corrections\": {:?}", stats.corrections),

@@ -120,7 +120,7 @@ fn noisy_sphere_gets_larger_neighbourhoods_and_stays_oriented() {
         .map(|p| p.map(|c| c + sigma * gaussian(&mut rng)))
         .collect();
     let est = estimate(&noisy, &NormalParams::default()).unwrap();
-    assert!(est.neighbours > 16, "chose {}", est.neighbours);
+    assert!(est.noisy && est.neighbours > 16, "chose {}", est.neighbours);
     let at16 = estimate(
         &noisy,
         &NormalParams {
@@ -162,6 +162,7 @@ fn viewpoint_and_scan_origins_orient_towards_the_sensor() {
         nor.push([-g[0] / l, -g[1] / l, 1.0 / l]);
     }
     let est = estimate(&pos, &NormalParams::default()).unwrap();
+    assert!(!est.noisy && est.neighbours == 16);
     let mut n = est.normals.clone();
     orient(&pos, &mut n, &Orientation::Viewpoint([0.2, -0.1, 3.0])).unwrap();
     let c = compare(&n, &nor).unwrap();

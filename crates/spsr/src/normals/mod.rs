@@ -118,6 +118,9 @@ pub struct Estimated {
     pub normals: Vec<[f64; 3]>,
     /// Neighbours used in each plane fit.
     pub neighbours: usize,
+    /// Whether the cloud was classified as noisy (its smallest neighbourhoods are thick; see
+    /// [`NormalParams::neighbours`]); the fits of noisy clouds are not refined.
+    pub noisy: bool,
     /// Points whose neighbourhood was degenerate (all neighbours coincident or on one line);
     /// each took the normal of the nearest point whose neighbourhood was not.
     pub degenerate: usize,
@@ -223,6 +226,7 @@ pub fn estimate(positions: &[[f64; 3]], params: &NormalParams) -> Result<Estimat
     Ok(Estimated {
         normals,
         neighbours: k,
+        noisy: !clean,
         degenerate,
         non_finite,
     })
