@@ -159,7 +159,18 @@ def main():
     ap.add_argument("--no-open3d", action="store_true")
     ap.add_argument("--timeout", type=int, default=1800)
     ap.add_argument("--log", default=os.path.join(ROOT, "bench", "normals", "results.jsonl"))
+    ap.add_argument("--table", action="store_true",
+                    help="only print the table of the log's latest row per input and method")
     args = ap.parse_args()
+    if args.table:
+        results = {}
+        with open(args.log) as log:
+            for line in log:
+                r = json.loads(line)
+                results.setdefault(r["name"], {})[r["method"]] = r
+        order = [n for n in INPUTS if n in results]
+        print(table({n: results[n] for n in order}))
+        return
     methods = [m for m in args.methods if not (args.no_open3d and m == "open3d")]
     if not os.path.exists(BENCH):
         sys.exit("build first: cargo build --release --example normals_bench")
