@@ -86,6 +86,13 @@ def measure(name, methods, timeout, log):
     rel, gt, extra = INPUTS[name]
     src = path_of(rel)
     rows = {}
+    tmpdir = tempfile.TemporaryDirectory()
+    o3d_src = src
+    if rel.startswith("synth:") or "--reference-viewpoint" in extra:
+        # Open3D reads the same points and reference normals from a file.
+        o3d_src = os.path.join(tmpdir.name, "input.ply")
+        subprocess.run([BENCH, src, "true", "--write-input", o3d_src] + extra, check=True,
+                       capture_output=True)
     for m in methods:
         if m == "true" and gt is None:
             continue
@@ -99,7 +106,7 @@ def measure(name, methods, timeout, log):
             with tempfile.TemporaryDirectory() as tmp:
                 oriented = os.path.join(tmp, "o3d.ply")
                 r = run_json([VENV, os.path.join(ROOT, "bench", "normals", "open3d_normals.py"),
-                              src, "--out", oriented], timeout)
+                              o3d_src, "--out", oriented], timeout)
                 if "error" not in r and gt is not None:
                     d = run_json([BENCH, oriented, "true"] + gt_arg(gt), timeout)
                     for k in ("mesh_to_gt", "gt_to_mesh", "chamfer", "components_mesh"):
@@ -113,6 +120,7 @@ def measure(name, methods, timeout, log):
         print(name, m, {k: r.get(k) for k in ("oriented_pct", "mean_angle_deg", "normals_s",
                                                "peak_rss_mib", "chamfer", "gt_to_mesh", "error")},
               flush=True)
+    tmpdir.cleanup()
     return rows
 
 

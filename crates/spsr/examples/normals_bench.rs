@@ -7,7 +7,11 @@
 //! ```
 //!
 //! MODE is `mst`, `global`, `viewpoint:x,y,z`, or `true` (the file's own normals, to measure
-//! the reconstruction they give). The file's normals are ignored for estimation. Prints one
+//! the reconstruction they give). POINTS may also be `synth:shell:N:GAP` or
+//! `synth:plate:N:T` (generated, exact normals), or an ASCII PLY without normals together
+//! with `--reference-viewpoint x,y,z` (the estimated normals turned towards that point are
+//! the reference). `--write-input PATH` writes the points and reference normals as binary PLY
+//! for other tools. The file's normals are ignored for estimation. Prints one
 //! JSON line: orientation agreement with the file's normals, mean angle, stage times, peak
 //! resident memory of the process, and with `--gt` the distances from a depth-D
 //! reconstruction to the ground truth (mean over N area-uniform samples in each direction).
@@ -140,6 +144,25 @@ fn read_ascii_positions(path: &str) -> Result<Vec<[f64; 3]>, Box<dyn std::error:
         .collect()
 }
 
+/// Writes positions and reference normals as binary little-endian PLY (float32), the shared
+/// data's format, so that other tools can read the same input.
+fn write_points(path: &str, cloud: &PointCloud) -> Result<(), Box<dyn std::error::Error>> {
+    let mut out = format!(
+        "ply\nformat binary_little_endian 1.0\nelement vertex {}\n\
+         property float x\nproperty float y\nproperty float z\n\
+         property float nx\nproperty float ny\nproperty float nz\nend_header\n",
+        cloud.len()
+    )
+    .into_bytes();
+    for (p, n) in cloud.positions.iter().zip(&cloud.normals) {
+        for v in p.iter().chain(n) {
+            out.extend_from_slice(&(*v as f32).to_le_bytes());
+        }
+    }
+    std::fs::write(path, out)?;
+    Ok(())
+}
+
 fn peak_rss_mib() -> f64 {
     spsr_peak_rss().map_or(f64::NAN, |b| b as f64 / (1u64 << 20) as f64)
 }
@@ -166,6 +189,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut neighbours = None;
     let mut threads = 0;
     let mut reference_viewpoint = None;
+    let mut write_input = None;
     let mut it = args[3..].iter();
     while let Some(a) = it.next() {
         let v = it.next().ok_or(format!("{a} needs a value"))?;
@@ -176,6 +200,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--neighbours" => neighbours = Some(v.parse()?),
             "--threads" => threads = v.parse()?,
             "--reference-viewpoint" => reference_viewpoint = Some(v.clone()),
+            "--write-input" => write_input = Some(v.clone()),
             _ => return Err(format!("unknown option {a}").into()),
         }
     }
@@ -205,6 +230,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let t_read = t.elapsed().as_secs_f64();
     let reference = cloud.normals.clone();
+    if let Some(path) = write_input {
+        write_points(&path, &cloud)?;
+    }
     let mut out = vec![
         format!("\"input\": \"{}\"", args[1]),
         format!("\"points\": {}", cloud.len()),
