@@ -256,7 +256,10 @@ pub enum Orientation {
         /// Neighbours of each point in the graph, as for [`Orientation::Mst`]. Default 10.
         neighbours: usize,
         /// Octree depth of the reconstructions; `None` (default) picks it from the number of
-        /// points (see [`default_global_depth`]).
+        /// points (see [`default_global_depth`]), and on noisy clouds one level coarser for
+        /// each halving until the finest cells are at least as wide as the typical distance of
+        /// the points from their neighbours' tangent planes (measured on the bunny with noise
+        /// of 0.5 % of its diagonal: depth 7 corrects, depth 8 and 9 follow the noise).
         depth: Option<u32>,
         /// Most correction rounds; a round that flips at most one normal in 10,000 ends the
         /// correction earlier. Default 4: measured, later rounds flip next to nothing.
@@ -293,9 +296,10 @@ pub struct OrientStats {
     pub corrections: Vec<usize>,
 }
 
-/// The default depth of the [`Orientation::Global`] reconstructions for `n` points: enough
-/// that a reconstruction's finest cells are about as wide as the spacing of the points on a
-/// compact surface (`n ≈ 1.5 × 4^depth`), between 6 and 9.
+/// The default depth of the [`Orientation::Global`] reconstructions for `n` points on a clean
+/// surface: enough that a reconstruction's finest cells are about as wide as the spacing of
+/// the points on a compact surface (`n ≈ 1.5 × 4^depth`), between 6 and 9 (deeper costs
+/// more time than it corrects).
 pub fn default_global_depth(n: usize) -> u32 {
     let d = ((n as f64 / 1.5).max(1.0).log2() / 2.0).round() as u32;
     d.clamp(6, 9)
@@ -369,8 +373,7 @@ pub fn orient(
             orient::outward(positions, normals, &graph, &prop.component, prop.components);
             stats.components = prop.components;
             if let Orientation::Global { depth, rounds, .. } = how {
-                let depth = depth.unwrap_or_else(|| default_global_depth(graph.usable.len()));
-                stats.corrections = orient::correct(positions, normals, &graph, depth, *rounds)?;
+                stats.corrections = orient::correct(positions, normals, &graph, *depth, *rounds)?;
             }
             stats.flipped = before
                 .iter()

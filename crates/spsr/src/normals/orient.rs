@@ -231,6 +231,9 @@ const PROBE_MAX_CELLS: f64 = 8.0;
 /// the probes stand off, so that a point displaced by noise still has its front outside.
 const PROBE_SPREADS: f64 = 5.0;
 
+/// Coarsest default depth of the global correction's reconstructions.
+const MIN_GLOBAL_DEPTH: u32 = 6;
+
 /// The global correction stops after a round that flipped at most one normal in this many.
 const SETTLED: usize = 10_000;
 
@@ -269,15 +272,17 @@ fn verdict(b: f64, f: f64, a: f64) -> Verdict {
 /// checking every normal against the indicator function χ sampled just behind (`b`) and in
 /// front (`f`) of its point. With the solid's χ = A inside and 0 outside (Dirichlet boundary,
 /// no screening, so χ is a smoothed winding-number field of the oriented points), a correct
-/// normal has `b ≈ A`, `f ≈ 0`. A normal is flipped when
+/// normal has `b ≈ A`, `f ≈ 0`; [`verdict`] names what else it can find:
 /// - `b < f`: the indicator steps the wrong way across the point (a wrongly oriented patch
 ///   smaller than the probe offset, whose own contribution is outweighed by its surroundings);
-/// - the mean `m = (b + f)/2 > A`: the point's front lies inside the solid, with the region
+/// - `f > A/2` with a full step behind: the point's front lies inside the solid, the region
 ///   behind it counted twice. This is the mark of a sheet oriented like a nearby sheet it
 ///   should oppose (the two sides of a thin part, nested surfaces);
-/// - `m < 0`: the region behind the point is outside, with the region in front counted as a
+/// - `f < −A/2` and `b < A/4`: the region behind the point is outside and the one in front a
 ///   negative solid: a whole part turned inside out.
 ///
+/// A normal flips when the verdicts of its neighbourhood (its own and its graph neighbours',
+/// each counted with the sign of their relative orientation) mostly say it is wrong.
 /// A is the median step `b − f` over all points (most normals are right after propagation).
 /// Stops after `rounds` rounds or after a round that flipped at most one normal in
 /// [`SETTLED`]. Returns the flips per round.
@@ -285,7 +290,7 @@ pub(crate) fn correct(
     positions: &[[f64; 3]],
     normals: &mut [[f64; 3]],
     graph: &Graph,
-    depth: u32,
+    depth: Option<u32>,
     rounds: u32,
 ) -> crate::Result<Vec<usize>> {
     let u = &graph.usable;
@@ -298,7 +303,18 @@ pub(crate) fn correct(
         }
     }
     let side = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
-    let cell = side * GLOBAL_SCALE / (1u64 << depth) as f64;
+    let cell_at = |d: u32| side * GLOBAL_SCALE / (1u64 << d) as f64;
+    let depth = depth.unwrap_or_else(|| {
+        let mut d = super::default_global_depth(u.len());
+        let mut spread: Vec<f64> = u.iter().map(|&i| graph.spread[i as usize]).collect();
+        let m = spread.len() / 2;
+        let noise = *spread.select_nth_unstable_by(m, f64::total_cmp).1;
+        while d > MIN_GLOBAL_DEPTH && cell_at(d) < noise {
+            d -= 1;
+        }
+        d
+    });
+    let cell = cell_at(depth);
     let params = crate::Params {
         depth,
         point_weight: Some(0.0),
