@@ -33,13 +33,16 @@ const RECONSTRUCT_LONG_ABOUT: &str = "\
 Reconstruct a watertight triangle mesh from an oriented point cloud (Screened Poisson Surface \
 Reconstruction, Kazhdan & Hoppe 2013).
 
-Input: a PLY file in any encoding (ASCII, binary little- or big-endian) whose vertex element has \
-x, y, z and nx, ny, nz properties, or a text file with one point per line: x y z nx ny nz. Normals \
-must point outward. Points with non-finite coordinates or zero-length normals are dropped with a \
-warning.
+Input: points with normals (nx ny nz) in one of these formats, recognised by their first bytes or \
+else by extension: PLY (any encoding), LAS or LAZ (.las, .laz; normals as extra bytes such as \
+NormalX/NormalY/NormalZ), E57 (.e57; every scan, moved by its pose; normals from the surface-normals \
+extension), PCD (.pcd; ascii, binary or binary_compressed, fields normal_x normal_y normal_z), or \
+text with one point per line: x y z nx ny nz, optionally followed by r g b. Normals must point \
+outward. Points with non-finite coordinates or zero-length normals are dropped with a warning.
 
-Output: binary little-endian PLY by default, ASCII PLY with --ascii, Wavefront OBJ when the output \
-name ends in .obj. The output file appears only once it is complete; on any error no output file \
+Output, chosen by the output name's extension: .ply (binary little-endian, ASCII with --ascii; also \
+used for any other extension), .obj (Wavefront OBJ), .stl (binary STL, ASCII with --ascii), .glb \
+(glTF 2.0 binary). The output file appears only once it is complete; on any error no output file \
 is left behind. The output must not be the input file.";
 
 /// Command-line arguments of `spsr`.
@@ -63,6 +66,9 @@ pub enum Command {
     /// Reconstruct a mesh from an oriented point cloud.
     #[command(long_about = RECONSTRUCT_LONG_ABOUT, after_help = EXIT_CODES)]
     Reconstruct(ReconstructArgs),
+    /// Remove the surface a reconstruction invented where there were no samples, by density.
+    #[command(long_about = TRIM_LONG_ABOUT, after_help = EXIT_CODES)]
+    Trim(TrimArgs),
     /// Score a mesh against a ground-truth mesh or an analytic sphere.
     #[command(long_about = EVAL_LONG_ABOUT, after_help = EXIT_CODES)]
     Eval(EvalArgs),
@@ -92,11 +98,11 @@ impl From<BoundaryArg> for spsr::Boundary {
 /// Arguments of `spsr reconstruct`. Defaults mirror [`spsr::Params::default`].
 #[derive(Debug, Args)]
 pub struct ReconstructArgs {
-    /// Oriented point cloud: PLY (any encoding) or text with `x y z nx ny nz` per line.
+    /// Oriented point cloud: PLY, LAS/LAZ, E57, PCD, or text with `x y z nx ny nz` per line.
     #[arg(value_name = "INPUT")]
     pub input: PathBuf,
 
-    /// Output mesh: PLY, or OBJ when the name ends in .obj.
+    /// Output mesh, by extension: .ply (also any other name), .obj, .stl or .glb.
     #[arg(short, long, value_name = "OUTPUT")]
     pub output: PathBuf,
 
@@ -163,10 +169,65 @@ pub struct ReconstructArgs {
     #[arg(long)]
     pub confidence: bool,
 
+    /// Use this per-point property (e.g. confidence or quality) as each point's weight
+    /// instead; points whose value is not positive are dropped. spsr's own [default: none]
+    #[arg(long, value_name = "NAME")]
+    pub confidence_property: Option<String>,
+
+    /// Write per-vertex normals (nx ny nz) computed from the gradient of the implicit
+    /// function. Off by default, as PoissonRecon 18 (--normals) [default: off]
+    #[arg(long)]
+    pub normals: bool,
+
+    /// Do not carry the points' attributes (colours and any other numeric property) onto the
+    /// mesh. spsr carries them by default; PoissonRecon 18 only with --colors [default: off]
+    #[arg(long)]
+    pub no_attributes: bool,
+
+    /// Pull factor of the attribute interpolation: larger values keep attributes sharper
+    /// and stop them bleeding between nearby surfaces. Default as PoissonRecon 18 (--dataX)
+    #[arg(
+        long,
+        value_name = "X",
+        default_value_t = 32.0,
+        allow_negative_numbers = true
+    )]
+    pub data_pull: f64,
+
     /// Compute per-vertex density (estimated sampling depth) and write it as the PLY vertex
     /// property `density`. Off by default, as PoissonRecon 18 [default: off]
     #[arg(long)]
     pub density: bool,
+
+    /// Trim the mesh by density before writing it: remove the parts whose density (estimated
+    /// sampling depth) is below V, cutting along the iso-line, or `auto` to derive V from the
+    /// mesh's density distribution (see `spsr trim --help`). Computes the density; the file
+    /// gets the density property only with --density [default: off]
+    #[arg(long, value_name = "V|auto", value_parser = parse_trim, allow_negative_numbers = true)]
+    pub trim: Option<spsr::trim::Threshold>,
+
+    /// With --trim: kept pieces smaller than this fraction of the total area are removed.
+    /// Default as PoissonRecon 18's SurfaceTrimmer (--aRatio).
+    #[arg(
+        long,
+        value_name = "F",
+        default_value_t = 0.001,
+        requires = "trim",
+        allow_negative_numbers = true
+    )]
+    pub min_island_area: f64,
+
+    /// With --trim: trimmed regions inside kept surface smaller than this fraction of the total
+    /// area are restored (small holes closed again). Default as PoissonRecon 18's
+    /// SurfaceTrimmer (--aRatio).
+    #[arg(
+        long,
+        value_name = "F",
+        default_value_t = 0.001,
+        requires = "trim",
+        allow_negative_numbers = true
+    )]
+    pub hole_area: f64,
 
     /// Place mesh vertices by linear interpolation along cell edges instead of the quadratic fit
     /// through the end values and gradients. Off by default, as PoissonRecon 18 (--linearFit)
@@ -191,7 +252,7 @@ pub struct ReconstructArgs {
     #[arg(long, value_name = "N", value_parser = parse_threads)]
     pub threads: Option<usize>,
 
-    /// Write ASCII PLY instead of binary little-endian PLY (no effect on .obj) [default: off]
+    /// Write ASCII PLY or STL instead of binary (no effect on .obj and .glb) [default: off]
     #[arg(long)]
     pub ascii: bool,
 
@@ -249,11 +310,40 @@ impl ReconstructArgs {
             scale: self.scale,
             iters: self.iters,
             confidence: self.confidence,
-            density: self.density,
+            density: self.density || self.trim.is_some(),
             linear_fit: self.linear_fit,
             max_memory: self.max_memory,
             two_level_splat: self.two_level_splat,
+            attributes: !self.no_attributes,
+            data_pull: self.data_pull,
+            normals: self.normals,
+            confidence_property: self.confidence_property.clone(),
         }
+    }
+}
+
+/// Parses `--trim`: `auto` (any case) or a finite density value.
+fn parse_trim(s: &str) -> Result<spsr::trim::Threshold, String> {
+    let t = s.trim();
+    if t.eq_ignore_ascii_case("auto") {
+        return Ok(spsr::trim::Threshold::Auto);
+    }
+    match t.parse::<f32>() {
+        Ok(v) if v.is_finite() => Ok(spsr::trim::Threshold::Value(v)),
+        _ => Err(format!(
+            "'{t}' is neither a density value (a finite number such as 6.5) nor 'auto'"
+        )),
+    }
+}
+
+impl ReconstructArgs {
+    /// The trimming parameters, when --trim was given (not yet validated).
+    pub fn trim_params(&self) -> Option<spsr::trim::TrimParams> {
+        self.trim.map(|threshold| spsr::trim::TrimParams {
+            threshold,
+            min_island_area: self.min_island_area,
+            hole_area: self.hole_area,
+        })
     }
 }
 
@@ -278,6 +368,7 @@ impl Failure {
             | E::MissingNormals { .. }
             | E::TooFewPoints { .. }
             | E::Degenerate(_)
+            | E::InvalidMesh(_)
             | E::LengthMismatch { .. } => exit::DATA,
             E::ResourceLimit { .. } => exit::RESOURCE,
             _ => exit::DATA,
@@ -303,6 +394,7 @@ impl Failure {
 pub fn run(cli: &Cli) -> Result<(), Failure> {
     match &cli.command {
         Command::Reconstruct(args) => reconstruct(args),
+        Command::Trim(args) => run_trim(args),
         Command::Eval(args) => run_eval(args),
     }
 }
@@ -352,6 +444,10 @@ fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     // Cheap checks first, so mistakes surface before any reading or computing.
     let params = args.params();
     params.validate().map_err(fail)?;
+    let trim_params = args.trim_params();
+    if let Some(p) = &trim_params {
+        p.validate().map_err(fail)?;
+    }
     if let Some(n) = args.threads {
         rayon::ThreadPoolBuilder::new()
             .num_threads(n)
@@ -369,8 +465,22 @@ fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     let cloud = spsr::io::read_points(input).map_err(fail)?;
     let reading = t.elapsed();
 
-    let result =
-        spsr::reconstruct_with_progress(&cloud, &params, &|s| progress.stage(s)).map_err(fail)?;
+    // The cloud is handed over so that it is released once the points are normalised.
+    let mut result =
+        spsr::reconstruct_owned(cloud, &params, &|s| progress.stage(s)).map_err(fail)?;
+
+    let mut trimmed = None;
+    if let Some(p) = &trim_params {
+        progress.stage("trimming");
+        let t = Instant::now();
+        let (mesh, stats) = spsr::trim::trim(&result.mesh, p).map_err(fail)?;
+        result.mesh = mesh;
+        trimmed = Some((stats, t.elapsed()));
+    }
+    if !args.density {
+        // Computed for trimming only.
+        result.mesh.density = None;
+    }
 
     progress.stage("writing");
     let t = Instant::now();
@@ -394,6 +504,9 @@ fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     let mesh = &result.mesh;
     if args.verbose {
         print_details(args, &result, reading, writing, start.elapsed());
+        if let Some((stats, time)) = &trimmed {
+            print_trim(stats, *time);
+        }
     }
     println!(
         "spsr: wrote {}: {} vertices, {} faces in {:.2} s",
@@ -457,6 +570,142 @@ fn print_details(
         }
     }
     let _ = writeln!(err, "  {:<32} {:>9.3} s", "total", total.as_secs_f64());
+}
+
+const TRIM_LONG_ABOUT: &str = "\
+Remove the surface a reconstruction invented where there were no samples. Screened Poisson \
+reconstruction closes every opening of the scanned surface (the floor under a statue, the open \
+side of a room); the per-vertex density written by `spsr reconstruct --density` (the estimated \
+sampling depth: one unit more means 4 times more samples per area) is low there.
+
+The mesh is cut along the line where the density equals V (new vertices on the crossing edges, \
+with every per-vertex value interpolated), and the part below V is removed. Then kept pieces \
+smaller than --min-island-area of the total area are removed, and removed regions inside kept \
+surface smaller than --hole-area are restored, as PoissonRecon's SurfaceTrimmer does.
+
+--trim auto sets V = median - max(1, 4 x MAD) of the area-weighted vertex densities (MAD: the \
+median absolute deviation): it removes surface with fewer than a quarter of the typical samples \
+per area (further below for unevenly sampled scans), which keeps everything that was sampled, \
+including the rims of real openings. A gap in a scan of a surface that continues looks like an \
+opening; auto removes the fill of a large gap too. To keep it, give a lower V (-v prints the \
+median density; e.g. median - 3.5 keeps the fill of a gap a fifth of the object's size).
+
+Input: a PLY mesh with a vertex property `density`, as written by `spsr reconstruct --density`. \
+Output, by extension: .ply (binary, ASCII with --ascii; also any other name), .obj, .stl, .glb. The \
+output must not be the input; it appears only once complete.";
+
+/// Arguments of `spsr trim`.
+#[derive(Debug, Args)]
+pub struct TrimArgs {
+    /// Mesh with a per-vertex `density` property (from `spsr reconstruct --density`), PLY.
+    #[arg(value_name = "MESH")]
+    pub mesh: PathBuf,
+
+    /// Output mesh, by extension: .ply (also any other name), .obj, .stl or .glb.
+    #[arg(short, long, value_name = "OUTPUT")]
+    pub output: PathBuf,
+
+    /// Density below which the surface is removed, or `auto` to derive it from the mesh's
+    /// density distribution. Required: no default, as in PoissonRecon 18's SurfaceTrimmer.
+    #[arg(long, value_name = "V|auto", value_parser = parse_trim, allow_negative_numbers = true)]
+    pub trim: spsr::trim::Threshold,
+
+    /// Kept pieces smaller than this fraction of the total area are removed. Default as
+    /// PoissonRecon 18's SurfaceTrimmer (--aRatio).
+    #[arg(
+        long,
+        value_name = "F",
+        default_value_t = 0.001,
+        allow_negative_numbers = true
+    )]
+    pub min_island_area: f64,
+
+    /// Removed regions inside kept surface smaller than this fraction of the total area are
+    /// restored (small holes closed again). Default as PoissonRecon 18's SurfaceTrimmer
+    /// (--aRatio).
+    #[arg(
+        long,
+        value_name = "F",
+        default_value_t = 0.001,
+        allow_negative_numbers = true
+    )]
+    pub hole_area: f64,
+
+    /// Write ASCII PLY or STL instead of binary (no effect on .obj and .glb) [default: off]
+    #[arg(long)]
+    pub ascii: bool,
+
+    /// Print the threshold (and how `auto` derived it), the areas and the counts of removed
+    /// islands and restored holes to stderr [default: off]
+    #[arg(short, long)]
+    pub verbose: bool,
+}
+
+/// Runs `spsr trim`: reads the mesh, trims it, writes the result.
+pub fn run_trim(args: &TrimArgs) -> Result<(), Failure> {
+    let start = Instant::now();
+    let input = args.mesh.as_path();
+    let output = args.output.as_path();
+    let fail = |e: spsr::Error| Failure::from_spsr(e, input);
+    let params = spsr::trim::TrimParams {
+        threshold: args.trim,
+        min_island_area: args.min_island_area,
+        hole_area: args.hole_area,
+    };
+    params.validate().map_err(fail)?;
+    spsr::io::check_output_path(output, input).map_err(fail)?;
+    let mesh = spsr::io::read_mesh(input).map_err(fail)?;
+    let t = Instant::now();
+    let (trimmed, stats) = spsr::trim::trim(&mesh, &params).map_err(fail)?;
+    let time = t.elapsed();
+    drop(mesh);
+    let opts = spsr::io::WriteOptions { ascii: args.ascii };
+    spsr::io::write_mesh(output, &trimmed, &opts).map_err(fail)?;
+    if args.verbose {
+        print_trim(&stats, time);
+    }
+    println!(
+        "spsr: wrote {}: {} vertices, {} faces in {:.2} s",
+        output.display(),
+        trimmed.vertices.len(),
+        trimmed.triangles.len(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+fn print_trim(stats: &spsr::trim::TrimStats, time: Duration) {
+    let mut err = std::io::stderr().lock();
+    match &stats.auto {
+        Some(a) => {
+            let _ = writeln!(
+                err,
+                "trim        V = {} (auto: area-weighted median density {:.4}, MAD {:.4}; \
+                 {:.3} % of the area below V)",
+                stats.threshold,
+                a.median,
+                a.mad,
+                100.0 * a.area_below
+            );
+        }
+        None => {
+            let _ = writeln!(err, "trim        V = {}", stats.threshold);
+        }
+    }
+    let _ = writeln!(
+        err,
+        "            kept {:.3} % of the area ({:.6e} of {:.6e}); {} triangles of {}, \
+         {} cut vertices, {} islands removed, {} holes restored; {:.3} s",
+        100.0 * stats.kept_area / stats.total_area,
+        stats.kept_area,
+        stats.total_area,
+        stats.triangles_out,
+        stats.triangles_in,
+        stats.cut_vertices,
+        stats.islands_removed,
+        stats.holes_filled,
+        time.as_secs_f64()
+    );
 }
 
 const EVAL_LONG_ABOUT: &str = "\

@@ -322,6 +322,11 @@ fn help_lists_every_flag_with_its_default() {
         "2013 paper",
         "Exit codes",
         ".obj",
+        ".stl",
+        ".glb",
+        "LAS or LAZ",
+        "E57",
+        "PCD",
         "nx ny nz",
     ] {
         assert!(help.contains(needle), "help lacks {needle:?}");
@@ -405,6 +410,48 @@ fn obj_extension_writes_obj() {
     assert!(text.lines().any(|l| l.starts_with("v ")), "no vertices");
     assert!(text.lines().any(|l| l.starts_with("f ")), "no faces");
     assert!(!text.starts_with("ply"));
+}
+
+#[test]
+fn stl_and_glb_extensions_write_stl_and_glb() {
+    let (_dir, output, _) = reconstruct_sphere("out.stl", &[]);
+    let bytes = fs::read(&output).unwrap();
+    let n = u32::from_le_bytes([bytes[80], bytes[81], bytes[82], bytes[83]]) as usize;
+    assert!(n > 0 && bytes.len() == 84 + 50 * n, "binary STL");
+    let (_dir, output, _) = reconstruct_sphere("out.stl", &["--ascii"]);
+    assert!(fs::read_to_string(&output).unwrap().starts_with("solid"));
+    let (_dir, output, _) = reconstruct_sphere("out.glb", &[]);
+    assert!(fs::read(&output).unwrap().starts_with(b"glTF"));
+}
+
+#[test]
+fn text_and_pcd_inputs_are_recognised() {
+    let points = sphere(3000);
+    let dir = TempDir::new().unwrap();
+    let mut text = String::new();
+    for (p, n) in &points {
+        text += &format!("{} {} {} {} {} {}\n", p[0], p[1], p[2], n[0], n[1], n[2]);
+    }
+    let xyz = dir.path().join("in.xyz");
+    fs::write(&xyz, &text).unwrap();
+    let pcd = dir.path().join("in.pcd");
+    let head = format!(
+        "VERSION .7\nFIELDS x y z normal_x normal_y normal_z\nSIZE 4 4 4 4 4 4\n\
+         TYPE F F F F F F\nWIDTH {}\nDATA ascii\n",
+        points.len()
+    );
+    fs::write(&pcd, head + &text).unwrap();
+    for input in [&xyz, &pcd] {
+        let output = dir.path().join("out.ply");
+        let out = spsr(&["reconstruct", s(input), "-o", s(&output), "--depth", "5"]);
+        assert!(
+            out.status.success(),
+            "{}: {}",
+            input.display(),
+            stderr(&out)
+        );
+        assert!(element_count(&ply_header(&output), "face") > 0);
+    }
 }
 
 #[test]
@@ -495,4 +542,133 @@ fn max_memory_needs_a_size() {
         "lots",
     ]);
     assert_fails(&out, 2, &["512M"], &output);
+}
+
+#[test]
+fn output_files_are_byte_identical_for_1_2_and_7_threads() {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("in.ply");
+    write_ascii_ply(&input, &sphere(20_000));
+    for degree in ["1", "2"] {
+        let mut files = Vec::new();
+        for threads in ["1", "2", "7"] {
+            let out = dir.path().join(format!("d{degree}-t{threads}.ply"));
+            let run = spsr(&[
+                "reconstruct",
+                s(&input),
+                "-o",
+                s(&out),
+                "--depth",
+                "7",
+                "--degree",
+                degree,
+                "--density",
+                "--threads",
+                threads,
+            ]);
+            assert!(run.status.success(), "{}", stderr(&run));
+            files.push(fs::read(&out).unwrap());
+        }
+        assert!(files[0].len() > 1000);
+        assert!(
+            files[0] == files[1],
+            "degree {degree}: 2 threads differ from 1"
+        );
+        assert!(
+            files[0] == files[2],
+            "degree {degree}: 7 threads differ from 1"
+        );
+    }
+}
+
+#[test]
+fn colours_normals_and_confidence_reach_the_output() {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("coloured.ply");
+    let points = sphere(20_000);
+    let mut text = format!(
+        "ply\nformat ascii 1.0\nelement vertex {}\n\
+         property float x\nproperty float y\nproperty float z\n\
+         property float nx\nproperty float ny\nproperty float nz\n\
+         property uchar red\nproperty uchar green\nproperty uchar blue\n\
+         property float quality\nend_header\n",
+        points.len()
+    );
+    for (p, n) in &points {
+        let red = if p[0] > 1.0 { 255 } else { 0 };
+        text += &format!(
+            "{} {} {} {} {} {} {red} 0 {} 1\n",
+            p[0],
+            p[1],
+            p[2],
+            n[0],
+            n[1],
+            n[2],
+            255 - red
+        );
+    }
+    fs::write(&input, text).unwrap();
+    let out = dir.path().join("mesh.ply");
+    let run = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&out),
+        "--depth",
+        "6",
+        "--normals",
+        "--confidence-property",
+        "quality",
+        "--ascii",
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let mesh = spsr_read_mesh(&out);
+    assert!(mesh.normals.is_some(), "normals written");
+    let red = mesh
+        .attributes
+        .iter()
+        .find(|a| a.name == "red")
+        .expect("red kept");
+    assert_eq!(red.data.scalar_type(), spsr::attributes::ScalarType::U8);
+    let header = fs::read_to_string(&out).unwrap();
+    for prop in [
+        "property float nx",
+        "property uchar red",
+        "property uchar blue",
+        "property float quality",
+    ] {
+        assert!(header.contains(prop), "missing {prop}");
+    }
+    // Without attributes the mesh has only its geometry; a missing property is refused.
+    let plain = dir.path().join("plain.ply");
+    let run = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&plain),
+        "--depth",
+        "5",
+        "--no-attributes",
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    assert!(spsr_read_mesh(&plain).attributes.is_empty());
+    let bad = dir.path().join("bad.ply");
+    let run = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&bad),
+        "--confidence-property",
+        "weight",
+    ]);
+    assert_fails(
+        &run,
+        USAGE,
+        &["--confidence-property", "weight", "quality"],
+        &bad,
+    );
+}
+
+fn spsr_read_mesh(path: &Path) -> spsr::Mesh {
+    spsr::io::read_mesh(path).unwrap()
 }

@@ -65,7 +65,7 @@ fn sphere(c: [f64; 3], r: f64, n: usize) -> Mesh {
     Mesh {
         vertices,
         triangles,
-        density: None,
+        ..Default::default()
     }
 }
 
@@ -281,7 +281,7 @@ fn malformed_and_empty_meshes() {
     let flat = Mesh {
         vertices: vec![[0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]],
         triangles: vec![[0, 1, 2]],
-        density: None,
+        ..Default::default()
     };
     let flat = write(dir.path(), "flat.ply", &flat);
     let out = spsr(&["eval", s(&flat), "--reference-sphere", "0,0,0,1"]);

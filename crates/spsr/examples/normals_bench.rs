@@ -47,6 +47,8 @@ fn box_mesh(lo: [f64; 3], hi: [f64; 3]) -> Mesh {
         vertices,
         triangles,
         density: None,
+        normals: None,
+        attributes: Vec::new(),
     }
 }
 

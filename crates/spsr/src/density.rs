@@ -69,7 +69,23 @@ fn pack(c: [i64; 3]) -> u64 {
 /// Merges points into samples, one per occupied cell at `depth` (ALGORITHM.md §3.3).
 /// `points` are unit-cube positions with unit normals and weights. Samples come out in the
 /// Morton order of their cells, whatever the thread count.
+#[cfg(test)]
 pub fn merge_samples(points: &[([f64; 3], [f64; 3], f64)], depth: u32) -> Vec<Sample> {
+    merge_samples_grouped(points, depth, false).0
+}
+
+/// As [`merge_samples`]; with `groups`, also the sample each point went into (`u32::MAX`
+/// for points of a cell whose total weight is not positive).
+pub fn merge_samples_grouped(
+    points: &[([f64; 3], [f64; 3], f64)],
+    depth: u32,
+    groups: bool,
+) -> (Vec<Sample>, Vec<u32>) {
+    let mut sample_of = if groups {
+        vec![u32::MAX; points.len()]
+    } else {
+        Vec::new()
+    };
     let mut keyed: Vec<(u64, u32)> = points
         .par_iter()
         .enumerate()
@@ -80,6 +96,7 @@ pub fn merge_samples(points: &[([f64; 3], [f64; 3], f64)], depth: u32) -> Vec<Sa
     let mut i = 0;
     while i < keyed.len() {
         let key = keyed[i].0;
+        let first = i;
         let mut w = 0.0;
         let mut wp = [0.0; 3];
         let mut wn = [0.0; 3];
@@ -95,6 +112,11 @@ pub fn merge_samples(points: &[([f64; 3], [f64; 3], f64)], depth: u32) -> Vec<Sa
         if w <= 0.0 || !w.is_finite() {
             continue;
         }
+        if groups {
+            for k in &keyed[first..i] {
+                sample_of[k.1 as usize] = samples.len() as u32;
+            }
+        }
         let len = (wn[0] * wn[0] + wn[1] * wn[1] + wn[2] * wn[2]).sqrt();
         let normal = if len > 1e-12 * w {
             [wn[0] / len, wn[1] / len, wn[2] / len]
@@ -107,7 +129,7 @@ pub fn merge_samples(points: &[([f64; 3], [f64; 3], f64)], depth: u32) -> Vec<Sa
             normal,
         });
     }
-    samples
+    (samples, sample_of)
 }
 
 fn morton_cell(c: [i64; 3]) -> u64 {

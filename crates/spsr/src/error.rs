@@ -71,6 +71,11 @@ pub enum Error {
         /// The full explanation, with what to do.
         message: String,
     },
+    /// A mesh given to a mesh operation (such as [`crate::trim::trim`]) cannot be used: it
+    /// lacks the per-vertex data the operation needs, holds non-finite values, refers to
+    /// vertices that do not exist, or has no triangles.
+    #[error("{0}")]
+    InvalidMesh(String),
     /// The output path cannot be used.
     #[error("{}: {message}", path.display())]
     Output {

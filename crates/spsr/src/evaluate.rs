@@ -99,7 +99,7 @@ impl<'a> Evaluator<'a> {
         }
         let d = t - DEPTH_OFFSET;
         let level = &self.tree.levels[t as usize];
-        let own = func_index(level.keys[node as usize], d);
+        let own = func_index(level.key(node), d);
         let w = self.windows(d, p);
         let k = i64::from(self.fem.degree);
         for z in 0..=k {
@@ -133,7 +133,7 @@ impl<'a> Evaluator<'a> {
         }
         let d = t - DEPTH_OFFSET;
         let level = &self.tree.levels[t as usize];
-        let own = func_index(level.keys[node as usize], d);
+        let own = func_index(level.key(node), d);
         let w = self.windows(d + 1, p);
         let k = i64::from(self.fem.degree);
         for z in 0..=k {
@@ -149,7 +149,7 @@ impl<'a> Evaluator<'a> {
                     if m == NONE {
                         continue;
                     }
-                    let b = level.child[m as usize];
+                    let b = level.child(m);
                     if b == NONE {
                         continue;
                     }

@@ -14,7 +14,9 @@
 // Numeric kernels index several parallel arrays by axis; explicit index loops read best there.
 #![allow(clippy::needless_range_loop)]
 
+pub mod attributes;
 pub mod bspline;
+mod data;
 mod density;
 mod error;
 mod evaluate;
@@ -29,10 +31,13 @@ pub mod points;
 mod reconstruct;
 mod solver;
 mod system;
+pub mod trim;
 
 pub use bspline::Boundary;
 pub use error::{Error, Result};
 pub use mesh::Mesh;
 pub use params::{Params, MAX_DEPTH};
-pub use points::PointCloud;
-pub use reconstruct::{reconstruct, reconstruct_with_progress, Reconstruction, Stats};
+pub use points::{PointCloud, ScanOrigin};
+pub use reconstruct::{
+    reconstruct, reconstruct_owned, reconstruct_with_progress, Reconstruction, Stats,
+};

@@ -1,6 +1,8 @@
 //! Triangle meshes produced by the reconstruction, and their topological checks.
 
-/// A triangle mesh with optional per-vertex density.
+use crate::attributes::{self, Attribute, Colors};
+
+/// A triangle mesh with optional per-vertex normals, density and attributes.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Mesh {
     /// Vertex positions.
@@ -9,6 +11,13 @@ pub struct Mesh {
     pub triangles: Vec<[u32; 3]>,
     /// Optional per-vertex density (estimated sampling depth, ALGORITHM.md §9.5).
     pub density: Option<Vec<f32>>,
+    /// Optional per-vertex normals (one per vertex), e.g. the gradient direction of the
+    /// implicit function; written by every output format that has normals.
+    pub normals: Option<Vec<[f32; 3]>>,
+    /// Per-vertex attributes, one value per vertex each (e.g. colours interpolated from the
+    /// points: attributes named `red`, `green`, `blue`, optionally `alpha`; see
+    /// [`crate::attributes`]).
+    pub attributes: Vec<Attribute>,
 }
 
 /// Topological summary of a [`Mesh`], as computed by [`Mesh::topology`].
@@ -69,6 +78,17 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 }
 
 impl Mesh {
+    /// The vertex attribute called `name` (ASCII case ignored), if any.
+    pub fn attribute(&self, name: &str) -> Option<&Attribute> {
+        attributes::find(&self.attributes, name)
+    }
+
+    /// The vertex colour channels, if the mesh has them (see
+    /// [`attributes::find_colors`]).
+    pub fn colors(&self) -> Option<Colors<'_>> {
+        attributes::find_colors(&self.attributes)
+    }
+
     /// Computes the topological summary: boundary and non-manifold edges, vertex manifoldness,
     /// orientation consistency, connected components and Euler characteristic.
     /// Triangles with out-of-range indices are ignored.
@@ -253,7 +273,7 @@ mod tests {
         Mesh {
             vertices: vec![[0., 0., 0.], [1., 0., 0.], [0., 1., 0.], [0., 0., 1.]],
             triangles: vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
-            density: None,
+            ..Default::default()
         }
     }
 
@@ -303,7 +323,7 @@ mod tests {
                 [0., 0., 1.],
             ],
             triangles: vec![[0, 1, 2], [1, 0, 3], [0, 1, 4]],
-            density: None,
+            ..Default::default()
         };
         let t = m.topology();
         assert!(!t.edge_manifold && !t.closed && !t.oriented);

@@ -1027,7 +1027,7 @@ mod tests {
                 [3, 1, 5],
                 [0, 3, 5],
             ],
-            density: None,
+            ..Default::default()
         };
         let md = MeshDistance::new(&mesh);
         let mut s = 3u64;
@@ -1088,7 +1088,7 @@ mod tests {
         Mesh {
             vertices,
             triangles,
-            density: None,
+            ..Default::default()
         }
     }
 
@@ -1167,7 +1167,7 @@ mod tests {
                 [10.0, 2.0, 0.0],
             ],
             triangles: vec![[0, 1, 2], [3, 4, 5]],
-            density: None,
+            ..Default::default()
         };
         let s = sample_surface_with_normals(&mesh, 40_000, 5);
         let first = s.iter().filter(|s| s.point[0] < 5.0).count() as f64 / 40_000.0;

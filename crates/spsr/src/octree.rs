@@ -19,6 +19,7 @@
 //!   the ring within its 5×5×5 window exists;
 //! - the level of tree depth 0 is the virtual root alone; level 1 is its single brood.
 
+use rayon::prelude::*;
 use rustc_hash::FxHashSet;
 
 /// Tree depth of the unit cube.
@@ -28,12 +29,18 @@ pub const DEPTH_OFFSET: u32 = 2;
 pub const NONE: u32 = u32::MAX;
 
 /// One depth of the tree.
+///
+/// Node keys are not stored per node: node `8b + c` of brood `b` has key
+/// `2 · brood_key[b] + bits(c)`, which saves 12 bytes per node.
 #[derive(Debug, Default, Clone)]
 pub struct Level {
-    /// Integer offsets of the nodes in tree coordinates (`0..2^t` per axis).
-    pub keys: Vec<[u32; 3]>,
-    /// Brood index of each node's children at the next level, or [`NONE`].
-    pub child: Vec<u32>,
+    /// Number of nodes (8 per brood; 1 for the virtual root's level).
+    len: usize,
+    /// Key (tree coordinates) of each brood's parent; empty at the root level.
+    brood_key: Vec<[u32; 3]>,
+    /// Brood index of each node's children at the next level, or [`NONE`]. Empty when no node
+    /// of the level has children (the deepest level).
+    child: Vec<u32>,
     /// Parent node (at the previous level) of each brood.
     pub brood_parent: Vec<u32>,
     /// The 27 broods around each brood, slot `(dx+1) + 3(dy+1) + 9(dz+1)`, [`NONE`] if absent.
@@ -42,8 +49,28 @@ pub struct Level {
 
 impl Level {
     /// Number of nodes.
+    #[inline]
     pub fn len(&self) -> usize {
-        self.keys.len()
+        self.len
+    }
+
+    /// Integer offset of node `n` in tree coordinates (`0..2^t` per axis).
+    #[inline]
+    pub fn key(&self, n: u32) -> [u32; 3] {
+        match self.brood_key.get((n >> 3) as usize) {
+            Some(k) => [
+                2 * k[0] + (n & 1),
+                2 * k[1] + ((n >> 1) & 1),
+                2 * k[2] + ((n >> 2) & 1),
+            ],
+            None => [0, 0, 0],
+        }
+    }
+
+    /// Brood index of node `n`'s children at the next level, or [`NONE`].
+    #[inline]
+    pub fn child(&self, n: u32) -> u32 {
+        self.child.get(n as usize).copied().unwrap_or(NONE)
     }
 }
 
@@ -278,7 +305,8 @@ impl Octree {
         // Materialise levels top-down.
         let mut levels: Vec<Level> = Vec::with_capacity(max_t as usize + 1);
         levels.push(Level {
-            keys: vec![[0, 0, 0]],
+            len: 1,
+            brood_key: Vec::new(),
             child: vec![NONE],
             brood_parent: Vec::new(),
             brood_nbrs: Vec::new(),
@@ -287,66 +315,58 @@ impl Octree {
             let prev = &levels[t as usize - 1];
             // Refined nodes of the previous level, in its (Morton) order.
             let refined = &req.refined[t as usize - 1];
-            let parents: Vec<u32> = (0..prev.keys.len() as u32)
-                .filter(|&n| refined.contains(&pack_u(prev.keys[n as usize])))
+            let parents: Vec<u32> = (0..prev.len() as u32)
+                .into_par_iter()
+                .filter(|&n| refined.contains(&pack_u(prev.key(n))))
                 .collect();
             if parents.is_empty() {
                 break;
             }
-            let mut keys = Vec::with_capacity(parents.len() * 8);
-            for &p in &parents {
-                let k = prev.keys[p as usize];
-                for c in 0..8u32 {
-                    keys.push([
-                        2 * k[0] + (c & 1),
-                        2 * k[1] + ((c >> 1) & 1),
-                        2 * k[2] + ((c >> 2) & 1),
-                    ]);
-                }
-            }
+            let brood_key: Vec<[u32; 3]> = parents.par_iter().map(|&p| prev.key(p)).collect();
             let prev = &mut levels[t as usize - 1];
             for (b, &p) in parents.iter().enumerate() {
                 prev.child[p as usize] = b as u32;
             }
-            let n = keys.len();
+            let n = brood_key.len() * 8;
+            // Brood neighbours: the broods of the parent's 3×3×3 neighbours.
+            let prev = &levels[t as usize - 1];
+            let brood_nbrs: Vec<[u32; 27]> = parents
+                .par_iter()
+                .map(|&p| {
+                    let mut out = [NONE; 27];
+                    for (s, o) in out.iter_mut().enumerate() {
+                        let d = [
+                            (s % 3) as i64 - 1,
+                            ((s / 3) % 3) as i64 - 1,
+                            (s / 9) as i64 - 1,
+                        ];
+                        let q = if t == 1 {
+                            if d == [0, 0, 0] {
+                                0
+                            } else {
+                                NONE
+                            }
+                        } else {
+                            prev_neighbor(prev, p, d)
+                        };
+                        if q != NONE {
+                            *o = prev.child(q);
+                        }
+                    }
+                    out
+                })
+                .collect();
             levels.push(Level {
-                keys,
+                len: n,
+                brood_key,
                 child: vec![NONE; n],
                 brood_parent: parents,
-                brood_nbrs: Vec::new(),
+                brood_nbrs,
             });
-            // Brood neighbours: the broods of the parent's 3×3×3 neighbours.
-            let nbrs: Vec<[u32; 27]> = {
-                let prev = &levels[t as usize - 1];
-                let cur = &levels[t as usize];
-                cur.brood_parent
-                    .iter()
-                    .map(|&p| {
-                        let mut out = [NONE; 27];
-                        for (s, o) in out.iter_mut().enumerate() {
-                            let d = [
-                                (s % 3) as i64 - 1,
-                                ((s / 3) % 3) as i64 - 1,
-                                (s / 9) as i64 - 1,
-                            ];
-                            let q = if t == 1 {
-                                if d == [0, 0, 0] {
-                                    0
-                                } else {
-                                    NONE
-                                }
-                            } else {
-                                prev_neighbor(prev, p, d)
-                            };
-                            if q != NONE {
-                                *o = prev.child[q as usize];
-                            }
-                        }
-                        out
-                    })
-                    .collect()
-            };
-            levels[t as usize].brood_nbrs = nbrs;
+        }
+        // The deepest level has no children: drop its (all-NONE) child array.
+        if let Some(last) = levels.last_mut() {
+            last.child = Vec::new();
         }
         Octree { levels }
     }
@@ -374,7 +394,7 @@ impl Octree {
         let mut n = 0u32;
         let mut t = 0u32;
         while t < t_max && (t as usize + 1) < self.levels.len() {
-            let b = self.levels[t as usize].child[n as usize];
+            let b = self.levels[t as usize].child(n);
             if b == NONE {
                 break;
             }
@@ -466,10 +486,9 @@ mod tests {
         for d in 0..=3u32 {
             let t = d + DEPTH_OFFSET;
             let (lo, hi) = ring(t);
-            let keys: FxHashSet<u64> = tree.levels[t as usize]
-                .keys
-                .iter()
-                .map(|&k| pack_u(k))
+            let level = &tree.levels[t as usize];
+            let keys: FxHashSet<u64> = (0..level.len() as u32)
+                .map(|n| pack_u(level.key(n)))
                 .collect();
             for z in lo..=hi {
                 for y in lo..=hi {
@@ -490,19 +509,17 @@ mod tests {
             let tree = random_tree(seed, 2, 7);
             for t in 1..tree.depth_count() {
                 let level = &tree.levels[t as usize];
-                let index: rustc_hash::FxHashMap<u64, u32> = level
-                    .keys
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &k)| (pack_u(k), i as u32))
+                let index: rustc_hash::FxHashMap<u64, u32> = (0..level.len() as u32)
+                    .map(|n| (pack_u(level.key(n)), n))
                     .collect();
                 let (lo, hi) = ring(t);
-                for (n, &k) in level.keys.iter().enumerate() {
+                for n in 0..level.len() {
+                    let k = level.key(n as u32);
                     // Children keys are consistent.
-                    if level.child[n] != NONE {
+                    if level.child(n as u32) != NONE {
                         let next = &tree.levels[t as usize + 1];
                         for c in 0..8u32 {
-                            let ck = next.keys[(level.child[n] * 8 + c) as usize];
+                            let ck = next.key(level.child(n as u32) * 8 + c);
                             assert_eq!(ck[0], 2 * k[0] + (c & 1));
                             assert_eq!(ck[2], 2 * k[2] + (c >> 2));
                         }
@@ -522,7 +539,7 @@ mod tests {
                         };
                         assert_eq!(tree.neighbor(t, n as u32, d), expect);
                         // Conforming: around a refined node at unit depth >= 2, the ring window exists.
-                        if level.child[n] != NONE
+                        if level.child(n as u32) != NONE
                             && t >= 2 + DEPTH_OFFSET
                             && q.iter().all(|&c| c >= lo && c <= hi)
                         {
@@ -538,7 +555,9 @@ mod tests {
     fn levels_are_in_morton_order() {
         let tree = random_tree(9, 2, 6);
         for level in &tree.levels {
-            let m: Vec<u64> = level.keys.iter().map(|&k| morton(k)).collect();
+            let m: Vec<u64> = (0..level.len() as u32)
+                .map(|n| morton(level.key(n)))
+                .collect();
             assert!(m.windows(2).all(|w| w[0] < w[1]));
         }
     }
@@ -552,11 +571,11 @@ mod tests {
             let n = 1u64 << (t_key - DEPTH_OFFSET);
             let key: [u64; 3] = std::array::from_fn(|_| splitmix(&mut s) % n + n);
             let (t, node) = tree.descend(key, t_key, t_key);
-            let k = tree.levels[t as usize].keys[node as usize];
+            let k = tree.levels[t as usize].key(node);
             for a in 0..3 {
                 assert_eq!(u64::from(k[a]), key[a] >> (t_key - t));
             }
-            assert_eq!(tree.levels[t as usize].child[node as usize], NONE);
+            assert_eq!(tree.levels[t as usize].child(node), NONE);
         }
     }
 }

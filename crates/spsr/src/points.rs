@@ -1,15 +1,41 @@
-//! Oriented input points, and the validity filter of ALGORITHM.md §3.1.
+//! Input points, and the validity filter of ALGORITHM.md §3.1.
 
-/// An oriented point cloud: one position and one normal per point.
+use crate::attributes::{self, Attribute, Colors};
+
+/// A point cloud: positions, normals when the source has them, and any other per-point
+/// properties as typed [`Attribute`]s.
 ///
 /// Normals need not be unit length; with [`crate::Params::confidence`] their length is the
-/// per-point weight. Normals point **outward** (away from the solid).
+/// per-point weight. Normals point **outward** (away from the solid). The reconstruction
+/// needs normals: a cloud without them ([`PointCloud::has_normals`] false) must get them
+/// first.
+///
+/// Invalid points (non-finite coordinates, zero normals) may be present: readers keep them
+/// so that the cloud matches its file point for point; the reconstruction filters them.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct PointCloud {
     /// Point positions, in the input's own frame and units.
     pub positions: Vec<[f64; 3]>,
-    /// Per-point normals, pointing outward.
+    /// Per-point normals, pointing outward; **empty** when the source has no normals,
+    /// otherwise exactly one per position.
     pub normals: Vec<[f64; 3]>,
+    /// Other per-point properties (colours, intensity, confidence, ...), each with one value
+    /// per position, in the order of the source file.
+    pub attributes: Vec<Attribute>,
+    /// Where the scanner stood for each scan, for files that record it (E57 scan poses,
+    /// a PCD `VIEWPOINT`); empty otherwise. Sorted by `first_point`.
+    pub scan_origins: Vec<ScanOrigin>,
+}
+
+/// The sensor position of one scan within a [`PointCloud`]: points
+/// `first_point..next.first_point` (or to the end, for the last scan) were seen from
+/// `origin`, in the cloud's frame. Useful to orient normals towards the scanner.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ScanOrigin {
+    /// Index of the scan's first point.
+    pub first_point: usize,
+    /// Sensor position in the cloud's frame (the translation of the scan's pose).
+    pub origin: [f64; 3],
 }
 
 impl PointCloud {
@@ -21,7 +47,19 @@ impl PointCloud {
                 normals: normals.len(),
             });
         }
-        Ok(Self { positions, normals })
+        Ok(Self {
+            positions,
+            normals,
+            ..Self::default()
+        })
+    }
+
+    /// Builds a cloud of positions without normals.
+    pub fn from_positions(positions: Vec<[f64; 3]>) -> Self {
+        Self {
+            positions,
+            ..Self::default()
+        }
     }
 
     /// Number of points.
@@ -32,6 +70,29 @@ impl PointCloud {
     /// True when the cloud holds no point.
     pub fn is_empty(&self) -> bool {
         self.positions.is_empty()
+    }
+
+    /// True when every point has a normal (`normals` is not empty and as long as
+    /// `positions`). An empty cloud has no normals.
+    pub fn has_normals(&self) -> bool {
+        !self.normals.is_empty() && self.normals.len() == self.positions.len()
+    }
+
+    /// The attribute called `name` (ASCII case ignored), if any.
+    pub fn attribute(&self, name: &str) -> Option<&Attribute> {
+        attributes::find(&self.attributes, name)
+    }
+
+    /// The colour channels, if the cloud has them (see [`attributes::find_colors`]).
+    pub fn colors(&self) -> Option<Colors<'_>> {
+        attributes::find_colors(&self.attributes)
+    }
+
+    /// The first attribute found under one of `names`, tried in order: e.g.
+    /// `cloud.find_scalar(spsr::attributes::CONFIDENCE_NAMES)` or
+    /// `cloud.find_scalar(&["intensity"])`.
+    pub fn find_scalar(&self, names: &[&str]) -> Option<&Attribute> {
+        attributes::find_any(&self.attributes, names)
     }
 }
 

@@ -4,11 +4,13 @@ use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
 
+use crate::attributes::{Attribute, AttributeData};
 use crate::bspline::{Basis, Boundary};
-use crate::density::{cell_of, for_each_quadratic_neighbour, merge_samples, Density};
+use crate::data::DataField;
+use crate::density::{cell_of, for_each_quadratic_neighbour, merge_samples_grouped, Density};
 use crate::evaluate::{CornerField, Evaluator};
-use crate::extract::{extract, ExtractOptions, Leaf};
-use crate::octree::{Octree, TreeRequest, DEPTH_OFFSET, NONE};
+use crate::extract::{extract_blocks, Cells, ExtractOptions};
+use crate::octree::{neighbor_in, window_index, Octree, TreeRequest, DEPTH_OFFSET, NONE};
 use crate::points::is_valid;
 use crate::solver::{solve, Problem};
 use crate::system::{build_clusters, func_index, DepthTables};
@@ -91,6 +93,10 @@ pub(crate) struct Implicit {
     pub width: f64,
     pub origin: [f64; 3],
     pub stats: Stats,
+    /// The cloud's attributes summed up the tree, when they are carried onto the mesh.
+    pub data: Option<DataField>,
+    /// Name and type of each carried attribute (empty columns), in channel order.
+    pub attribute_types: Vec<Attribute>,
 }
 
 impl Implicit {
@@ -147,7 +153,25 @@ pub fn reconstruct_with_progress(
     params: &Params,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<Reconstruction> {
-    let imp = solve_implicit(points, params, progress)?;
+    reconstruct_input(Input::Borrowed(points), params, progress)
+}
+
+/// As [`reconstruct_with_progress`], taking the cloud by value: it is released as soon as
+/// the points are normalised, which lowers the peak memory of a large run by the cloud's size.
+pub fn reconstruct_owned(
+    points: PointCloud,
+    params: &Params,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<Reconstruction> {
+    reconstruct_input(Input::Owned(points), params, progress)
+}
+
+fn reconstruct_input(
+    input: Input,
+    params: &Params,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<Reconstruction> {
+    let imp = solve_implicit_from(input, params, progress)?;
     let Implicit {
         tree,
         sol,
@@ -157,6 +181,8 @@ pub fn reconstruct_with_progress(
         width,
         origin,
         mut stats,
+        data,
+        attribute_types,
     } = imp;
     let mut timer = Timer {
         stats: std::mem::take(&mut stats.stages),
@@ -165,42 +191,55 @@ pub fn reconstruct_with_progress(
         progress,
     };
     let eval = Evaluator::new(&tree, fem, &sol);
-    let t_max = tree.depth_count() - 1;
-    // 8. Extraction (§9).
+    // 8. Extraction (§9), block by block.
     timer.start("extraction");
-    let mut leaves = Vec::new();
-    for t in DEPTH_OFFSET..=t_max {
-        let d = t - DEPTH_OFFSET;
-        let level = &tree.levels[t as usize];
-        let n = 1i64 << d;
-        for (i, &k) in level.keys.iter().enumerate() {
-            if level.child[i] != NONE {
-                continue;
-            }
-            let o = func_index(k, d);
-            if o.iter().all(|&c| c >= 0 && c < n) {
-                leaves.push(Leaf {
-                    depth: d,
-                    offset: [o[0] as u32, o[1] as u32, o[2] as u32],
-                });
-            }
-        }
-    }
-    let max_leaf_depth = leaves.iter().map(|l| l.depth).max().unwrap_or(0);
+    let cells = TreeCells::new(&tree, params.base_depth());
     let field = CornerField {
         eval: &eval,
-        depth: max_leaf_depth,
+        depth: cells.max_depth,
     };
-    let mut mesh = extract(
-        &leaves,
-        max_leaf_depth,
+    let blocks = extract_blocks(
+        &cells,
         &field,
         iso,
         &ExtractOptions {
             linear_fit: params.linear_fit,
+            normals: params.normals,
         },
     )?;
-    drop(leaves);
+    drop(cells);
+    let mut mesh = if data.is_some() {
+        // Per-vertex values that need the solution and the tree: computed before they go.
+        let mut mesh = blocks.assemble()?;
+        if let Some(data) = &data {
+            let k = data.channels();
+            let mut values = vec![0.0f64; mesh.vertices.len() * k];
+            values
+                .par_chunks_mut(k)
+                .zip(&mesh.vertices)
+                .for_each(|(out, p)| data.eval(&tree, *p, out));
+            mesh.attributes = attribute_types
+                .iter()
+                .enumerate()
+                .map(|(c, a)| {
+                    Attribute::new(
+                        a.name.clone(),
+                        a.data
+                            .like_from_f64(values.iter().skip(c).step_by(k).copied()),
+                    )
+                })
+                .collect();
+        }
+        drop(data);
+        drop(sol);
+        drop(tree);
+        mesh
+    } else {
+        // The tree and the solution are released before the vertices are numbered.
+        drop(sol);
+        drop(tree);
+        blocks.assemble()?
+    };
     if params.density {
         mesh.density = Some(
             mesh.vertices
@@ -219,6 +258,129 @@ pub fn reconstruct_with_progress(
     stats.stages = timer.stats;
     stats.peak_memory = timer.memory;
     Ok(Reconstruction { mesh, stats })
+}
+
+/// The octree's leaves inside the unit cube, as extraction sees them. Blocks are the cells of
+/// a depth at most the base depth (complete, so every leaf lies in one), chosen so that a
+/// block spans about 32 finest cells per axis.
+struct TreeCells<'a> {
+    tree: &'a Octree,
+    max_depth: u32,
+    block_level: u32,
+    blocks: Vec<u32>,
+}
+
+impl<'a> TreeCells<'a> {
+    /// `base_depth`: a unit depth down to which the tree is complete.
+    fn new(tree: &'a Octree, base_depth: u32) -> Self {
+        let max_depth = tree.depth_count() - 1 - DEPTH_OFFSET;
+        let block_level = max_depth.saturating_sub(5).min(base_depth) + DEPTH_OFFSET;
+        let d = block_level - DEPTH_OFFSET;
+        let level = &tree.levels[block_level as usize];
+        let n = 1i64 << d;
+        let blocks = (0..level.len() as u32)
+            .filter(|&b| {
+                func_index(level.key(b), d)
+                    .iter()
+                    .all(|&c| (0..n).contains(&c))
+            })
+            .collect();
+        Self {
+            tree,
+            max_depth,
+            block_level,
+            blocks,
+        }
+    }
+}
+
+impl Cells for TreeCells<'_> {
+    type Handle = (u32, u32);
+
+    fn max_depth(&self) -> u32 {
+        self.max_depth
+    }
+
+    fn block_count(&self) -> usize {
+        self.blocks.len()
+    }
+
+    fn for_each_leaf(&self, b: usize, f: &mut dyn FnMut((u32, u32), u32, [u32; 3])) {
+        // Depth-first, children in order: Morton order within the block.
+        let mut stack = vec![(self.block_level, self.blocks[b])];
+        while let Some((t, n)) = stack.pop() {
+            let level = &self.tree.levels[t as usize];
+            let c = level.child(n);
+            if c == NONE {
+                let d = t - DEPTH_OFFSET;
+                let o = func_index(level.key(n), d);
+                f((t, n), d, [o[0] as u32, o[1] as u32, o[2] as u32]);
+            } else {
+                for k in (0..8).rev() {
+                    stack.push((t + 1, c * 8 + k));
+                }
+            }
+        }
+    }
+
+    fn refined_around(&self, (t, n): (u32, u32), _depth: u32, _offset: [u32; 3]) -> u32 {
+        let level = &self.tree.levels[t as usize];
+        let next = self.tree.levels.get(t as usize + 1);
+        let mut mask = 0;
+        if next.is_none() {
+            return 0;
+        }
+        for s in 0..27u32 {
+            let o = [
+                i64::from(s % 3) - 1,
+                i64::from((s / 3) % 3) - 1,
+                i64::from(s / 9) - 1,
+            ];
+            let m = neighbor_in(level, n, window_index(o));
+            if m != NONE && level.child(m) != NONE {
+                mask |= 1 << s;
+            }
+        }
+        mask
+    }
+
+    fn refined(&self, (t, n): (u32, u32), depth: u32, offset: [u32; 3]) -> bool {
+        let d = t - DEPTH_OFFSET;
+        let levels = &self.tree.levels;
+        let own = func_index(levels[t as usize].key(n), d);
+        // The cell's ancestor at the leaf's depth is a neighbour of the leaf.
+        let shift = depth.saturating_sub(d);
+        let rel: [i64; 3] = std::array::from_fn(|a| i64::from(offset[a] >> shift) - own[a]);
+        let (mut tt, mut m) = if depth >= d && rel.iter().all(|&r| (-2..=2).contains(&r)) {
+            (t, neighbor_in(&levels[t as usize], n, window_index(rel)))
+        } else {
+            // Not expected (the cell touches the leaf and is no coarser); look it up from the
+            // root.
+            let key: [u64; 3] = std::array::from_fn(|a| u64::from(offset[a]) + (1u64 << depth));
+            let tk = depth + DEPTH_OFFSET;
+            let (reached, node) = self.tree.descend(key, tk, tk);
+            if reached != tk {
+                return false;
+            }
+            (tk, node)
+        };
+        if m == NONE {
+            return false;
+        }
+        while tt < depth + DEPTH_OFFSET {
+            let b = levels[tt as usize].child(m);
+            if b == NONE {
+                return false;
+            }
+            tt += 1;
+            let s = depth + DEPTH_OFFSET - tt;
+            let bits = ((offset[0] >> s) & 1)
+                | (((offset[1] >> s) & 1) << 1)
+                | (((offset[2] >> s) & 1) << 2);
+            m = b * 8 + bits;
+        }
+        levels[tt as usize].child(m) != NONE
+    }
 }
 
 /// Peak memory per octree node over the whole run (solve and extraction), measured on depth-10
@@ -326,11 +488,37 @@ fn outlier_warning(points: &PointCloud, valid: &[usize], side: f64, depth: u32) 
 }
 
 /// Stages 1–7 of the pipeline: everything up to and including the iso-value.
+#[cfg_attr(not(test), allow(dead_code))]
 pub(crate) fn solve_implicit(
     points: &PointCloud,
     params: &Params,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<Implicit> {
+    solve_implicit_from(Input::Borrowed(points), params, progress)
+}
+
+/// The points handed to the pipeline: an owned cloud is released as soon as its unit-cube
+/// copy exists, which lowers the peak memory by the cloud's size.
+pub(crate) enum Input<'a> {
+    Borrowed(&'a PointCloud),
+    Owned(PointCloud),
+}
+
+impl Input<'_> {
+    fn cloud(&self) -> &PointCloud {
+        match self {
+            Input::Borrowed(c) => c,
+            Input::Owned(c) => c,
+        }
+    }
+}
+
+fn solve_implicit_from(
+    input: Input,
+    params: &Params,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<Implicit> {
+    let points = input.cloud();
     params.validate()?;
     if points.positions.len() != points.normals.len() {
         return Err(Error::LengthMismatch {
@@ -352,8 +540,41 @@ pub(crate) fn solve_implicit(
 
     // 1. Filter, bounding cube, unit-cube transform (§3.1, §3.2).
     timer.start("preparing points");
+    // Per-point weights from a named property, when asked for.
+    let confidence = match &params.confidence_property {
+        Some(name) => Some(points.attribute(name).ok_or_else(|| {
+            let have: Vec<&str> = points.attributes.iter().map(|a| a.name.as_str()).collect();
+            Error::InvalidParameter {
+                name: "--confidence-property",
+                message: format!(
+                    "the points have no property '{name}' (they have: {})",
+                    if have.is_empty() {
+                        "none".to_string()
+                    } else {
+                        have.join(", ")
+                    }
+                ),
+            }
+        })?),
+        None => None,
+    };
+    let weight_of = |i: usize| -> f64 {
+        match confidence {
+            Some(a) => a.data.get(i).unwrap_or(f64::NAN),
+            None if params.confidence => {
+                let n = points.normals[i];
+                (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt()
+            }
+            None => 1.0,
+        }
+    };
     let valid: Vec<usize> = (0..points.len())
-        .filter(|&i| is_valid(&points.positions[i], &points.normals[i]))
+        .filter(|&i| {
+            is_valid(&points.positions[i], &points.normals[i]) && {
+                let w = weight_of(i);
+                w.is_finite() && w > 0.0
+            }
+        })
         .collect();
     let dropped = points.len() - valid.len();
     if valid.len() < MIN_POINTS {
@@ -394,7 +615,7 @@ pub(crate) fn solve_implicit(
             let p = points.positions[i];
             let n = points.normals[i];
             let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            let w = if params.confidence { len } else { 1.0 };
+            let w = weight_of(i);
             (
                 std::array::from_fn(|a| ((p[a] - origin[a]) / width).clamp(0.0, 1.0)),
                 [n[0] / len, n[1] / len, n[2] / len],
@@ -402,11 +623,53 @@ pub(crate) fn solve_implicit(
             )
         })
         .collect();
+    // Attributes carried onto the mesh: one f64 channel per attribute, per valid point.
+    let columns: Vec<&Attribute> = if params.attributes {
+        points
+            .attributes
+            .iter()
+            .filter(|a| a.data.len() == points.len())
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let attribute_types: Vec<Attribute> = columns
+        .iter()
+        .map(|a| Attribute::new(a.name.clone(), AttributeData::new(a.data.scalar_type())))
+        .collect();
+    let channels = attribute_types.len();
+    let point_values: Vec<f64> = if channels > 0 {
+        valid
+            .iter()
+            .flat_map(|&i| columns.iter().map(move |a| a.data.get(i).unwrap_or(0.0)))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let n_points = points.len();
+    drop(input);
     timer.stop("preparing points");
 
     // 2. Samples and density (§3.3, §3.5).
     timer.start("density");
-    let samples = merge_samples(&unit, depth);
+    let (samples, sample_of) = merge_samples_grouped(&unit, depth, channels > 0);
+    // Each sample's attributes: the weighted mean over its points.
+    let mut sample_values = vec![0.0f64; samples.len() * channels];
+    for (p, &s) in sample_of.iter().enumerate() {
+        if s == u32::MAX {
+            continue;
+        }
+        let w = unit[p].2 / samples[s as usize].weight;
+        let row = &mut sample_values[s as usize * channels..(s as usize + 1) * channels];
+        for (o, v) in row
+            .iter_mut()
+            .zip(&point_values[p * channels..(p + 1) * channels])
+        {
+            *o += w * v;
+        }
+    }
+    drop(sample_of);
+    drop(point_values);
     drop(unit);
     let density = Density::build(&samples, params.kernel_depth(), params.samples_per_node);
     let queries: Vec<_> = samples.par_iter().map(|s| density.query(s.pos)).collect();
@@ -457,7 +720,7 @@ pub(crate) fn solve_implicit(
         }
     }
     let closed = req.close(base, base);
-    check_memory(&closed.level_counts(), points.len(), params)?;
+    check_memory(&closed.level_counts(), n_points, params)?;
     let tree = Octree::materialize(closed);
     timer.stop("octree");
 
@@ -515,13 +778,18 @@ pub(crate) fn solve_implicit(
         ));
     }
     let mean_area = sum_wa / sum_w;
+    // From here on only the samples' positions and weights are needed.
+    let n_samples = samples.len();
+    let positions: Vec<[f64; 3]> = samples.iter().map(|s| s.pos).collect();
+    let weights: Vec<f64> = samples.iter().map(|s| s.weight).collect();
+    drop(splats);
+    drop(queries);
+    drop(samples);
     timer.stop("splatting");
 
     // 5. Screening clusters (§3.7).
     timer.start("clusters");
     let t_max = tree.depth_count() - 1;
-    let positions: Vec<[f64; 3]> = samples.iter().map(|s| s.pos).collect();
-    let weights: Vec<f64> = samples.iter().map(|s| s.weight).collect();
     let leaf_of: Vec<(u32, u32)> = positions
         .par_iter()
         .map(|p| {
@@ -535,6 +803,17 @@ pub(crate) fn solve_implicit(
             )
         })
         .collect();
+    let data = (channels > 0).then(|| {
+        DataField::build(
+            &tree,
+            &leaf_of,
+            &weights,
+            &sample_values,
+            channels,
+            params.data_pull,
+        )
+    });
+    drop(sample_values);
     let alpha = params.alpha();
     let clusters = if alpha > 0.0 {
         build_clusters(
@@ -558,18 +837,19 @@ pub(crate) fn solve_implicit(
         .map(|t| (t >= tb).then(|| DepthTables::new(fem, vb, t as u32 - DEPTH_OFFSET)))
         .collect();
     let singular = alpha == 0.0 && params.boundary != Boundary::Dirichlet;
-    let sol = solve(&Problem {
-        tree: &tree,
-        fem,
-        tables: &tables,
-        v: &v,
-        clusters: &clusters,
-        base_level: tb as u32,
-        iters: params.iters,
-        singular,
-        progress,
-    });
-    drop(v);
+    let sol = solve(
+        &Problem {
+            tree: &tree,
+            fem,
+            tables: &tables,
+            clusters: &clusters,
+            base_level: tb as u32,
+            iters: params.iters,
+            singular,
+            progress,
+        },
+        v,
+    );
     drop(clusters);
     timer.stop("solving");
     for (n, d, m) in &sol.timings {
@@ -597,9 +877,9 @@ pub(crate) fn solve_implicit(
         width,
         origin,
         stats: Stats {
-            points: points.len(),
+            points: n_points,
             dropped,
-            samples: samples.len(),
+            samples: n_samples,
             nodes_per_depth,
             iso_value: iso,
             mean_sample_depth: sum_depth / sum_w,
@@ -607,6 +887,8 @@ pub(crate) fn solve_implicit(
             stages: timer.stats,
             peak_memory: timer.memory,
         },
+        data,
+        attribute_types,
     })
 }
 

@@ -13,6 +13,7 @@ use crate::bspline::Basis;
 use crate::octree::{neighbor_in, window_index, Level, Octree, DEPTH_OFFSET, NONE};
 use crate::system::{
     cluster_offsets, divergence_constraints, func_index, prolong, Clusters, DepthTables,
+    SharedSlice,
 };
 
 /// The screening target τ at the samples (PR18 convention: χ ≈ 1 inside, 0 outside).
@@ -23,7 +24,8 @@ pub const TAU: f64 = 0.5;
 pub struct Solution {
     /// Coefficients solved at each level (empty below the base level).
     pub x: Vec<Vec<f32>>,
-    /// Cumulative solution of all levels up to and including this one, prolonged to it.
+    /// Cumulative solution of all levels up to and including this one, prolonged to it
+    /// (empty below the base level and at the deepest level, which evaluation never reads).
     pub p: Vec<Vec<f32>>,
     /// Level of the base solve.
     pub base_level: u32,
@@ -39,8 +41,6 @@ pub struct Problem<'a> {
     pub fem: Basis,
     /// Tables per level (present at levels ≥ base).
     pub tables: &'a [Option<DepthTables>],
-    /// V per level (may be empty).
-    pub v: &'a [Vec<[f32; 3]>],
     /// Clusters per level.
     pub clusters: &'a [Clusters],
     /// Base level.
@@ -55,6 +55,8 @@ pub struct Problem<'a> {
 
 /// Operator of one level.
 struct Op<'a> {
+    tree: &'a Octree,
+    t: u32,
     level: &'a Level,
     d: u32,
     tab: &'a DepthTables,
@@ -90,6 +92,8 @@ impl<'a> Op<'a> {
             }
         }
         Op {
+            tree: p.tree,
+            t,
             level: &p.tree.levels[t as usize],
             d: t - DEPTH_OFFSET,
             tab,
@@ -102,7 +106,7 @@ impl<'a> Op<'a> {
 
     #[inline]
     fn index(&self, n: u32) -> [i64; 3] {
-        func_index(self.level.keys[n as usize], self.d)
+        func_index(self.level.key(n), self.d)
     }
 
     /// `Σ_j L_ij x_j` for row `n`, reading coefficients through `x`.
@@ -138,14 +142,14 @@ impl<'a> Op<'a> {
             if m == NONE {
                 continue;
             }
-            let c = self.cl.of_node.get(m as usize).copied().unwrap_or(NONE);
+            let c = self.cl.of_node.get(m);
             if c != NONE {
                 f(c, self.cl.basis_value(c as usize, i, self.degree));
             }
         }
     }
 
-    fn diagonal(&self) -> Vec<f64> {
+    fn diagonal(&self) -> Vec<f32> {
         (0..self.level.len() as u32)
             .into_par_iter()
             .map(|n| {
@@ -155,22 +159,22 @@ impl<'a> Op<'a> {
                 }
                 let mut dg = self.tab.stiffness(i, [0, 0, 0]);
                 self.for_each_cluster(n, i, |c, bv| dg += self.cl.omega[c as usize] * bv * bv);
-                dg
+                dg as f32
             })
             .collect()
     }
 
     /// χ_d at every cluster from the level's coefficients.
-    fn cluster_values(&self, x: &[f64]) -> Vec<f64> {
+    fn cluster_values(&self, x: impl Fn(usize) -> f64 + Sync) -> Vec<f64> {
         (0..self.cl.pos.len())
             .into_par_iter()
-            .map(|c| cluster_value(self.level, self.cl, c, self.d, self.degree, x))
+            .map(|c| cluster_value(self.level, self.cl, c, self.d, self.degree, &x))
             .collect()
     }
 
     /// `y = (L + S) x`.
     fn apply(&self, x: &[f64], valid: &[bool]) -> Vec<f64> {
-        let chi = self.cluster_values(x);
+        let chi = self.cluster_values(|n| x[n]);
         (0..self.level.len() as u32)
             .into_par_iter()
             .map(|n| {
@@ -187,98 +191,227 @@ impl<'a> Op<'a> {
             .collect()
     }
 
-    /// Multi-colour Gauss–Seidel sweeps (ALGORITHM.md §7.1). Nodes are coloured by their
-    /// function index modulo `degree + 1` per axis: two nodes of one colour then share no
-    /// stiffness entry and no screening cluster, so a colour is relaxed in parallel without
-    /// races, and the result does not depend on the thread count.
-    fn gauss_seidel(&self, r: &[f64], x: &mut [f64], diag: &[f64], iters: u32) {
-        let m = i64::from(self.degree) + 1;
-        let ncol = (m * m * m) as usize;
-        let mut colours: Vec<Vec<u32>> = vec![Vec::new(); ncol];
-        for n in 0..self.level.len() as u32 {
-            if diag[n as usize] > 0.0 {
+    /// The level's matrix `L + S` with one fixed-width row per node (the stiffness window's
+    /// slots; `NONE` columns where a neighbour is missing or not an unknown). Worth building
+    /// for the base solve, whose conjugate gradients apply the operator a hundred times.
+    fn assemble(&self, valid: &[bool]) -> FixedRows {
+        let width = self.win.len();
+        let mut slot_of = [usize::MAX; 125];
+        for (k, &(w, _)) in self.win.iter().enumerate() {
+            slot_of[w] = k;
+        }
+        let k = usize::from(self.degree);
+        let rows: Vec<(Vec<u32>, Vec<f64>)> = (0..self.level.len() as u32)
+            .into_par_iter()
+            .map(|n| {
+                let mut cols = vec![NONE; width];
+                let mut vals = vec![0.0; width];
+                if !valid[n as usize] {
+                    return (cols, vals);
+                }
                 let i = self.index(n);
-                let c = i[0].rem_euclid(m) + m * (i[1].rem_euclid(m) + m * i[2].rem_euclid(m));
-                colours[c as usize].push(n);
+                let interior = self.tab.range.interior(i, 3);
+                for (slot, &(w, o)) in self.win.iter().enumerate() {
+                    let m = neighbor_in(self.level, n, w);
+                    if m != NONE && valid[m as usize] {
+                        cols[slot] = m;
+                        vals[slot] = if interior {
+                            self.tab.stencil[w]
+                        } else {
+                            self.tab.stiffness(i, o)
+                        };
+                    }
+                }
+                self.for_each_cluster(n, i, |c, bv| {
+                    let c = c as usize;
+                    let w_c = self.cl.omega[c] * bv;
+                    let f = self.cl.first[c];
+                    let v = &self.cl.vals[c];
+                    for z in 0..=k {
+                        for y in 0..=k {
+                            for x in 0..=k {
+                                let o = [
+                                    i64::from(f[0]) + x as i64 - i[0],
+                                    i64::from(f[1]) + y as i64 - i[1],
+                                    i64::from(f[2]) + z as i64 - i[2],
+                                ];
+                                let slot = slot_of[window_index(o)];
+                                if slot != usize::MAX && cols[slot] != NONE {
+                                    vals[slot] += w_c
+                                        * f64::from(v[0][x])
+                                        * f64::from(v[1][y])
+                                        * f64::from(v[2][z]);
+                                }
+                            }
+                        }
+                    }
+                });
+                (cols, vals)
+            })
+            .collect();
+        let mut out = FixedRows {
+            width,
+            cols: Vec::with_capacity(rows.len() * width),
+            vals: Vec::with_capacity(rows.len() * width),
+        };
+        for (c, v) in rows {
+            out.cols.extend_from_slice(&c);
+            out.vals.extend_from_slice(&v);
+        }
+        out
+    }
+
+    /// Multi-colour Gauss–Seidel sweeps (ALGORITHM.md §7.1), relaxed block by block.
+    ///
+    /// Nodes are coloured by their function index modulo `degree + 1` per axis: two nodes of
+    /// one colour share no stiffness entry and no screening cluster. For degree 1 the colour
+    /// of node `8b + c` is its child position `c` (a function index's parity is its key's).
+    ///
+    /// For locality the level is cut into blocks: the nodes below one ancestor four levels
+    /// up, contiguous in the level's Morton order. Blocks are coloured by their ancestor's key
+    /// parity, so two blocks of one colour are at least 17 nodes apart, far more than the two
+    /// nodes over which a relaxation reads or writes coefficients and cluster values. A sweep
+    /// relaxes the blocks colour by colour, blocks of one colour in parallel, and inside a
+    /// block the node colours one after the other: a block's data is read once per sweep
+    /// rather than once per node colour. The order depends only on the tree, so the result
+    /// does not depend on the thread count.
+    fn gauss_seidel(&self, r: &[f32], x: &mut [f32], iters: u32) {
+        let up = 4.min(self.t);
+        let nb = self.level.len() / 8;
+        let mut blocks: [Vec<(u32, u32)>; 8] = Default::default();
+        let mut start = 0usize;
+        let mut current = NONE;
+        let mut colour = 0usize;
+        for b in 0..=nb {
+            let anc = (b < nb).then(|| {
+                let mut a = self.level.brood_parent[b];
+                for k in 1..up {
+                    a = self.tree.parent(self.t - k, a);
+                }
+                a
+            });
+            if anc != Some(current) {
+                if current != NONE {
+                    blocks[colour].push((start as u32, b as u32));
+                }
+                if let Some(a) = anc {
+                    current = a;
+                    start = b;
+                    let k = self.tree.levels[(self.t - up) as usize].key(a);
+                    colour = ((k[0] & 1) | (k[1] & 1) << 1 | (k[2] & 1) << 2) as usize;
+                }
             }
         }
-        let mut chi = self.cluster_values(x);
+        let m = i64::from(self.degree) + 1;
+        let node_colours = (m * m * m) as u32;
+        let mut chi = self.cluster_values(|n| f64::from(x[n]));
         let xs = SharedSlice::new(x);
         let cs = SharedSlice::new(&mut chi);
         for _ in 0..iters {
-            for list in &colours {
-                list.par_iter().with_min_len(256).for_each(|&n| {
-                    // SAFETY: within one colour, node `n` is the only one that writes x[n] or
-                    // the χ of its clusters, and no node reads another same-colour node's
-                    // coefficient or clusters (see the colouring argument above).
-                    unsafe { self.relax(n, r, diag[n as usize], &xs, &cs) };
+            for list in &blocks {
+                list.par_iter().for_each(|&(b0, b1)| {
+                    for c in 0..node_colours {
+                        for b in b0..b1 {
+                            for k in 0..8 {
+                                let n = 8 * b + k;
+                                let i = self.index(n);
+                                let colour = if self.degree == 1 {
+                                    k
+                                } else {
+                                    (i[0].rem_euclid(m)
+                                        + m * (i[1].rem_euclid(m) + m * i[2].rem_euclid(m)))
+                                        as u32
+                                };
+                                if colour != c {
+                                    continue;
+                                }
+                                // SAFETY: only this block's task touches the coefficients
+                                // and cluster values within two nodes of its nodes (above).
+                                unsafe { self.relax(n, i, f64::from(r[n as usize]), &xs, &cs) };
+                            }
+                        }
+                    }
                 });
             }
         }
     }
 
-    /// One Gauss–Seidel update of node `n`.
+    /// One Gauss–Seidel update of node `n` (nothing for a node without a function). The
+    /// diagonal `L_nn + Σ_c ω_c B_n(p_c)²` is summed on the way.
     ///
     /// # Safety
     /// No other thread may concurrently write `x[n]`, any `x[m]` this row reads, or the
     /// cluster values of the clusters around `n`.
     #[inline]
-    unsafe fn relax(&self, n: u32, r: &[f64], dg: f64, x: &SharedSlice, chi: &SharedSlice) {
-        let i = self.index(n);
-        let mut s = self.stiffness_row(n, i, |m| x.get(m));
+    unsafe fn relax(
+        &self,
+        n: u32,
+        i: [i64; 3],
+        r: f64,
+        x: &SharedSlice<f32>,
+        chi: &SharedSlice<f64>,
+    ) {
+        if !self.tab.range.contains(i) {
+            return;
+        }
+        let mut s = self.stiffness_row(n, i, |m| f64::from(x.get(m)));
+        let mut dg = if self.tab.range.interior(i, 3) {
+            self.tab.stencil[62]
+        } else {
+            self.tab.stiffness(i, [0, 0, 0])
+        };
         let mut touched: [(u32, f64); 27] = [(0, 0.0); 27];
         let mut k = 0;
         self.for_each_cluster(n, i, |c, bv| {
-            s += self.cl.omega[c as usize] * bv * chi.get(c as usize);
+            let w = self.cl.omega[c as usize] * bv;
+            s += w * chi.get(c as usize);
+            dg += w * bv;
             touched[k] = (c, bv);
             k += 1;
         });
-        let dx = (r[n as usize] - s) / dg;
-        x.set(n as usize, x.get(n as usize) + dx);
+        let dx = (r - s) / dg;
+        x.set(n as usize, (f64::from(x.get(n as usize)) + dx) as f32);
         for &(c, bv) in &touched[..k] {
             chi.set(c as usize, chi.get(c as usize) + dx * bv);
         }
     }
 }
 
-/// A slice shared between threads that write disjoint elements (multi-colour Gauss–Seidel).
-struct SharedSlice {
-    ptr: *mut f64,
-    len: usize,
+/// A sparse matrix with the same number of slots in every row.
+struct FixedRows {
+    width: usize,
+    cols: Vec<u32>,
+    vals: Vec<f64>,
 }
 
-// SAFETY: access goes through `get`/`set`, whose callers guarantee disjoint writes.
-unsafe impl Sync for SharedSlice {}
-
-impl SharedSlice {
-    fn new(s: &mut [f64]) -> Self {
-        Self {
-            ptr: s.as_mut_ptr(),
-            len: s.len(),
-        }
-    }
-
-    /// # Safety
-    /// No concurrent write to element `i`.
-    #[inline]
-    unsafe fn get(&self, i: usize) -> f64 {
-        debug_assert!(i < self.len);
-        *self.ptr.add(i)
-    }
-
-    /// # Safety
-    /// No concurrent access to element `i`.
-    #[inline]
-    unsafe fn set(&self, i: usize, v: f64) {
-        debug_assert!(i < self.len);
-        *self.ptr.add(i) = v;
+impl FixedRows {
+    /// `y = A x`.
+    fn apply(&self, x: &[f64]) -> Vec<f64> {
+        self.cols
+            .par_chunks(self.width)
+            .zip(self.vals.par_chunks(self.width))
+            .map(|(c, v)| {
+                c.iter()
+                    .zip(v)
+                    .filter(|(&c, _)| c != NONE)
+                    .map(|(&c, &v)| v * x[c as usize])
+                    .sum()
+            })
+            .collect()
     }
 }
 
 /// `Σ_j B_j(p_c) x_j` over the level's functions around cluster `c`.
-fn cluster_value(level: &Level, cl: &Clusters, c: usize, d: u32, degree: u8, x: &[f64]) -> f64 {
+fn cluster_value(
+    level: &Level,
+    cl: &Clusters,
+    c: usize,
+    d: u32,
+    degree: u8,
+    x: &impl Fn(usize) -> f64,
+) -> f64 {
     let node = cl.node[c];
-    let own = func_index(level.keys[node as usize], d);
+    let own = func_index(level.key(node), d);
     let f = cl.first[c];
     let v = &cl.vals[c];
     let k = i64::from(degree);
@@ -302,7 +435,7 @@ fn cluster_value(level: &Level, cl: &Clusters, c: usize, d: u32, degree: u8, x: 
                 s += f64::from(v[0][xx as usize])
                     * f64::from(v[1][y as usize])
                     * f64::from(v[2][z as usize])
-                    * x[m as usize];
+                    * x(m as usize);
             }
         }
     }
@@ -324,45 +457,69 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
         .sum()
 }
 
-/// Conjugate gradients on `op` to relative residual `tol`.
-fn conjugate_gradients(op: &Op, b: &[f64], valid: &[bool], max_iter: usize, tol: f64) -> Vec<f64> {
+/// Conjugate gradients on `op`, preconditioned by its diagonal (Jacobi), to relative residual
+/// `tol` (measured in the unpreconditioned norm).
+fn conjugate_gradients(
+    apply: impl Fn(&[f64]) -> Vec<f64>,
+    diag: &[f32],
+    b: &[f64],
+    valid: &[bool],
+    max_iter: usize,
+    tol: f64,
+) -> Vec<f64> {
     let n = b.len();
+    let inv: Vec<f64> = diag
+        .iter()
+        .zip(valid)
+        .map(|(&d, &v)| {
+            if v && d > 0.0 {
+                1.0 / f64::from(d)
+            } else {
+                0.0
+            }
+        })
+        .collect();
     let mut x = vec![0.0; n];
     let mut r = b.to_vec();
-    let mut p = r.clone();
-    let mut rr = dot(&r, &r);
-    let target = tol * tol * rr;
-    if rr == 0.0 {
+    let mut z: Vec<f64> = r.iter().zip(&inv).map(|(r, m)| r * m).collect();
+    let mut p = z.clone();
+    let mut rz = dot(&r, &z);
+    let target = tol * tol * dot(&r, &r);
+    if target == 0.0 {
         return x;
     }
     for _ in 0..max_iter {
-        let ap = op.apply(&p, valid);
+        let ap = apply(&p);
         let pap = dot(&p, &ap);
         if pap <= 0.0 || !pap.is_finite() {
             break;
         }
-        let alpha = rr / pap;
+        let alpha = rz / pap;
         x.par_iter_mut()
             .zip(&p)
             .for_each(|(xi, pi)| *xi += alpha * pi);
         r.par_iter_mut()
             .zip(&ap)
             .for_each(|(ri, ai)| *ri -= alpha * ai);
-        let rr_new = dot(&r, &r);
-        if rr_new <= target {
+        if dot(&r, &r) <= target {
             break;
         }
-        let beta = rr_new / rr;
-        rr = rr_new;
-        p.par_iter_mut()
+        z.par_iter_mut()
             .zip(&r)
-            .for_each(|(pi, ri)| *pi = ri + beta * *pi);
+            .zip(&inv)
+            .for_each(|((zi, ri), mi)| *zi = ri * mi);
+        let rz_new = dot(&r, &z);
+        let beta = rz_new / rz;
+        rz = rz_new;
+        p.par_iter_mut()
+            .zip(&z)
+            .for_each(|(pi, zi)| *pi = zi + beta * *pi);
     }
     x
 }
 
 /// Right-hand side contributions from the clusters: `Σ_c ω_c B_i(p_c) (τ − coarse_c)`.
-fn add_screening_targets(op: &Op, coarse_chi: Option<&[f64]>, r: &mut [f64]) {
+fn add_screening_targets(op: &Op, r: &mut [f64]) {
     r.par_iter_mut().enumerate().for_each(|(n, rn)| {
         let n = n as u32;
         let i = op.index(n);
@@ -370,14 +527,14 @@ fn add_screening_targets(op: &Op, coarse_chi: Option<&[f64]>, r: &mut [f64]) {
             return;
         }
         op.for_each_cluster(n, i, |c, bv| {
-            let coarse = coarse_chi.map_or(0.0, |v| v[c as usize]);
-            *rn += op.cl.omega[c as usize] * bv * (TAU - coarse);
+            *rn += op.cl.omega[c as usize] * bv * TAU;
         });
     });
 }
 
-/// Solves the whole hierarchy.
-pub fn solve(p: &Problem) -> Solution {
+/// Solves the whole hierarchy. `v` is the splatted vector field per level (may be empty);
+/// each level's V is released as soon as the cascade no longer needs it.
+pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
     let tree = p.tree;
     let nlev = tree.levels.len();
     let tb = p.base_level as usize;
@@ -391,18 +548,22 @@ pub fn solve(p: &Problem) -> Solution {
         timings.push((name, clock.elapsed(), crate::reconstruct::peak_rss()));
         *clock = std::time::Instant::now();
     };
-    let mut tcons: Vec<Vec<f64>> = vec![Vec::new(); nlev];
+    // Constraints are stored in single precision (summed in double precision).
+    let mut tcons: Vec<Vec<f32>> = vec![Vec::new(); nlev];
     let mut g_finer: Vec<f64> = Vec::new();
     let empty: Vec<[f32; 3]> = Vec::new();
+    v.resize_with(nlev, Vec::new);
     for t in (tb..=max_level).rev() {
         let tab = p.tables[t].as_ref().expect("tables");
-        let v_finer = p.v.get(t + 1).unwrap_or(&empty);
+        let v_finer = v.get(t + 1).unwrap_or(&empty);
         let gf = (t < max_level).then_some(g_finer.as_slice());
-        let (g, b) = divergence_constraints(tree, t as u32, tab, p.fem, &p.v[t], v_finer, gf);
+        let (g, b) = divergence_constraints(tree, t as u32, tab, p.fem, &v[t], v_finer, gf);
         g_finer = g;
         tcons[t] = b;
     }
     drop(g_finer);
+    // The finest level's V has entered the constraints; the cascade only prolongs coarser V.
+    v[max_level] = Vec::new();
     lap("divergence constraints".into(), &mut clock);
     let mut sol = Solution {
         x: vec![Vec::new(); nlev],
@@ -421,8 +582,9 @@ pub fn solve(p: &Problem) -> Solution {
         let valid: Vec<bool> = (0..op.level.len() as u32)
             .map(|n| op.tab.range.contains(op.index(n)))
             .collect();
-        let mut b = std::mem::take(&mut tcons[tb]);
-        add_screening_targets(&op, None, &mut b);
+        let mut b: Vec<f64> = tcons[tb].iter().map(|&x| f64::from(x)).collect();
+        tcons[tb] = Vec::new();
+        add_screening_targets(&op, &mut b);
         if p.singular {
             // Project out the constant null vector so the system is consistent.
             let cnt = valid.iter().filter(|&&v| v).count().max(1) as f64;
@@ -439,7 +601,15 @@ pub fn solve(p: &Problem) -> Solution {
                 }
             }
         }
-        let x = conjugate_gradients(&op, &b, &valid, 3000, 1e-7);
+        // A base level of up to 2^18 nodes (depth 5: 46,656) is assembled once; larger ones
+        // (a deep --full-depth) are applied matrix-free to bound memory.
+        let diag = op.diagonal();
+        let x = if op.level.len() <= 1 << 18 {
+            let a = op.assemble(&valid);
+            conjugate_gradients(|x| a.apply(x), &diag, &b, &valid, 3000, 1e-7)
+        } else {
+            conjugate_gradients(|x| op.apply(x, &valid), &diag, &b, &valid, 3000, 1e-7)
+        };
         sol.x[tb] = to_f32(&x);
         sol.p[tb] = to_f32(&x);
         p_prev = x;
@@ -449,11 +619,8 @@ pub fn solve(p: &Problem) -> Solution {
         &mut clock,
     );
 
-    // Cumulative V, prolonged level by level.
-    let mut vc: Vec<[f64; 3]> = p.v[tb]
-        .iter()
-        .map(|v| [f64::from(v[0]), f64::from(v[1]), f64::from(v[2])])
-        .collect();
+    // Cumulative V, prolonged level by level (stored in single precision).
+    let mut vc: Vec<[f32; 3]> = std::mem::take(&mut v[tb]);
     if vc.is_empty() {
         vc = vec![[0.0; 3]; tree.levels[tb].len()];
     }
@@ -465,67 +632,6 @@ pub fn solve(p: &Problem) -> Solution {
         let level = op.level;
         let parent_level = &tree.levels[t - 1];
         let pc = &p_prev;
-        // Right-hand side: own constraints + coarser V − coarser solution coupling.
-        let mut r: Vec<f64> = (0..level.len() as u32)
-            .into_par_iter()
-            .map(|n| {
-                let i = op.index(n);
-                if !tab.range.contains(i) {
-                    return 0.0;
-                }
-                let mut s = tcons[t][n as usize];
-                let par = level.brood_parent[(n >> 3) as usize];
-                if tab.is_interior(i) {
-                    let c = ((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2)) as usize;
-                    let ps = &tab.pstencil[c];
-                    let pv = &tab.pvstencil[c];
-                    for w in 0..125usize {
-                        let q = neighbor_in(parent_level, par, w);
-                        if q == NONE {
-                            continue;
-                        }
-                        s -= ps[w] * pc[q as usize];
-                        let v = vc[q as usize];
-                        s += v[0] * pv[0][w] + v[1] * pv[1][w] + v[2] * pv[2][w];
-                    }
-                    return s;
-                }
-                let mut pm = [[0.0; 5]; 3];
-                let mut ps = [[0.0; 5]; 3];
-                let mut vm = [[0.0; 5]; 3];
-                let mut vd = [[0.0; 5]; 3];
-                for a in 0..3 {
-                    for o in 0..5 {
-                        pm[a][o] = tab.pmass.get(i[a], o as i64 - 2);
-                        ps[a][o] = tab.pstiff.get(i[a], o as i64 - 2);
-                        vm[a][o] = tab.pvmass.get(i[a], o as i64 - 2);
-                        vd[a][o] = tab.pvderiv.get(i[a], o as i64 - 2);
-                    }
-                }
-                for w in 0..125usize {
-                    let (ox, oy, oz) = (w % 5, (w / 5) % 5, w / 25);
-                    let q = neighbor_in(parent_level, par, w);
-                    if q == NONE {
-                        continue;
-                    }
-                    let xq = pc[q as usize];
-                    if xq != 0.0 {
-                        let k = ps[0][ox] * pm[1][oy] * pm[2][oz]
-                            + pm[0][ox] * ps[1][oy] * pm[2][oz]
-                            + pm[0][ox] * pm[1][oy] * ps[2][oz];
-                        s -= k * xq;
-                    }
-                    let v = vc[q as usize];
-                    if v != [0.0; 3] {
-                        s += v[0] * vd[0][ox] * vm[1][oy] * vm[2][oz]
-                            + v[1] * vm[0][ox] * vd[1][oy] * vm[2][oz]
-                            + v[2] * vm[0][ox] * vm[1][oy] * vd[2][oz];
-                    }
-                }
-                s
-            })
-            .collect();
-        tcons[t] = Vec::new();
         // Screening: the coarser solution at the clusters of this level.
         let coarse_chi: Vec<f64> = (0..op.cl.pos.len())
             .into_par_iter()
@@ -535,42 +641,121 @@ pub fn solve(p: &Problem) -> Solution {
                 coarse_value(tree, p.fem, t as u32 - 1, par, op.cl.pos[c], pc)
             })
             .collect();
-        add_screening_targets(&op, Some(&coarse_chi), &mut r);
-        let diag = op.diagonal();
+        // Right-hand side: own constraints + coarser V − coarser solution coupling.
+        let rhs = |n: u32| -> f64 {
+            let i = op.index(n);
+            if !tab.range.contains(i) {
+                return 0.0;
+            }
+            let mut s = f64::from(tcons[t][n as usize]);
+            let par = level.brood_parent[(n >> 3) as usize];
+            if tab.is_interior(i) {
+                let c = ((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2)) as usize;
+                let ps = &tab.pstencil[c];
+                let pv = &tab.pvstencil[c];
+                for &w in &tab.pnonzero[c] {
+                    let w = usize::from(w);
+                    let q = neighbor_in(parent_level, par, w);
+                    if q == NONE {
+                        continue;
+                    }
+                    s -= ps[w] * pc[q as usize];
+                    let v = vc[q as usize];
+                    s += f64::from(v[0]) * pv[0][w]
+                        + f64::from(v[1]) * pv[1][w]
+                        + f64::from(v[2]) * pv[2][w];
+                }
+                return s;
+            }
+            let mut pm = [[0.0; 5]; 3];
+            let mut ps = [[0.0; 5]; 3];
+            let mut vm = [[0.0; 5]; 3];
+            let mut vd = [[0.0; 5]; 3];
+            for a in 0..3 {
+                for o in 0..5 {
+                    pm[a][o] = tab.pmass.get(i[a], o as i64 - 2);
+                    ps[a][o] = tab.pstiff.get(i[a], o as i64 - 2);
+                    vm[a][o] = tab.pvmass.get(i[a], o as i64 - 2);
+                    vd[a][o] = tab.pvderiv.get(i[a], o as i64 - 2);
+                }
+            }
+            for w in 0..125usize {
+                let (ox, oy, oz) = (w % 5, (w / 5) % 5, w / 25);
+                let q = neighbor_in(parent_level, par, w);
+                if q == NONE {
+                    continue;
+                }
+                let xq = pc[q as usize];
+                if xq != 0.0 {
+                    let k = ps[0][ox] * pm[1][oy] * pm[2][oz]
+                        + pm[0][ox] * ps[1][oy] * pm[2][oz]
+                        + pm[0][ox] * pm[1][oy] * ps[2][oz];
+                    s -= k * xq;
+                }
+                let v = vc[q as usize];
+                if v != [0.0; 3] {
+                    let v = v.map(f64::from);
+                    s += v[0] * vd[0][ox] * vm[1][oy] * vm[2][oz]
+                        + v[1] * vm[0][ox] * vd[1][oy] * vm[2][oz]
+                        + v[2] * vm[0][ox] * vm[1][oy] * vd[2][oz];
+                }
+            }
+            s
+        };
+        // Screening targets: Σ_c ω_c B_i(p_c) (τ − χ_{<d}(p_c)). Stored in single precision.
+        let r: Vec<f32> = (0..level.len() as u32)
+            .into_par_iter()
+            .map(|n| {
+                let mut s = rhs(n);
+                let i = op.index(n);
+                if tab.range.contains(i) {
+                    op.for_each_cluster(n, i, |c, bv| {
+                        s += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
+                    });
+                }
+                s as f32
+            })
+            .collect();
+        tcons[t] = Vec::new();
+        if t == max_level {
+            // The coarser V has entered the right-hand side for the last time.
+            vc = Vec::new();
+        }
         let dd = t as u32 - DEPTH_OFFSET;
         lap(format!("depth {dd}: right-hand side"), &mut clock);
-        let mut x = vec![0.0; level.len()];
-        op.gauss_seidel(&r, &mut x, &diag, p.iters);
+        let mut x = vec![0.0f32; level.len()];
+        op.gauss_seidel(&r, &mut x, p.iters);
+        drop(r);
         lap(format!("depth {dd}: Gauss-Seidel"), &mut clock);
-        // Cumulative solution and V at this level.
-        let cum = prolong::<1>(
-            tree,
-            t as u32,
-            &tab.prolong,
-            tab.range,
-            |q| [pc[q as usize]],
-            |n| [x[n]],
-        );
-        let cum: Vec<f64> = cum.into_iter().map(|v| v[0]).collect();
-        sol.p[t] = to_f32(&cum);
-        sol.x[t] = to_f32(&x);
-        p_prev = cum;
+        // Cumulative solution and V at this level, for the next level. The cascade carries
+        // the cumulative solution in double precision; the stored copy is single precision.
+        // The deepest level needs neither (evaluation reads a leaf's parent's cumulative
+        // solution).
         if t < max_level {
-            let vt = &p.v[t];
+            let cum = prolong::<1, f64>(
+                tree,
+                t as u32,
+                &tab.prolong,
+                tab.range,
+                |q| [pc[q as usize]],
+                |n| [f64::from(x[n])],
+                |c| c[0],
+            );
+            sol.p[t] = to_f32(&cum);
+            p_prev = cum;
+            let vt = std::mem::take(&mut v[t]);
             let prev = std::mem::take(&mut vc);
-            vc = prolong::<3>(
+            vc = prolong::<3, [f32; 3]>(
                 tree,
                 t as u32,
                 &tab.vprolong,
                 tab.vrange,
-                |q| prev[q as usize],
-                |n| {
-                    vt.get(n).map_or([0.0; 3], |v| {
-                        [f64::from(v[0]), f64::from(v[1]), f64::from(v[2])]
-                    })
-                },
+                |q| prev[q as usize].map(f64::from),
+                |n| vt.get(n).map_or([0.0; 3], |v| v.map(f64::from)),
+                |c| c.map(|x| x as f32),
             );
         }
+        sol.x[t] = x;
         lap(format!("depth {dd}: prolongation"), &mut clock);
     }
     sol.timings = timings;
@@ -589,7 +774,7 @@ pub fn coarse_value(
 ) -> f64 {
     let d = t - DEPTH_OFFSET;
     let level = &tree.levels[t as usize];
-    let own = func_index(level.keys[node as usize], d);
+    let own = func_index(level.key(node), d);
     let wx = fem.window(d, pos[0]);
     let wy = fem.window(d, pos[1]);
     let wz = fem.window(d, pos[2]);

@@ -8,7 +8,7 @@
 use rayon::prelude::*;
 
 use crate::bspline::{table, Basis, Integrand, Table1D};
-use crate::octree::{neighbor_in, window_index, Octree, DEPTH_OFFSET, NONE};
+use crate::octree::{neighbor_in, window_index, Level, Octree, DEPTH_OFFSET, NONE};
 
 /// Function index (unit offset) of a tree key at unit depth `d`.
 #[inline]
@@ -117,13 +117,12 @@ pub struct DepthTables {
     pub pstencil: Box<[[f64; 125]; 8]>,
     /// Interior parent V stencils, by child parity, component and parent window index.
     pub pvstencil: Box<[[[f64; 125]; 3]; 8]>,
+    /// By child parity, the parent window indices where `pstencil` or `pvstencil` is nonzero.
+    pub pnonzero: [Vec<u8>; 8],
     /// FEM values of this depth against V functions one depth finer.
     pub cvmass: CoarseFine,
     /// FEM derivatives of this depth against V functions one depth finer.
     pub cvderiv: CoarseFine,
-    /// Interior stencils of `∫∂_a B_I · B^V_o` for V one depth finer, by component and
-    /// offset `o − 2I ∈ [−3, 4]^3` (index `(kx+3) + 8(ky+3) + 64(kz+3)`).
-    pub cvstencil: Box<[[f64; 512]; 3]>,
 }
 
 /// 1-D integrals between the FEM functions `I` of one depth and the V functions `o` one depth
@@ -228,31 +227,18 @@ impl DepthTables {
         }
         let cvmass = CoarseFine::new(fem, d, &table(fem, vb, d + 1, false, Integrand::ValueValue));
         let cvderiv = CoarseFine::new(fem, d, &table(fem, vb, d + 1, false, Integrand::DerivValue));
-        let mut cvstencil = Box::new([[0.0; 512]; 3]);
-        for w in 0..512 {
-            let k = [
-                (w % 8) as i64 - 3,
-                ((w / 8) % 8) as i64 - 3,
-                (w / 64) as i64 - 3,
-            ];
-            let m = [
-                cvmass.get(mid, k[0]),
-                cvmass.get(mid, k[1]),
-                cvmass.get(mid, k[2]),
-            ];
-            let dv = [
-                cvderiv.get(mid, k[0]),
-                cvderiv.get(mid, k[1]),
-                cvderiv.get(mid, k[2]),
-            ];
-            cvstencil[0][w] = dv[0] * m[1] * m[2];
-            cvstencil[1][w] = m[0] * dv[1] * m[2];
-            cvstencil[2][w] = m[0] * m[1] * dv[2];
-        }
+        let pnonzero: [Vec<u8>; 8] = std::array::from_fn(|c| {
+            (0..125u8)
+                .filter(|&w| {
+                    let w = usize::from(w);
+                    pstencil[c][w] != 0.0 || pvstencil[c].iter().any(|a| a[w] != 0.0)
+                })
+                .collect()
+        });
         Self {
+            pnonzero,
             cvmass,
             cvderiv,
-            cvstencil,
             range: Range { lo, hi },
             vrange: Range { lo: vlo, hi: vhi },
             pmass,
@@ -304,8 +290,8 @@ fn stiffness_3d(mass: &Table1D, stiff: &Table1D, i: [i64; 3], o: [i64; 3]) -> f6
 /// Screening clusters of one level (ALGORITHM.md §3.7).
 #[derive(Debug, Default, Clone)]
 pub struct Clusters {
-    /// Cluster index of each node of the level, or [`NONE`].
-    pub of_node: Vec<u32>,
+    /// Cluster index of each node of the level.
+    pub of_node: NodeRank,
     /// Node of each cluster.
     pub node: Vec<u32>,
     /// Weighted mean position, unit-cube coordinates.
@@ -317,6 +303,46 @@ pub struct Clusters {
     pub first: Vec<[i32; 3]>,
     /// Basis values per axis (see `first`).
     pub vals: Vec<[[f32; 3]; 3]>,
+}
+
+/// The rank of each member of a set of node indices (a bitmap with a running count per 64
+/// nodes: 1.5 bits per node instead of a 32-bit index per node).
+#[derive(Debug, Default, Clone)]
+pub struct NodeRank {
+    bits: Vec<u64>,
+    before: Vec<u32>,
+}
+
+impl NodeRank {
+    /// The set of `members` (strictly increasing) among `len` nodes; member `k` has rank `k`.
+    pub fn new(len: usize, members: impl Iterator<Item = u32>) -> Self {
+        let words = len.div_ceil(64);
+        let mut bits = vec![0u64; words];
+        for m in members {
+            bits[(m >> 6) as usize] |= 1 << (m & 63);
+        }
+        let mut before = Vec::with_capacity(words);
+        let mut count = 0u32;
+        for w in &bits {
+            before.push(count);
+            count += w.count_ones();
+        }
+        Self { bits, before }
+    }
+
+    /// Rank of node `m`, or [`NONE`] if it is not a member.
+    #[inline]
+    pub fn get(&self, m: u32) -> u32 {
+        let k = (m >> 6) as usize;
+        let Some(&word) = self.bits.get(k) else {
+            return NONE;
+        };
+        let bit = 1u64 << (m & 63);
+        if word & bit == 0 {
+            return NONE;
+        }
+        self.before[k] + (word & (bit - 1)).count_ones()
+    }
 }
 
 impl Clusters {
@@ -382,12 +408,11 @@ pub fn build_clusters(
         let d = t as u32 - DEPTH_OFFSET;
         let scale = omega_scale * (1i64 << d) as f64;
         let mut cl = Clusters {
-            of_node: vec![NONE; tree.levels[t].len()],
+            of_node: NodeRank::new(tree.levels[t].len(), merged.iter().map(|e| e.0)),
             ..Default::default()
         };
-        for (c, &(n, w, wp)) in merged.iter().enumerate() {
+        for &(n, w, wp) in &merged {
             let p = [wp[0] / w, wp[1] / w, wp[2] / w];
-            cl.of_node[n as usize] = c as u32;
             let mut first = [0i32; 3];
             let mut vals = [[0.0f32; 3]; 3];
             for a in 0..3 {
@@ -433,78 +458,25 @@ pub fn divergence_constraints(
     v: &[[f32; 3]],
     v_finer: &[[f32; 3]],
     g_finer: Option<&[f64]>,
-) -> (Vec<f64>, Vec<f64>) {
+) -> (Vec<f64>, Vec<f32>) {
     let d = t - DEPTH_OFFSET;
     let level = &tree.levels[t as usize];
     let next = tree.levels.get(t as usize + 1);
+    let pushed = match next {
+        Some(next) if !v_finer.is_empty() => push_finer_v(level, next, d, tab, v_finer),
+        _ => Vec::new(),
+    };
     (0..level.len() as u32)
         .into_par_iter()
         .map(|n| {
-            let i = func_index(level.keys[n as usize], d);
+            let i = func_index(level.key(n), d);
             if !tab.range.contains(i) {
                 return (0.0, 0.0);
             }
             let interior = tab.is_interior(i);
-            let mut g = 0.0;
+            let mut g = pushed.get(n as usize).copied().unwrap_or(0.0);
             if let (Some(gf), Some(next)) = (g_finer, next) {
                 g += restrict_one(tree, level, next, fem, d, n, i, gf);
-            }
-            if !v_finer.is_empty() {
-                let mut m1 = [[0.0; 8]; 3];
-                let mut d1 = [[0.0; 8]; 3];
-                if !interior {
-                    for a in 0..3 {
-                        for k in 0..8 {
-                            m1[a][k] = tab.cvmass.get(i[a], k as i64 - 3);
-                            d1[a][k] = tab.cvderiv.get(i[a], k as i64 - 3);
-                        }
-                    }
-                }
-                for w in 0..125 {
-                    let m = neighbor_in(level, n, w);
-                    if m == NONE {
-                        continue;
-                    }
-                    let b = level.child[m as usize];
-                    if b == NONE {
-                        continue;
-                    }
-                    let o = [
-                        (w % 5) as i64 - 2,
-                        ((w / 5) % 5) as i64 - 2,
-                        (w / 25) as i64 - 2,
-                    ];
-                    for c in 0..8u32 {
-                        let vf = v_finer[(b * 8 + c) as usize];
-                        if vf == [0.0; 3] {
-                            continue;
-                        }
-                        let k = [
-                            2 * o[0] + i64::from(c & 1),
-                            2 * o[1] + i64::from((c >> 1) & 1),
-                            2 * o[2] + i64::from(c >> 2),
-                        ];
-                        if k.iter().any(|&x| !(-3..=4).contains(&x)) {
-                            continue;
-                        }
-                        let vf = [f64::from(vf[0]), f64::from(vf[1]), f64::from(vf[2])];
-                        if interior {
-                            let w8 = ((k[0] + 3) + 8 * (k[1] + 3) + 64 * (k[2] + 3)) as usize;
-                            g += vf[0] * tab.cvstencil[0][w8]
-                                + vf[1] * tab.cvstencil[1][w8]
-                                + vf[2] * tab.cvstencil[2][w8];
-                        } else {
-                            let (x, y, z) = (
-                                (k[0] + 3) as usize,
-                                (k[1] + 3) as usize,
-                                (k[2] + 3) as usize,
-                            );
-                            g += vf[0] * d1[0][x] * m1[1][y] * m1[2][z]
-                                + vf[1] * m1[0][x] * d1[1][y] * m1[2][z]
-                                + vf[2] * m1[0][x] * m1[1][y] * d1[2][z];
-                        }
-                    }
-                }
             }
             let mut b = g;
             if !v.is_empty() {
@@ -538,9 +510,125 @@ pub fn divergence_constraints(
                     b += vm[0] * dx * my * mz + vm[1] * mx * dy * mz + vm[2] * mx * my * dz;
                 }
             }
-            (g, b)
+            (g, b as f32)
         })
         .unzip()
+}
+
+/// `∫∇B_I · V_{d+1}` for every FEM function `I` of level `t` (depth `d`), pushed from each
+/// nonzero V coefficient of the next level to the 4×4×4 coarse functions it overlaps (all in
+/// its parent's 5×5×5 window). Broods are coloured by their parent's key modulo 5 per axis:
+/// parents of one colour are at least 5 apart, so their windows never overlap and a colour is
+/// pushed in parallel without races, in an order that does not depend on the thread count.
+fn push_finer_v(
+    level: &Level,
+    next: &Level,
+    d: u32,
+    tab: &DepthTables,
+    v_finer: &[[f32; 3]],
+) -> Vec<f64> {
+    let mut g = vec![0.0f64; level.len()];
+    let mut colours: Vec<Vec<u32>> = vec![Vec::new(); 125];
+    for b in 0..(next.len() / 8) as u32 {
+        let base = (b * 8) as usize;
+        if v_finer[base..base + 8].iter().all(|x| *x == [0.0; 3]) {
+            continue;
+        }
+        let k = level.key(next.brood_parent[b as usize]);
+        colours[(k[0] % 5 + 5 * (k[1] % 5) + 25 * (k[2] % 5)) as usize].push(b);
+    }
+    let gs = SharedSlice::new(&mut g);
+    for list in &colours {
+        list.par_iter().with_min_len(64).for_each(|&b| {
+            let p = next.brood_parent[b as usize];
+            let ip = func_index(level.key(p), d);
+            for c in 0..8u32 {
+                let vf = v_finer[(b * 8 + c) as usize];
+                if vf == [0.0; 3] {
+                    continue;
+                }
+                let vf = vf.map(f64::from);
+                // Per axis: the 4 coarse indices I overlapping fine index o = 2·ip + bit, their
+                // window offsets I − ip, and the 1-D tables at k = o − 2I.
+                let mut rel = [[0i64; 4]; 3];
+                let mut m = [[0.0f64; 4]; 3];
+                let mut dv = [[0.0f64; 4]; 3];
+                for a in 0..3 {
+                    let bit = i64::from((c >> a) & 1);
+                    let o = 2 * ip[a] + bit;
+                    for (s, r) in (bit - 2..=bit + 1).enumerate() {
+                        let ia = ip[a] + r;
+                        rel[a][s] = r;
+                        m[a][s] = tab.cvmass.get(ia, o - 2 * ia);
+                        dv[a][s] = tab.cvderiv.get(ia, o - 2 * ia);
+                    }
+                }
+                for z in 0..4 {
+                    for y in 0..4 {
+                        let (mz, dz, my, dy) = (m[2][z], dv[2][z], m[1][y], dv[1][y]);
+                        if mz == 0.0 && dz == 0.0 || my == 0.0 && dy == 0.0 {
+                            continue;
+                        }
+                        for x in 0..4 {
+                            let (mx, dx) = (m[0][x], dv[0][x]);
+                            let val =
+                                vf[0] * dx * my * mz + vf[1] * mx * dy * mz + vf[2] * mx * my * dz;
+                            if val == 0.0 {
+                                continue;
+                            }
+                            let q = neighbor_in(
+                                level,
+                                p,
+                                window_index([rel[0][x], rel[1][y], rel[2][z]]),
+                            );
+                            if q == NONE {
+                                continue;
+                            }
+                            // SAFETY: within one colour, only this brood's task writes the
+                            // window of its parent `p` (see the colouring above).
+                            unsafe { gs.set(q as usize, gs.get(q as usize) + val) };
+                        }
+                    }
+                }
+            }
+        });
+    }
+    g
+}
+
+/// A slice shared between threads that write disjoint elements (multi-colour Gauss–Seidel,
+/// coloured accumulation).
+pub(crate) struct SharedSlice<T> {
+    ptr: *mut T,
+    len: usize,
+}
+
+// SAFETY: access goes through `get`/`set`, whose callers guarantee disjoint writes.
+unsafe impl<T: Send> Sync for SharedSlice<T> {}
+
+impl<T: Copy> SharedSlice<T> {
+    pub(crate) fn new(s: &mut [T]) -> Self {
+        Self {
+            ptr: s.as_mut_ptr(),
+            len: s.len(),
+        }
+    }
+
+    /// # Safety
+    /// No concurrent write to element `i`.
+    #[inline]
+    pub(crate) unsafe fn get(&self, i: usize) -> T {
+        debug_assert!(i < self.len);
+        *self.ptr.add(i)
+    }
+
+    /// # Safety
+    /// No concurrent access to element `i`.
+    #[inline]
+    pub(crate) unsafe fn set(&self, i: usize, v: T) {
+        debug_assert!(i < self.len);
+        *self.ptr.add(i) = v;
+    }
 }
 
 /// `Σ_j c_ij y_j` over the children `j` (at the next level) of function `i` (node `n`).
@@ -571,7 +659,7 @@ fn restrict_one(
                 if m == NONE {
                     continue;
                 }
-                let b = level.child[m as usize];
+                let b = level.child(m);
                 if b == NONE {
                     continue;
                 }
@@ -586,24 +674,26 @@ fn restrict_one(
 }
 
 /// Prolongs per-node coefficients `coarse` of level `t − 1` to level `t` (pull form),
-/// for functions in `range`; `add` (same level) is added on top.
-pub fn prolong<const K: usize>(
+/// for functions in `range`; `add` (same level) is added on top, and `store` converts each
+/// sum (computed in double precision) to the stored type.
+pub fn prolong<const K: usize, T: Send>(
     tree: &Octree,
     t: u32,
     weights: &Prolong,
     range: Range,
     coarse: impl Fn(u32) -> [f64; K] + Sync,
     add: impl Fn(usize) -> [f64; K] + Sync,
-) -> Vec<[f64; K]> {
+    store: impl Fn([f64; K]) -> T + Sync,
+) -> Vec<T> {
     let d = t - DEPTH_OFFSET;
     let level = &tree.levels[t as usize];
     let parent_level = &tree.levels[t as usize - 1];
     (0..level.len() as u32)
         .into_par_iter()
         .map(|n| {
-            let j = func_index(level.keys[n as usize], d);
+            let j = func_index(level.key(n), d);
             if !range.contains(j) {
-                return [0.0; K];
+                return store([0.0; K]);
             }
             let mut acc = add(n as usize);
             let p = level.brood_parent[(n >> 3) as usize];
@@ -634,7 +724,7 @@ pub fn prolong<const K: usize>(
                     }
                 }
             }
-            acc
+            store(acc)
         })
         .collect()
 }

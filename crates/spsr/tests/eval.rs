@@ -78,7 +78,7 @@ fn icosphere(center: [f64; 3], radius: f64, level: u32) -> Mesh {
     Mesh {
         vertices,
         triangles,
-        density: None,
+        ..Default::default()
     }
 }
 
@@ -114,7 +114,7 @@ fn uv_sphere(r: f64, nlat: usize, nlon: usize) -> Mesh {
     Mesh {
         vertices,
         triangles,
-        density: None,
+        ..Default::default()
     }
 }
 
@@ -144,7 +144,7 @@ fn cube(dx: f64) -> Mesh {
     Mesh {
         vertices,
         triangles,
-        density: None,
+        ..Default::default()
     }
 }
 
@@ -353,7 +353,7 @@ fn bad_inputs_are_errors() {
     let flat = Mesh {
         vertices: vec![[0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]],
         triangles: vec![[0, 1, 2]],
-        density: None,
+        ..Default::default()
     };
     assert!(matches!(
         evaluate(&flat, &reference, &opts(10)),

@@ -566,6 +566,7 @@ fn test_mesh(with_density: bool) -> Mesh {
         vertices,
         triangles,
         density,
+        ..Default::default()
     }
 }
 
@@ -923,7 +924,7 @@ fn speed_read_1m_points_write_2m_faces() {
         triangles: (0..2_000_000u32)
             .map(|i| [i % 1_000_000, (i + 1) % 1_000_000, (i + 2) % 1_000_000])
             .collect(),
-        density: None,
+        ..Default::default()
     };
     let out = dir.path().join("big_out.ply");
     let t = std::time::Instant::now();

@@ -279,6 +279,7 @@ fn unusable_inputs_are_clear_errors() {
     let mismatch = PointCloud {
         positions: vec![[0.0; 3]; 5],
         normals: vec![[1.0, 0.0, 0.0]; 4],
+        ..Default::default()
     };
     assert!(matches!(
         reconstruct(&mismatch, &p),

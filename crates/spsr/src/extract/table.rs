@@ -93,17 +93,6 @@ impl Table {
         None
     }
 
-    /// Inserts `key` if absent and lowers its value to at most `v`; returns its slot.
-    #[inline]
-    pub(super) fn insert_min(&self, key: u64, v: u32) -> Option<u32> {
-        let slot = self.insert(key)?;
-        let val = &self.slots[slot as usize].val;
-        if val.load(Relaxed) > v {
-            val.fetch_min(v, Relaxed);
-        }
-        Some(slot)
-    }
-
     /// The slot of `key`, if present.
     #[inline]
     pub(super) fn slot(&self, key: u64) -> Option<u32> {
@@ -119,12 +108,6 @@ impl Table {
             i = (i + 1) & self.mask;
         }
         None
-    }
-
-    /// Whether `key` is present.
-    #[inline]
-    pub(super) fn contains(&self, key: u64) -> bool {
-        self.slot(key).is_some()
     }
 
     /// The value stored for `key`, if present.
@@ -143,19 +126,5 @@ impl Table {
     #[inline]
     pub(super) fn val(&self, slot: u32) -> u32 {
         self.slots[slot as usize].val.load(Relaxed)
-    }
-
-    /// `(value, key, slot)` of every key present, in slot order (which depends on the
-    /// insertion order).
-    pub(super) fn entries(&self) -> Vec<(u32, u64, u32)> {
-        use rayon::prelude::*;
-        self.slots
-            .par_iter()
-            .enumerate()
-            .filter_map(|(i, s)| {
-                let k = s.key.load(Relaxed);
-                (k != EMPTY).then(|| (s.val.load(Relaxed), k, i as u32))
-            })
-            .collect()
     }
 }

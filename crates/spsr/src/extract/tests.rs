@@ -368,7 +368,10 @@ fn run(
         f,
         inv: 1.0 / (1u64 << max_depth) as f64,
     };
-    let opts = ExtractOptions { linear_fit: linear };
+    let opts = ExtractOptions {
+        linear_fit: linear,
+        ..Default::default()
+    };
     extract_impl(leaves, max_depth, &grid, iso, &opts).unwrap()
 }
 

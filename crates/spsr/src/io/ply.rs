@@ -139,6 +139,8 @@ pub(crate) enum Format {
 pub(crate) struct Header {
     pub(crate) format: Format,
     pub(crate) elements: Vec<Element>,
+    /// Text of the `comment` lines, after the keyword.
+    pub(crate) comments: Vec<String>,
 }
 
 impl Header {
@@ -184,6 +186,7 @@ impl<R: BufRead> PlyReader<R> {
             header: Header {
                 format: Format::Ascii,
                 elements: Vec::new(),
+                comments: Vec::new(),
             },
             line: 0,
             offset: 0,
@@ -249,6 +252,7 @@ impl<R: BufRead> PlyReader<R> {
         }
         let mut format = None;
         let mut elements: Vec<Element> = Vec::new();
+        let mut comments = Vec::new();
         loop {
             let Some(text) = self.header_line()? else {
                 return Err(self.parse_err(format!(
@@ -260,7 +264,10 @@ impl<R: BufRead> PlyReader<R> {
             let tok: Vec<&str> = text.split_whitespace().collect();
             let Some(&kw) = tok.first() else { continue };
             match kw {
-                "comment" | "obj_info" => {}
+                "comment" => {
+                    comments.push(text.trim_start()["comment".len()..].trim().to_string());
+                }
+                "obj_info" => {}
                 "end_header" => break,
                 "format" => {
                     let f = match tok.get(1).copied() {
@@ -321,7 +328,11 @@ impl<R: BufRead> PlyReader<R> {
                 self.line
             )));
         };
-        Ok(Header { format, elements })
+        Ok(Header {
+            format,
+            elements,
+            comments,
+        })
     }
 
     fn parse_property(&self, tok: &[&str], text: &str, ln: usize) -> Result<Property> {

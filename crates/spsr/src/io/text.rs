@@ -1,25 +1,52 @@
-//! Plain-text point files: one point per line, `x y z nx ny nz`, separated by whitespace
-//! and/or commas. Blank lines and lines starting with `#` are ignored; extra columns after the
-//! sixth (colours, confidences, ...) are ignored.
+//! Plain-text point files: one point per line, values separated by whitespace and/or commas.
+//! Blank lines and lines starting with `#` are ignored.
+//!
+//! The first data line fixes the layout by its number of values:
+//!
+//! | values | layout |
+//! |---|---|
+//! | 3–5 | `x y z` (positions only) |
+//! | 6–8 | `x y z nx ny nz` |
+//! | 9 or more | `x y z nx ny nz r g b` |
+//!
+//! Values beyond the layout are ignored, on every line; a later line with fewer values than
+//! the layout is an error. Six values are always read as position and normal, never as
+//! position and colour. Colours that are all integers in `0..=255` become `u8` attributes
+//! `red green blue`; otherwise they are kept as `f32` values (taken to be in `[0, 1]`).
 
 use std::io::BufRead;
 use std::path::Path;
 
+use crate::attributes::{Attribute, AttributeData};
 use crate::error::Error;
 use crate::points::PointCloud;
 use crate::Result;
 
-/// Reads a text point file from `reader`; `path` is only used in error messages.
-pub(crate) fn read_text_points<R: BufRead>(mut reader: R, path: &Path) -> Result<PointCloud> {
+/// Reads a text point file from `reader`; `path` is only used in error messages. With
+/// `need_normals`, a file whose first data line has fewer than six values is
+/// [`Error::MissingNormals`].
+pub(crate) fn read_text_points<R: BufRead>(
+    mut reader: R,
+    path: &Path,
+    need_normals: bool,
+) -> Result<PointCloud> {
     let parse_err = |message: String| Error::Parse {
         path: path.to_path_buf(),
         message,
     };
     let mut positions = Vec::new();
     let mut normals = Vec::new();
+    let mut colors: [Vec<f32>; 3] = Default::default();
+    let mut colors_are_bytes = true;
     let mut raw = Vec::new();
     let mut line = 0usize;
-    let mut first_data = true;
+    // Values per point: 3, 6 or 9; 0 until the first data line.
+    let mut layout = 0usize;
+    let describe = |layout: usize| match layout {
+        3 => "`x y z`",
+        6 => "`x y z nx ny nz`",
+        _ => "`x y z nx ny nz r g b`",
+    };
     loop {
         raw.clear();
         let n = reader
@@ -38,44 +65,82 @@ pub(crate) fn read_text_points<R: BufRead>(mut reader: R, path: &Path) -> Result
         }
         let text = std::str::from_utf8(bytes).map_err(|_| {
             parse_err(format!(
-                "line {line}: not valid text; expected `x y z nx ny nz`"
+                "line {line}: not valid text; expected numbers such as `x y z nx ny nz`"
             ))
         })?;
         let t = text.trim();
         if t.is_empty() || t.starts_with('#') {
             continue;
         }
-        let mut vals = [0.0f64; 6];
+        let mut vals = [0.0f64; 9];
         let mut count = 0usize;
+        let limit = if layout == 0 { 9 } else { layout };
         for tok in t
             .split(|c: char| c == ',' || c.is_ascii_whitespace())
             .filter(|s| !s.is_empty())
         {
-            if count == 6 {
+            if count == limit {
                 break; // extra columns are ignored
             }
             vals[count] = tok.parse::<f64>().map_err(|_| {
                 let tok: String = tok.chars().take(40).collect();
                 parse_err(format!(
-                    "line {line}: '{tok}' is not a number (column {}); expected `x y z nx ny nz`",
-                    count + 1
+                    "line {line}: '{tok}' is not a number (column {}); expected {}",
+                    count + 1,
+                    describe(if layout == 0 { 6 } else { layout })
                 ))
             })?;
             count += 1;
         }
-        if count < 6 {
-            if first_data && count == 3 {
+        if layout == 0 {
+            layout = match count {
+                0..=2 => {
+                    return Err(parse_err(format!(
+                        "line {line}: found {count} numbers, expected at least 3 (`x y z`, optionally followed by `nx ny nz` and `r g b`)"
+                    )))
+                }
+                3..=5 => 3,
+                6..=8 => 6,
+                _ => 9,
+            };
+            if need_normals && layout == 3 {
                 return Err(Error::MissingNormals {
                     path: path.to_path_buf(),
                 });
             }
+        } else if count < layout {
             return Err(parse_err(format!(
-                "line {line}: found {count} numbers, expected 6 (`x y z nx ny nz`)"
+                "line {line}: found {count} numbers, expected {layout} ({}) like the first point",
+                describe(layout)
             )));
         }
-        first_data = false;
         positions.push([vals[0], vals[1], vals[2]]);
-        normals.push([vals[3], vals[4], vals[5]]);
+        if layout >= 6 {
+            normals.push([vals[3], vals[4], vals[5]]);
+        }
+        if layout == 9 {
+            for k in 0..3 {
+                let c = vals[6 + k];
+                colors_are_bytes &= c.fract() == 0.0 && (0.0..=255.0).contains(&c);
+                colors[k].push(c as f32);
+            }
+        }
     }
-    Ok(PointCloud { positions, normals })
+    let mut attributes = Vec::new();
+    if layout == 9 {
+        for (name, c) in ["red", "green", "blue"].into_iter().zip(colors) {
+            let data = if colors_are_bytes {
+                AttributeData::U8(c.into_iter().map(|v| v as u8).collect())
+            } else {
+                AttributeData::F32(c)
+            };
+            attributes.push(Attribute::new(name, data));
+        }
+    }
+    Ok(PointCloud {
+        positions,
+        normals,
+        attributes,
+        scan_origins: Vec::new(),
+    })
 }
