@@ -9,6 +9,9 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
+mod normals;
+pub use normals::{NormalOptions, NormalsArgs, OrientArg};
+
 /// Exit codes of the `spsr` binary (also listed in `--help` and the README).
 pub mod exit {
     /// The input data cannot be used: unreadable or malformed file, no normals, too few points.
@@ -38,7 +41,7 @@ else by extension: PLY (any encoding), LAS or LAZ (.las, .laz; normals as extra 
 NormalX/NormalY/NormalZ), E57 (.e57; every scan, moved by its pose; normals from the surface-normals \
 extension), PCD (.pcd; ascii, binary or binary_compressed, fields normal_x normal_y normal_z), or \
 text with one point per line: x y z nx ny nz, optionally followed by r g b. Normals must point \
-outward. Points with non-finite coordinates or zero-length normals are dropped with a warning.
+outward. Points with non-finite coordinates or zero-length normals are dropped with a warning. A cloud without normals gets normals estimated and oriented first, as by `spsr normals` (with a note saying so); --estimate-normals does that for any cloud, replacing its normals.
 
 Output, chosen by the output name's extension: .ply (binary little-endian, ASCII with --ascii; also \
 used for any other extension), .obj (Wavefront OBJ), .stl (binary STL, ASCII with --ascii), .glb \
@@ -72,6 +75,9 @@ pub enum Command {
     /// Score a mesh against a ground-truth mesh or an analytic sphere.
     #[command(long_about = EVAL_LONG_ABOUT, after_help = EXIT_CODES)]
     Eval(EvalArgs),
+    /// Estimate and orient normals for a point cloud without (trustworthy) normals.
+    #[command(long_about = normals::NORMALS_LONG_ABOUT, after_help = EXIT_CODES)]
+    Normals(NormalsArgs),
 }
 
 /// Boundary condition on the bounding cube, as spelled on the command line.
@@ -260,6 +266,15 @@ pub struct ReconstructArgs {
     /// stderr [default: off]
     #[arg(short, long)]
     pub verbose: bool,
+
+    /// Estimate and orient normals even when the input has them (they are replaced); inputs
+    /// without normals get estimated normals anyway [default: off]
+    #[arg(long)]
+    pub estimate_normals: bool,
+
+    /// How estimated normals are oriented (see `spsr normals --help`).
+    #[command(flatten)]
+    pub estimation: NormalOptions,
 }
 
 /// Parses a memory size: a number of bytes, optionally with a binary suffix (K, M, G, T, with
@@ -396,6 +411,7 @@ pub fn run(cli: &Cli) -> Result<(), Failure> {
         Command::Reconstruct(args) => reconstruct(args),
         Command::Trim(args) => run_trim(args),
         Command::Eval(args) => run_eval(args),
+        Command::Normals(args) => normals::run_normals(args),
     }
 }
 
@@ -425,6 +441,17 @@ impl Progress {
     }
 }
 
+impl Progress {
+    /// Prints a line to stderr, first erasing the stage line when there is one.
+    fn note(&self, line: &str) {
+        let mut err = std::io::stderr().lock();
+        if self.enabled && self.step.load(Ordering::Relaxed) > 0 {
+            let _ = write!(err, "\r\x1b[K");
+        }
+        let _ = writeln!(err, "{line}");
+    }
+}
+
 impl Drop for Progress {
     fn drop(&mut self) {
         if self.enabled && self.step.load(Ordering::Relaxed) > 0 {
@@ -433,6 +460,20 @@ impl Drop for Progress {
             let _ = err.flush();
         }
     }
+}
+
+/// Starts the global worker pool with `threads` threads (rayon's default when `None`).
+fn start_threads(threads: Option<usize>) -> Result<(), Failure> {
+    if let Some(n) = threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build_global()
+            .map_err(|e| Failure {
+                code: exit::RESOURCE,
+                error: anyhow::anyhow!("cannot start {n} worker threads: {e}"),
+            })?;
+    }
+    Ok(())
 }
 
 fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
@@ -448,22 +489,36 @@ fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     if let Some(p) = &trim_params {
         p.validate().map_err(fail)?;
     }
-    if let Some(n) = args.threads {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(n)
-            .build_global()
-            .map_err(|e| Failure {
-                code: exit::RESOURCE,
-                error: anyhow::anyhow!("cannot start {n} worker threads: {e}"),
-            })?;
-    }
+    start_threads(args.threads)?;
     spsr::io::check_output_path(output, input).map_err(fail)?;
 
     let progress = Progress::new(std::io::stderr().is_terminal() && !args.verbose);
     progress.stage("reading");
     let t = Instant::now();
-    let cloud = spsr::io::read_points(input).map_err(fail)?;
+    let mut cloud = spsr::io::read_cloud(input).map_err(fail)?;
     let reading = t.elapsed();
+
+    let mut estimated = None;
+    if args.estimate_normals || !cloud.has_normals() {
+        if !args.estimate_normals {
+            progress.note(&format!(
+                "spsr: note: {} has no normals; estimating and orienting them (see --orient)",
+                input.display()
+            ));
+        }
+        progress.stage("estimating normals");
+        estimated = Some(normals::estimate_normals(
+            &mut cloud,
+            &args.estimation,
+            input,
+        )?);
+    } else if args.estimation.any_given() {
+        return Err(usage(format!(
+            "{} has normals, which --orient, --viewpoint and --neighbours do not change: add \
+             --estimate-normals to replace them",
+            input.display()
+        )));
+    }
 
     // The cloud is handed over so that it is released once the points are normalised.
     let mut result =
@@ -504,6 +559,9 @@ fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     let mesh = &result.mesh;
     if args.verbose {
         print_details(args, &result, reading, writing, start.elapsed());
+        if let Some(report) = &estimated {
+            report.print();
+        }
         if let Some((stats, time)) = &trimmed {
             print_trim(stats, *time);
         }

@@ -147,16 +147,27 @@ fn truncated_binary_ply() {
 }
 
 #[test]
-fn ply_without_normals() {
+fn ply_without_normals_on_one_line() {
+    // Normals are estimated for a cloud without them, but points on one line span no plane.
     let mut text = String::from(
         "ply\nformat ascii 1.0\nelement vertex 8\n\
          property float x\nproperty float y\nproperty float z\nend_header\n",
     );
     for i in 0..8 {
-        text += &format!("{} {} {}\n", i & 1, (i >> 1) & 1, (i >> 2) & 1);
+        text += &format!("{i} {} {}\n", 2 * i, 3 * i);
     }
     let (_dir, _input, output, out) = run_on(text.as_bytes(), "no-normals.ply", &[]);
-    assert_fails_one_line(&out, DATA, &["no-normals.ply", "normals"], &output);
+    assert_fails(&out, DATA, &["no-normals.ply", "has no normals"], &output);
+    let err = stderr(&out);
+    assert_eq!(
+        err.lines().count(),
+        2,
+        "the note and one error line:\n{err}"
+    );
+    assert!(
+        err.lines().nth(1).unwrap().starts_with("spsr: error: "),
+        "{err}"
+    );
 }
 
 #[test]

@@ -109,6 +109,44 @@ impl Implicit {
     }
 }
 
+/// The implicit function at given points, from [`implicit_gradients`].
+pub(crate) struct ImplicitSamples {
+    /// χ at each point (χ ≈ 1 inside, 0 outside).
+    pub values: Vec<f64>,
+    /// ∇χ at each point, in world units; the outward normal is along −∇χ.
+    #[allow(dead_code)]
+    pub gradients: Vec<[f64; 3]>,
+    /// The iso-value γ.
+    #[allow(dead_code)]
+    pub iso: f64,
+}
+
+/// The implicit function solved from `cloud` with `params`, sampled at the points `at`
+/// (points outside the bounding cube are clamped to it). Used by the global orientation of
+/// normals (`normals::orient`).
+pub(crate) fn implicit_gradients(
+    cloud: &PointCloud,
+    params: &Params,
+    at: &[[f64; 3]],
+) -> Result<ImplicitSamples> {
+    let imp = solve_implicit(cloud, params, &|_| {})?;
+    let eval = Evaluator::new(&imp.tree, imp.fem, &imp.sol);
+    let (values, gradients) = at
+        .par_iter()
+        .map(|p| {
+            let u: [f64; 3] =
+                std::array::from_fn(|a| ((p[a] - imp.origin[a]) / imp.width).clamp(0.0, 1.0));
+            let (v, g) = eval.value_grad(u);
+            (v, g.map(|c| c / imp.width))
+        })
+        .unzip();
+    Ok(ImplicitSamples {
+        values,
+        gradients,
+        iso: imp.iso,
+    })
+}
+
 /// As [`reconstruct`], calling `progress` with the name of each stage as it starts.
 pub fn reconstruct_with_progress(
     points: &PointCloud,

@@ -1,0 +1,406 @@
+//! End-to-end tests of `spsr normals` and of `spsr reconstruct` on clouds without normals, on
+//! small synthetic clouds.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use tempfile::TempDir;
+
+const DATA: i32 = 1;
+const USAGE: i32 = 2;
+const CENTRE: [f64; 3] = [1.0, 2.0, 3.0];
+
+fn spsr(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_spsr"))
+        .args(args)
+        .output()
+        .expect("the spsr binary runs")
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn stdout(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("temporary paths are UTF-8")
+}
+
+fn assert_ok(out: &Output) {
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "stderr:\n{}\nstdout:\n{}",
+        stderr(out),
+        stdout(out)
+    );
+}
+
+/// Asserts a failure with the exit code, the fragments in stderr, no panic and no output.
+fn assert_fails(out: &Output, code: i32, fragments: &[&str], output: &Path) {
+    let err = stderr(out);
+    assert_eq!(out.status.code(), Some(code), "exit code; stderr:\n{err}");
+    assert!(!err.contains("panicked"), "panic:\n{err}");
+    for f in fragments {
+        assert!(err.contains(f), "stderr lacks {f:?}:\n{err}");
+    }
+    assert!(!output.exists(), "{} was left behind", output.display());
+}
+
+/// Points on a sphere of radius 0.8 around [`CENTRE`] (Fibonacci lattice) with their exact
+/// outward normals.
+fn sphere(n: usize) -> Vec<([f64; 3], [f64; 3])> {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    (0..n)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let r = (1.0 - z * z).sqrt();
+            let phi = golden * i as f64;
+            let nrm = [r * phi.cos(), r * phi.sin(), z];
+            let pos = std::array::from_fn(|a| CENTRE[a] + 0.8 * nrm[a]);
+            (pos, nrm)
+        })
+        .collect()
+}
+
+/// ASCII PLY with `x y z`, optionally `nx ny nz`, then `uchar red` and `float intensity`
+/// (the point's index and its tenth), and optional header comments.
+fn write_ply(path: &Path, points: &[([f64; 3], [f64; 3])], normals: bool, comments: &[&str]) {
+    let mut text = String::from("ply\nformat ascii 1.0\n");
+    for c in comments {
+        text += &format!("comment {c}\n");
+    }
+    text += &format!(
+        "element vertex {}\nproperty float x\nproperty float y\nproperty float z\n",
+        points.len()
+    );
+    if normals {
+        text += "property float nx\nproperty float ny\nproperty float nz\n";
+    }
+    text += "property uchar red\nproperty float intensity\nend_header\n";
+    for (i, (p, n)) in points.iter().enumerate() {
+        text += &format!("{} {} {}", p[0], p[1], p[2]);
+        if normals {
+            text += &format!(" {} {} {}", n[0], n[1], n[2]);
+        }
+        text += &format!(" {} {}\n", i % 256, i as f64 / 10.0);
+    }
+    fs::write(path, text).unwrap();
+}
+
+/// A folder with `in.ply` (sphere without normals) and `ref.ply` (the same with normals).
+fn sphere_dir(n: usize) -> (TempDir, PathBuf, PathBuf) {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("in.ply");
+    let reference = dir.path().join("ref.ply");
+    let pts = sphere(n);
+    write_ply(&input, &pts, false, &[]);
+    write_ply(&reference, &pts, true, &[]);
+    (dir, input, reference)
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[test]
+fn normals_keep_points_order_and_properties_and_point_outward() {
+    let (dir, input, _) = sphere_dir(3000);
+    let output = dir.path().join("out.ply");
+    let out = spsr(&["normals", s(&input), "-o", s(&output)]);
+    assert_ok(&out);
+    assert!(
+        stdout(&out).contains("3000 points with normals"),
+        "{}",
+        stdout(&out)
+    );
+    assert!(stdout(&out).contains("orient mst"), "{}", stdout(&out));
+
+    let before = spsr::io::read_cloud(&input).unwrap();
+    let after = spsr::io::read_cloud(&output).unwrap();
+    assert_eq!(after.positions, before.positions);
+    assert!(after.has_normals());
+    for (p, n) in after.positions.iter().zip(&after.normals) {
+        let radial = std::array::from_fn(|a| p[a] - CENTRE[a]);
+        let cos = dot(*n, radial) / 0.8;
+        assert!(cos > 0.95, "normal {n:?} at {p:?} is not outward");
+    }
+    let names: Vec<&str> = after.attributes.iter().map(|a| a.name.as_str()).collect();
+    assert_eq!(names, ["red", "intensity"]);
+    for (a, b) in before.attributes.iter().zip(&after.attributes) {
+        assert_eq!(a.data.scalar_type(), b.data.scalar_type());
+        assert!(
+            a.data.iter_f64().eq(b.data.iter_f64()),
+            "{} changed",
+            a.name
+        );
+    }
+}
+
+#[test]
+fn compare_reports_agreement_with_the_reference() {
+    let (dir, input, reference) = sphere_dir(3000);
+    // Without -o: only the comparison, no file.
+    let out = spsr(&["normals", s(&input), "--compare", s(&reference)]);
+    assert_ok(&out);
+    let text = stdout(&out);
+    assert!(
+        text.contains("100.000 % oriented like the reference"),
+        "{text}"
+    );
+    assert!(text.contains("mean angle"), "{text}");
+    assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 2);
+
+    // A reference with other points is an error naming it.
+    let other = dir.path().join("other.ply");
+    write_ply(&other, &sphere(100), true, &[]);
+    let output = dir.path().join("out.ply");
+    let out = spsr(&["normals", s(&input), "--compare", s(&other)]);
+    assert_fails(&out, DATA, &["other.ply", "same points"], &output);
+    // A reference without normals too.
+    let out = spsr(&["normals", s(&input), "--compare", s(&input)]);
+    assert_fails(&out, DATA, &["in.ply", "normals"], &output);
+}
+
+#[test]
+fn global_mode_orients_the_sphere() {
+    let (_dir, input, reference) = sphere_dir(2000);
+    let out = spsr(&[
+        "normals",
+        s(&input),
+        "--orient",
+        "global",
+        "--compare",
+        s(&reference),
+    ]);
+    assert_ok(&out);
+    assert!(
+        stdout(&out).contains("100.000 % oriented"),
+        "{}",
+        stdout(&out)
+    );
+}
+
+/// A wavy 60 × 60 patch around z = 0 (no normals), split into two scans of 1800 points.
+fn patch() -> Vec<([f64; 3], [f64; 3])> {
+    (0..3600)
+        .map(|i| {
+            let (x, y) = ((i % 60) as f64 / 60.0, (i / 60) as f64 / 60.0);
+            ([x, y, 0.05 * (6.0 * x).sin()], [0.0; 3])
+        })
+        .collect()
+}
+
+#[test]
+fn viewpoint_and_scan_positions_orient_towards_the_sensor() {
+    let dir = TempDir::new().unwrap();
+    let input = dir.path().join("patch.ply");
+    write_ply(&input, &patch(), false, &[]);
+    let output = dir.path().join("out.ply");
+    let out = spsr(&[
+        "normals",
+        s(&input),
+        "-o",
+        s(&output),
+        "--viewpoint",
+        "0.5,0.5,-3",
+    ]);
+    assert_ok(&out);
+    let cloud = spsr::io::read_cloud(&output).unwrap();
+    assert!(cloud.normals.iter().all(|n| n[2] < 0.0));
+
+    // Two scans recorded in the file, one seen from above, one from below: orientation
+    // towards them is the default.
+    let scans = dir.path().join("scans.ply");
+    write_ply(
+        &scans,
+        &patch(),
+        false,
+        &[
+            "spsr scan_origin 0 0.5 0.5 3",
+            "spsr scan_origin 1800 0.5 0.5 -3",
+        ],
+    );
+    let out = spsr(&["normals", s(&scans), "-o", s(&output), "-v"]);
+    assert_ok(&out);
+    assert!(
+        stdout(&out).contains("2 scan position(s)"),
+        "{}",
+        stdout(&out)
+    );
+    let cloud = spsr::io::read_cloud(&output).unwrap();
+    assert_eq!(cloud.scan_origins.len(), 2, "scan positions kept");
+    for (i, n) in cloud.normals.iter().enumerate() {
+        assert_eq!(n[2] > 0.0, i < 1800, "point {i}: {n:?}");
+    }
+}
+
+#[test]
+fn the_result_does_not_depend_on_the_thread_count() {
+    let (dir, input, _) = sphere_dir(3000);
+    let one = dir.path().join("one.ply");
+    let two = dir.path().join("two.ply");
+    assert_ok(&spsr(&[
+        "normals",
+        s(&input),
+        "-o",
+        s(&one),
+        "--threads",
+        "1",
+    ]));
+    assert_ok(&spsr(&[
+        "normals",
+        s(&input),
+        "-o",
+        s(&two),
+        "--threads",
+        "2",
+    ]));
+    assert_eq!(fs::read(&one).unwrap(), fs::read(&two).unwrap());
+}
+
+#[test]
+fn bad_values_are_usage_errors() {
+    let (dir, input, _) = sphere_dir(500);
+    let output = dir.path().join("out.ply");
+    let o = s(&output);
+    let i = s(&input);
+    for (args, fragment) in [
+        (vec!["--viewpoint", "1,2"], "three comma-separated"),
+        (vec!["--viewpoint", "1,2,nan"], "finite"),
+        (vec!["--viewpoint", "a,b,c"], "finite"),
+        (vec!["--neighbours", "2"], "at least 3"),
+        (vec!["--neighbours", "four"], "whole number"),
+        (vec!["--orient", "sideways"], "sideways"),
+        (vec!["--threads", "0"], "at least 1"),
+        (vec!["--orient", "viewpoint"], "needs --viewpoint"),
+        (
+            vec!["--orient", "mst", "--viewpoint", "0,0,1"],
+            "only used by --orient viewpoint",
+        ),
+    ] {
+        let mut all = vec!["normals", i, "-o", o];
+        all.extend(args.iter().copied());
+        let out = spsr(&all);
+        assert_fails(&out, USAGE, &[fragment], &output);
+    }
+    // No output and nothing to compare with.
+    let out = spsr(&["normals", i]);
+    assert_fails(&out, USAGE, &["--output"], &output);
+    // The output must not be the input.
+    let out = spsr(&["normals", i, "-o", i]);
+    assert_eq!(out.status.code(), Some(USAGE), "{}", stderr(&out));
+    // A missing input is a data error naming it.
+    let missing = dir.path().join("missing.ply");
+    let out = spsr(&["normals", s(&missing), "-o", o]);
+    assert_fails(&out, DATA, &["missing.ply"], &output);
+}
+
+#[test]
+fn help_shows_every_default() {
+    let out = spsr(&["normals", "--help"]);
+    assert_ok(&out);
+    let text = stdout(&out);
+    let help = &text[text.find("Options:").expect("an options list")..];
+    for flag in [
+        "--orient",
+        "--viewpoint",
+        "--neighbours",
+        "--compare",
+        "--threads",
+        "--ascii",
+        "--verbose",
+    ] {
+        let at = help.find(flag).unwrap_or_else(|| panic!("{flag} missing"));
+        let rest = &help[at..];
+        let end = rest[2..].find("\n  -").map_or(rest.len(), |e| e + 2);
+        assert!(
+            rest[..end].contains("[default: "),
+            "{flag}: {}",
+            &rest[..end]
+        );
+    }
+    let out = spsr(&["reconstruct", "--help"]);
+    let help = stdout(&out);
+    for flag in [
+        "--estimate-normals",
+        "--orient",
+        "--viewpoint",
+        "--neighbours",
+    ] {
+        assert!(
+            help.contains(flag),
+            "{flag} missing from reconstruct --help"
+        );
+    }
+}
+
+#[test]
+fn reconstruct_estimates_missing_normals_and_says_so() {
+    let (dir, input, reference) = sphere_dir(3000);
+    let output = dir.path().join("mesh.ply");
+    let out = spsr(&["reconstruct", s(&input), "-o", s(&output), "--depth", "5"]);
+    assert_ok(&out);
+    assert!(stderr(&out).contains("has no normals"), "{}", stderr(&out));
+    assert_eq!(stderr(&out).lines().count(), 1, "{}", stderr(&out));
+    let mesh = spsr::io::read_mesh(&output).unwrap();
+    // Outward normals give a mesh around the sphere, with positive volume.
+    assert!(mesh.signed_volume() > 0.0);
+    for v in &mesh.vertices {
+        let r = dot(
+            std::array::from_fn(|a| v[a] - CENTRE[a]),
+            std::array::from_fn(|a| v[a] - CENTRE[a]),
+        )
+        .sqrt();
+        assert!((r - 0.8).abs() < 0.05, "vertex at radius {r}");
+    }
+
+    // A cloud with normals: they are used as they are, silently ...
+    let out = spsr(&[
+        "reconstruct",
+        s(&reference),
+        "-o",
+        s(&output),
+        "--depth",
+        "5",
+    ]);
+    assert_ok(&out);
+    assert!(!stderr(&out).contains("normals"), "{}", stderr(&out));
+    // ... or replaced when asked,
+    let out = spsr(&[
+        "reconstruct",
+        s(&reference),
+        "-o",
+        s(&output),
+        "--depth",
+        "5",
+        "--estimate-normals",
+        "--orient",
+        "global",
+    ]);
+    assert_ok(&out);
+    // and orientation flags without --estimate-normals are a usage error.
+    fs::remove_file(&output).unwrap();
+    let out = spsr(&[
+        "reconstruct",
+        s(&reference),
+        "-o",
+        s(&output),
+        "--orient",
+        "mst",
+    ]);
+    assert_fails(&out, USAGE, &["--estimate-normals"], &output);
+    let out = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&output),
+        "--orient",
+        "viewpoint",
+    ]);
+    assert_fails(&out, USAGE, &["needs --viewpoint"], &output);
+}
