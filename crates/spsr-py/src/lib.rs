@@ -841,6 +841,101 @@ fn write_points(
     .map_err(|e| to_py_err(py, e))
 }
 
+/// Estimates and orients normals, as `spsr normals`; see `spsr.estimate_normals`.
+#[pyfunction]
+#[pyo3(signature = (points, *, neighbours, orient, viewpoint, scan_origins, threads))]
+fn estimate_normals<'py>(
+    py: Python<'py>,
+    points: Bound<'py, PyAny>,
+    neighbours: Option<i64>,
+    orient: Option<&str>,
+    viewpoint: Option<[f64; 3]>,
+    scan_origins: Option<Vec<(i64, [f64; 3])>>,
+    threads: Option<i64>,
+) -> PyResult<Bound<'py, PyDict>> {
+    use spsr::normals::{NormalParams, Orientation};
+    let neighbours =
+        match neighbours {
+            None => None,
+            Some(k) if k >= 3 => Some(usize::try_from(k).unwrap_or(usize::MAX)),
+            Some(_) => return Err(value_error(
+                "invalid parameter --neighbours: must be at least 3 (a plane needs three points)",
+            )),
+        };
+    let scans = scan_origins.unwrap_or_default();
+    let mode = orient.unwrap_or(if viewpoint.is_some() || !scans.is_empty() {
+        "viewpoint"
+    } else {
+        "mst"
+    });
+    if viewpoint.is_some() && mode != "viewpoint" {
+        return Err(value_error(
+            "viewpoint= is only used by orient=\"viewpoint\"; leave out one of them",
+        ));
+    }
+    let how =
+        match mode {
+            "mst" => Some(Orientation::mst()),
+            "global" => Some(Orientation::global()),
+            "none" => None,
+            "viewpoint" => match viewpoint {
+                Some(v) => Some(Orientation::Viewpoint(v)),
+                None if !scans.is_empty() => {
+                    let mut list = Vec::with_capacity(scans.len());
+                    for (i, (first, origin)) in scans.into_iter().enumerate() {
+                        let first = usize::try_from(first).map_err(|_| {
+                            value_error(format!("scan_origins: {first} is not a point index"))
+                        })?;
+                        // Points before the first scan are counted with it, as the CLI does.
+                        list.push((if i == 0 { 0 } else { first }, origin));
+                    }
+                    Some(Orientation::ScanOrigins(list))
+                }
+                None => return Err(value_error(
+                    "orient=\"viewpoint\" needs viewpoint=(x, y, z): no scan positions are known",
+                )),
+            },
+            other => {
+                return Err(value_error(format!(
+                "invalid parameter --orient: '{other}' is not one of mst, viewpoint, global, none"
+            )))
+            }
+        };
+    let threads = threads_arg(threads)?;
+    let positions = rows3(&points, "points")?;
+    let params = NormalParams {
+        neighbours,
+        ..Default::default()
+    };
+    let (estimated, stats) = run_detached(py, threads, move |_| {
+        let mut estimated = spsr::normals::estimate(&positions, &params)?;
+        let stats = match &how {
+            Some(how) => Some(spsr::normals::orient(
+                &positions,
+                &mut estimated.normals,
+                how,
+            )?),
+            None => None,
+        };
+        Ok::<_, spsr::Error>((estimated, stats))
+    })?
+    .map_err(|e| to_py_err(py, e))?;
+    let d = PyDict::new(py);
+    d.set_item("orientation", mode)?;
+    d.set_item("neighbours", estimated.neighbours)?;
+    d.set_item("noisy", estimated.noisy)?;
+    d.set_item("degenerate", estimated.degenerate)?;
+    d.set_item("non_finite", estimated.non_finite)?;
+    if let Some(s) = stats {
+        d.set_item("flipped", s.flipped)?;
+        d.set_item("components", s.components)?;
+        d.set_item("skipped", s.skipped)?;
+        d.set_item("corrections", s.corrections)?;
+    }
+    d.set_item("normals", rows_out(py, estimated.normals)?)?;
+    Ok(d)
+}
+
 /// Runs the command line `spsr` with `argv` (program name first); returns the exit code.
 /// This is the wheel's `spsr` console script.
 #[pyfunction]
@@ -878,6 +973,7 @@ fn _spsr(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_mesh, m)?)?;
     m.add_function(wrap_pyfunction!(write_mesh, m)?)?;
     m.add_function(wrap_pyfunction!(write_points, m)?)?;
+    m.add_function(wrap_pyfunction!(estimate_normals, m)?)?;
     m.add_function(wrap_pyfunction!(cli_main, m)?)?;
     m.add("MAX_DEPTH", spsr::MAX_DEPTH)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

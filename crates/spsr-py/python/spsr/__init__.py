@@ -21,6 +21,8 @@ reconstruct
     Oriented points to a watertight mesh.
 trim
     Remove the surface invented where there were no samples (needs a density).
+estimate_normals
+    Normals for points that have none, oriented outward or towards the sensor.
 eval
     Score a mesh against a reference mesh or sphere.
 read_points, read_mesh, write_mesh, write_points
@@ -54,6 +56,7 @@ __all__ = [
     "FileFormatError",
     "Mesh",
     "PointCloud",
+    "estimate_normals",
     "eval",
     "read_mesh",
     "read_points",
@@ -598,7 +601,7 @@ def reconstruct(
     if normals is None:
         raise ValueError(
             "the points have no normals (nx, ny, nz); spsr needs oriented points: pass normals= "
-            "(an (N, 3) array of outward normals)"
+            "(an (N, 3) array of outward normals), e.g. from spsr.estimate_normals(points)"
         )
     normal_rows = _rows3(normals, "normals")
     if normal_rows.shape[0] != n:
@@ -655,6 +658,94 @@ def reconstruct(
     for w in stats.get("warnings", []):
         warnings.warn(w, RuntimeWarning, stacklevel=2)
     return mesh
+
+
+def estimate_normals(
+    points: Union[ArrayLike, PointCloud],
+    *,
+    neighbours: Optional[int] = None,
+    orient: Optional[str] = None,
+    viewpoint: Optional[Sequence[float]] = None,
+    scan_origins: Optional[Sequence[Tuple[int, Sequence[float]]]] = None,
+    threads: Optional[int] = None,
+    return_info: bool = False,
+) -> Any:
+    """Estimate outward normals for points that have none, as ``spsr normals``.
+
+    A plane is fitted to each point's nearest neighbours (principal component analysis),
+    which gives each point a normal line; then the signs are chosen so that the normals
+    point outward, or towards the sensor (``spsr::normals``).
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3), or PointCloud
+        Positions. A :class:`PointCloud` read from a file that records where the scanner
+        stood (E57 scan poses, PCD ``VIEWPOINT``) brings its ``scan_origins``.
+    neighbours : int, optional
+        Neighbours in each plane fit, at least 3. Default: chosen from the noise (16 on
+        clean clouds, 24 to 192 on noisy ones).
+    orient : {"mst", "viewpoint", "global", "none"}, optional
+        How to choose the signs. ``"mst"``: propagation along a minimum spanning tree of the
+        neighbour graph, each connected piece turned outward (Hoppe et al. 1992).
+        ``"viewpoint"``: every normal towards ``viewpoint``, or towards its scan's sensor
+        position (``scan_origins``). ``"global"``: ``"mst"`` corrected by the indicator
+        function of Poisson reconstructions (right on thin parts and nearby sheets; slower).
+        ``"none"``: arbitrary signs. Default: ``"viewpoint"`` when ``viewpoint`` is given or
+        scan positions are known, else ``"mst"``.
+    viewpoint : (x, y, z), optional
+        The sensor position, for ``orient="viewpoint"``.
+    scan_origins : sequence of (int, (x, y, z)), optional
+        ``(first point, sensor position)`` per scan, in increasing order of first point.
+    threads : int, optional
+        Worker threads (default: all cores). The result does not depend on it.
+    return_info : bool, default False
+        Also return a dict: ``orientation``, ``neighbours`` (used in each fit), ``noisy``,
+        ``degenerate`` and ``non_finite`` (point counts), and the orientation's ``flipped``,
+        ``components``, ``skipped`` and ``corrections``.
+
+    Returns
+    -------
+    numpy.ndarray of float64, shape (N, 3)
+        Unit normals in input order (zero for points with a non-finite coordinate, which
+        the reconstruction then drops); with ``return_info``, ``(normals, info)``.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 3 finite points, all points on one line, or a bad parameter.
+
+    Examples
+    --------
+    >>> normals = spsr.estimate_normals(points)
+    >>> mesh = spsr.reconstruct(points, normals, depth=9)
+    """
+    if isinstance(points, PointCloud):
+        if scan_origins is None and points.scan_origins:
+            scan_origins = points.scan_origins
+        positions = points.points
+    else:
+        positions = _rows3(points, "points")
+    vp = None
+    if viewpoint is not None:
+        v = [float(x) for x in viewpoint]
+        if len(v) != 3:
+            raise ValueError(f"viewpoint must be (x, y, z), got {len(v)} values")
+        if not all(np.isfinite(v)):
+            raise ValueError(f"viewpoint must be three finite numbers, got {tuple(v)}")
+        vp = (v[0], v[1], v[2])
+    origins = None
+    if scan_origins is not None:
+        origins = []
+        for first, origin in scan_origins:
+            o = [float(x) for x in origin]
+            if len(o) != 3:
+                raise ValueError(f"scan_origins: each position must be (x, y, z), got {len(o)} values")
+            origins.append((int(first), (o[0], o[1], o[2])))
+    info = _spsr.estimate_normals(
+        positions, neighbours=neighbours, orient=orient, viewpoint=vp, scan_origins=origins, threads=threads
+    )
+    normals = info.pop("normals")
+    return (normals, info) if return_info else normals
 
 
 def _mesh_arg(mesh: Union[Mesh, PathLike], what: str) -> Mesh:

@@ -63,4 +63,13 @@ def write_points(
     attributes: _Columns,
     ascii: bool,
 ) -> None: ...
+def estimate_normals(
+    points: np.ndarray,
+    *,
+    neighbours: Optional[int],
+    orient: Optional[str],
+    viewpoint: Optional[Tuple[float, float, float]],
+    scan_origins: Optional[Sequence[Tuple[int, Tuple[float, float, float]]]],
+    threads: Optional[int],
+) -> Dict[str, Any]: ...
 def cli_main(argv: List[str]) -> int: ...
