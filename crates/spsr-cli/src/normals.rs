@@ -88,6 +88,24 @@ pub struct NormalReport {
     orienting: Duration,
 }
 
+/// The file's scan positions as [`spsr::normals::Orientation::ScanOrigins`] wants them: empty
+/// scans (an E57 file may hold some) left out, and the first scan starting at point 0 (points
+/// before the first recorded scan, if any, are counted with it).
+fn scan_ranges(scans: &[spsr::ScanOrigin], points: usize) -> Vec<(usize, [f64; 3])> {
+    let mut ranges: Vec<(usize, [f64; 3])> = Vec::with_capacity(scans.len());
+    for (i, s) in scans.iter().enumerate() {
+        let end = scans.get(i + 1).map_or(points, |next| next.first_point);
+        if s.first_point < end {
+            ranges.push((s.first_point, s.origin));
+        }
+    }
+    match ranges.first_mut() {
+        Some(first) => first.0 = 0,
+        None => ranges.push((0, scans[0].origin)),
+    }
+    ranges
+}
+
 impl NormalOptions {
     /// The orientation these options ask for on `cloud`, or a usage error.
     fn orientation(
@@ -117,15 +135,7 @@ impl NormalOptions {
                     format!("viewpoint {},{},{}", v[0], v[1], v[2]),
                 ),
                 None if !scans.is_empty() => (
-                    // Points before the first recorded scan (there should be none) are
-                    // counted with it.
-                    Orientation::ScanOrigins(
-                        scans
-                            .iter()
-                            .enumerate()
-                            .map(|(i, s)| (if i == 0 { 0 } else { s.first_point }, s.origin))
-                            .collect(),
-                    ),
+                    Orientation::ScanOrigins(scan_ranges(scans, cloud.len())),
                     format!("viewpoint: {} scan position(s) from the file", scans.len()),
                 ),
                 None => {
@@ -355,4 +365,32 @@ pub fn run_normals(args: &NormalsArgs) -> Result<(), Failure> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scan(first_point: usize, x: f64) -> spsr::ScanOrigin {
+        spsr::ScanOrigin {
+            first_point,
+            origin: [x, 0.0, 0.0],
+        }
+    }
+
+    #[test]
+    fn empty_scans_are_left_out_and_the_first_starts_at_zero() {
+        let scans = [
+            scan(2, 1.0),
+            scan(5, 2.0),
+            scan(5, 3.0),
+            scan(9, 4.0),
+            scan(9, 5.0),
+        ];
+        assert_eq!(
+            scan_ranges(&scans, 9),
+            vec![(0, [1.0, 0.0, 0.0]), (5, [3.0, 0.0, 0.0])]
+        );
+        assert_eq!(scan_ranges(&[scan(0, 7.0)], 0), vec![(0, [7.0, 0.0, 0.0])]);
+    }
 }
