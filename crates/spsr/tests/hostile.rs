@@ -104,7 +104,7 @@ fn a_million_duplicates_of_one_point_are_identical_points() {
 
 #[test]
 fn a_million_duplicates_beside_a_sphere_reconstruct_the_sphere() {
-    let mut cloud = sphere(1000, [0.0; 3], 1.0, 21);
+    let mut cloud = sphere(2000, [0.0; 3], 1.0, 21);
     let n = 1_000_000;
     cloud
         .positions
@@ -112,7 +112,7 @@ fn a_million_duplicates_beside_a_sphere_reconstruct_the_sphere() {
     cloud
         .normals
         .extend(std::iter::repeat_n([0.0, 0.0, 1.0], n));
-    let out = reconstruct(&cloud, &params(5)).unwrap();
+    let out = reconstruct(&cloud, &params(6)).unwrap();
     assert_closed_manifold(&out.mesh, "sphere with duplicates");
     // Merged into one sample: the sphere keeps its size.
     let (lo, hi) = bbox(&out.mesh);
