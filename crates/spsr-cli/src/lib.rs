@@ -104,11 +104,13 @@ impl From<BoundaryArg> for spsr::Boundary {
 /// Arguments of `spsr reconstruct`. Defaults mirror [`spsr::Params::default`].
 #[derive(Debug, Args)]
 pub struct ReconstructArgs {
-    /// Oriented point cloud: PLY, LAS/LAZ, E57, PCD, or text with `x y z nx ny nz` per line.
+    /// Oriented point cloud: PLY, LAS/LAZ, E57, PCD, or text with `x y z nx ny nz` per line;
+    /// `-` reads standard input.
     #[arg(value_name = "INPUT")]
     pub input: PathBuf,
 
-    /// Output mesh, by extension: .ply (also any other name), .obj, .stl or .glb.
+    /// Output mesh, by extension: .ply (also any other name), .obj, .stl or .glb; `-` writes
+    /// PLY to standard output.
     #[arg(short, long, value_name = "OUTPUT")]
     pub output: PathBuf,
 
@@ -405,8 +407,129 @@ impl Failure {
     }
 }
 
+/// `-` as a file name: standard input (for an input) or standard output (for an output).
+pub fn is_std_stream(path: &Path) -> bool {
+    path.as_os_str() == "-"
+}
+
+/// What messages call standard input and output.
+const STDIN_NAME: &str = "<stdin>";
+const STDOUT_NAME: &str = "<stdout>";
+
+/// The name errors about an input give it: `<stdin>` for `-`.
+fn input_name(path: &Path) -> &Path {
+    if is_std_stream(path) {
+        Path::new(STDIN_NAME)
+    } else {
+        path
+    }
+}
+
+/// Reads oriented points from a file, or from standard input for `-`.
+pub fn read_points_arg(path: &Path) -> spsr::Result<spsr::PointCloud> {
+    if is_std_stream(path) {
+        spsr::io::read_points_from(std::io::stdin().lock(), Path::new(STDIN_NAME))
+    } else {
+        spsr::io::read_points(path)
+    }
+}
+
+/// Reads a cloud with or without normals from a file, or from standard input for `-`.
+pub fn read_cloud_arg(path: &Path) -> spsr::Result<spsr::PointCloud> {
+    if is_std_stream(path) {
+        spsr::io::read_cloud_from(std::io::stdin().lock(), Path::new(STDIN_NAME))
+    } else {
+        spsr::io::read_cloud(path)
+    }
+}
+
+/// Reads a mesh from a file, or from standard input for `-`.
+pub fn read_mesh_arg(path: &Path) -> spsr::Result<spsr::Mesh> {
+    if is_std_stream(path) {
+        spsr::io::read_mesh_from(std::io::stdin().lock(), Path::new(STDIN_NAME))
+    } else {
+        spsr::io::read_mesh(path)
+    }
+}
+
+/// The up-front output check; standard output (`-`) needs none.
+pub fn check_output_arg(output: &Path, input: &Path) -> spsr::Result<()> {
+    if is_std_stream(output) {
+        Ok(())
+    } else {
+        spsr::io::check_output_path(output, input)
+    }
+}
+
+/// Writes a mesh to a file (atomically), or as PLY to standard output for `-`.
+pub fn write_mesh_arg(
+    output: &Path,
+    mesh: &spsr::Mesh,
+    opts: &spsr::io::WriteOptions,
+) -> spsr::Result<()> {
+    if is_std_stream(output) {
+        let mut out = std::io::stdout().lock();
+        spsr::io::write_mesh_to(
+            &mut out,
+            Path::new(STDOUT_NAME),
+            spsr::io::MeshFormat::Ply,
+            mesh,
+            opts,
+        )
+    } else {
+        spsr::io::write_mesh(output, mesh, opts)
+    }
+}
+
+/// The closing summary line: on stdout, or on stderr when stdout carries the mesh.
+fn report_written(output: &Path, mesh: &spsr::Mesh, start: Instant) {
+    let line = format!(
+        "spsr: wrote {}: {} vertices, {} faces in {:.2} s",
+        if is_std_stream(output) {
+            Path::new(STDOUT_NAME)
+        } else {
+            output
+        }
+        .display(),
+        mesh.vertices.len(),
+        mesh.triangles.len(),
+        start.elapsed().as_secs_f64()
+    );
+    if is_std_stream(output) {
+        eprintln!("{line}");
+    } else {
+        println!("{line}");
+    }
+}
+
+/// Exit code of a run interrupted by Ctrl-C or a termination signal (128 + SIGINT).
+pub const EXIT_INTERRUPTED: i32 = 130;
+
+/// On Ctrl-C (SIGINT), SIGTERM or SIGHUP: deletes the temporary files of outputs being
+/// written, so that no partial output is left, and ends the process with
+/// [`EXIT_INTERRUPTED`]. An output already renamed into place is complete and stays.
+pub fn install_interrupt_handler() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        // Failing to install it (another handler exists) only loses the clean-up.
+        let _ = ctrlc::set_handler(|| {
+            let removed = spsr::io::remove_unfinished_files();
+            eprintln!(
+                "\nspsr: interrupted{}",
+                if removed > 0 {
+                    "; the unfinished output was deleted"
+                } else {
+                    ""
+                }
+            );
+            std::process::exit(EXIT_INTERRUPTED);
+        });
+    });
+}
+
 /// Runs a parsed command line.
 pub fn run(cli: &Cli) -> Result<(), Failure> {
+    install_interrupt_handler();
     match &cli.command {
         Command::Reconstruct(args) => reconstruct(args),
         Command::Trim(args) => run_trim(args),
@@ -480,7 +603,7 @@ fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     let start = Instant::now();
     let input = args.input.as_path();
     let output = args.output.as_path();
-    let fail = |e: spsr::Error| Failure::from_spsr(e, input);
+    let fail = |e: spsr::Error| Failure::from_spsr(e, input_name(input));
 
     // Cheap checks first, so mistakes surface before any reading or computing.
     let params = args.params();
@@ -490,12 +613,12 @@ fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
         p.validate().map_err(fail)?;
     }
     start_threads(args.threads)?;
-    spsr::io::check_output_path(output, input).map_err(fail)?;
+    check_output_arg(output, input).map_err(fail)?;
 
     let progress = Progress::new(std::io::stderr().is_terminal() && !args.verbose);
     progress.stage("reading");
     let t = Instant::now();
-    let mut cloud = spsr::io::read_cloud(input).map_err(fail)?;
+    let mut cloud = read_cloud_arg(input).map_err(fail)?;
     let reading = t.elapsed();
 
     let mut estimated = None;
@@ -540,7 +663,7 @@ fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     progress.stage("writing");
     let t = Instant::now();
     let opts = spsr::io::WriteOptions { ascii: args.ascii };
-    spsr::io::write_mesh(output, &result.mesh, &opts).map_err(fail)?;
+    write_mesh_arg(output, &result.mesh, &opts).map_err(fail)?;
     let writing = t.elapsed();
     drop(progress);
 
@@ -566,13 +689,7 @@ fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
             print_trim(stats, *time);
         }
     }
-    println!(
-        "spsr: wrote {}: {} vertices, {} faces in {:.2} s",
-        output.display(),
-        mesh.vertices.len(),
-        mesh.triangles.len(),
-        start.elapsed().as_secs_f64()
-    );
+    report_written(output, mesh, start);
     Ok(())
 }
 
@@ -597,6 +714,11 @@ fn print_details(
     for (depth, n) in stats.nodes_per_depth.iter().enumerate() {
         let _ = writeln!(err, "  {depth:>2}  {n:>12}");
     }
+    let _ = writeln!(
+        err,
+        "memory      {:.0} MiB estimated before the octree was built",
+        stats.memory_estimate as f64 / (1024.0 * 1024.0)
+    );
     let _ = writeln!(err, "iso-value   {}", stats.iso_value);
     let _ = writeln!(
         err,
@@ -655,11 +777,13 @@ output must not be the input; it appears only once complete.";
 /// Arguments of `spsr trim`.
 #[derive(Debug, Args)]
 pub struct TrimArgs {
-    /// Mesh with a per-vertex `density` property (from `spsr reconstruct --density`), PLY.
+    /// Mesh with a per-vertex `density` property (from `spsr reconstruct --density`), PLY;
+    /// `-` reads standard input.
     #[arg(value_name = "MESH")]
     pub mesh: PathBuf,
 
-    /// Output mesh, by extension: .ply (also any other name), .obj, .stl or .glb.
+    /// Output mesh, by extension: .ply (also any other name), .obj, .stl or .glb; `-` writes
+    /// PLY to standard output.
     #[arg(short, long, value_name = "OUTPUT")]
     pub output: PathBuf,
 
@@ -704,31 +828,25 @@ pub fn run_trim(args: &TrimArgs) -> Result<(), Failure> {
     let start = Instant::now();
     let input = args.mesh.as_path();
     let output = args.output.as_path();
-    let fail = |e: spsr::Error| Failure::from_spsr(e, input);
+    let fail = |e: spsr::Error| Failure::from_spsr(e, input_name(input));
     let params = spsr::trim::TrimParams {
         threshold: args.trim,
         min_island_area: args.min_island_area,
         hole_area: args.hole_area,
     };
     params.validate().map_err(fail)?;
-    spsr::io::check_output_path(output, input).map_err(fail)?;
-    let mesh = spsr::io::read_mesh(input).map_err(fail)?;
+    check_output_arg(output, input).map_err(fail)?;
+    let mesh = read_mesh_arg(input).map_err(fail)?;
     let t = Instant::now();
     let (trimmed, stats) = spsr::trim::trim(&mesh, &params).map_err(fail)?;
     let time = t.elapsed();
     drop(mesh);
     let opts = spsr::io::WriteOptions { ascii: args.ascii };
-    spsr::io::write_mesh(output, &trimmed, &opts).map_err(fail)?;
+    write_mesh_arg(output, &trimmed, &opts).map_err(fail)?;
     if args.verbose {
         print_trim(&stats, time);
     }
-    println!(
-        "spsr: wrote {}: {} vertices, {} faces in {:.2} s",
-        output.display(),
-        trimmed.vertices.len(),
-        trimmed.triangles.len(),
-        start.elapsed().as_secs_f64()
-    );
+    report_written(output, &trimmed, start);
     Ok(())
 }
 

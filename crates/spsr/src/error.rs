@@ -86,5 +86,24 @@ pub enum Error {
     },
 }
 
+impl Error {
+    /// The same error with the file `from` called `to` (a temporary copy named after its
+    /// source).
+    pub(crate) fn with_path(mut self, from: &std::path::Path, to: &std::path::Path) -> Self {
+        match &mut self {
+            Error::Io { path, .. }
+            | Error::Parse { path, .. }
+            | Error::MissingNormals { path }
+            | Error::Output { path, .. }
+                if path == from =>
+            {
+                *path = to.to_path_buf();
+            }
+            _ => {}
+        }
+        self
+    }
+}
+
 /// Result alias used throughout the library.
 pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -97,8 +97,47 @@ impl PointCloud {
 }
 
 /// True when a point can be used: finite position, finite normal of non-zero length
-/// (PR18 `IsValid`, ALGORITHM.md §3.1).
+/// (PR18 `IsValid`, ALGORITHM.md §3.1). The length is computed without overflow or
+/// underflow ([`normal_length`]), so normals of any finite non-zero length count.
 pub fn is_valid(position: &[f64; 3], normal: &[f64; 3]) -> bool {
-    let n2 = normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2];
-    position.iter().all(|c| c.is_finite()) && n2.is_finite() && n2 > 0.0
+    let len = normal_length(normal);
+    position.iter().all(|c| c.is_finite()) && len.is_finite() && len > 0.0
+}
+
+/// The Euclidean length of a vector, scaled so that the squares neither overflow (lengths
+/// near `f64::MAX`) nor underflow (lengths near `f64::MIN_POSITIVE`); NaN or infinite when a
+/// component is.
+pub fn normal_length(v: &[f64; 3]) -> f64 {
+    let m = v[0].abs().max(v[1].abs()).max(v[2].abs());
+    if !(m.is_finite() && m > 0.0) {
+        // 0, infinity, or NaN (`max` skips NaN, so look again).
+        return if v.iter().any(|c| c.is_nan()) {
+            f64::NAN
+        } else {
+            m
+        };
+    }
+    let (x, y, z) = (v[0] / m, v[1] / m, v[2] / m);
+    m * (x * x + y * y + z * z).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lengths_of_any_scale() {
+        assert_eq!(normal_length(&[3.0, 4.0, 0.0]), 5.0);
+        for s in [1e-300, 1e-170, 1e170, 1e300] {
+            let l = normal_length(&[3.0 * s, 0.0, -4.0 * s]);
+            assert!((l / (5.0 * s) - 1.0).abs() < 1e-15, "{s}: {l}");
+            assert!(is_valid(&[0.0; 3], &[3.0 * s, 0.0, -4.0 * s]));
+        }
+        assert_eq!(normal_length(&[0.0; 3]), 0.0);
+        assert!(normal_length(&[f64::NAN, 1.0, 0.0]).is_nan());
+        assert!(normal_length(&[1.0, f64::INFINITY, 0.0]).is_infinite());
+        assert!(!is_valid(&[0.0; 3], &[0.0; 3]));
+        assert!(!is_valid(&[0.0; 3], &[f64::NAN, 1.0, 0.0]));
+        assert!(!is_valid(&[f64::INFINITY, 0.0, 0.0], &[1.0, 0.0, 0.0]));
+    }
 }

@@ -11,7 +11,7 @@ use crate::density::{cell_of, for_each_quadratic_neighbour, merge_samples_groupe
 use crate::evaluate::{CornerField, Evaluator};
 use crate::extract::{extract_blocks, Cells, ExtractOptions};
 use crate::octree::{neighbor_in, window_index, Octree, TreeRequest, DEPTH_OFFSET, NONE};
-use crate::points::is_valid;
+use crate::points::{is_valid, normal_length};
 use crate::solver::{solve, Problem};
 use crate::system::{build_clusters, func_index, DepthTables};
 use crate::{Error, Mesh, Params, PointCloud, Result};
@@ -47,6 +47,9 @@ pub struct Stats {
     pub stages: Vec<(String, Duration)>,
     /// Warnings about the input that did not stop the reconstruction (e.g. far outliers).
     pub warnings: Vec<String>,
+    /// The peak memory estimated before the octree was built (bytes), which
+    /// [`Params::max_memory`] (or the available memory) was checked against.
+    pub memory_estimate: u64,
     /// Peak resident memory of the process (bytes) at the end of each stage, where the
     /// platform reports it (Linux); same order as `stages`.
     pub peak_memory: Vec<Option<u64>>,
@@ -383,12 +386,21 @@ impl Cells for TreeCells<'_> {
     }
 }
 
-/// Peak memory per octree node over the whole run (solve and extraction), measured on depth-10
-/// reconstructions of 1 M points (about 175 bytes) with a margin.
-const BYTES_PER_NODE: u64 = 190;
+// The memory model: peak resident memory ≈ BYTES_PER_NODE × octree nodes + BYTES_PER_POINT ×
+// input points + BASE_BYTES. Fitted to peak RSS measured with `/usr/bin/time -v` (2 threads)
+// and rounded up (README, "Hostile input, resource limits and interruption"): bunny_100k
+// depth 8 and 10, sphere_200k depth 10, spot_1m depth 8 and 10 and bunny_1m depth 11 land
+// 5–46 % above it. Known gap: few points at a large depth (bunny_20k at depth 12 peaks 41 %
+// above the estimate), where the density estimator and the complete base level dominate.
+
+/// Peak memory per octree node over the whole run (solve and extraction; 55–70 bytes measured).
+const BYTES_PER_NODE: u64 = 70;
 
 /// Memory per input point (the cloud, its unit-cube copy, samples and density).
-const BYTES_PER_POINT: u64 = 200;
+const BYTES_PER_POINT: u64 = 80;
+
+/// The program, thread stacks, read and write buffers.
+const BASE_BYTES: u64 = 32 << 20;
 
 /// Memory the machine can still give this process: available memory plus what the process
 /// already holds (Linux; `None` elsewhere).
@@ -410,21 +422,21 @@ fn gib(bytes: u64) -> String {
 
 /// Refuses a run whose estimated peak memory exceeds the limit. The suggested depth is the
 /// deepest whose levels of this tree fit: a shallower run keeps the same coarse levels.
-fn check_memory(level_counts: &[usize], points: usize, params: &Params) -> Result<()> {
+fn check_memory(level_counts: &[usize], points: usize, params: &Params) -> Result<u64> {
     let estimate_to = |levels: usize| {
         let nodes: usize = level_counts.iter().take(levels).sum();
-        BYTES_PER_NODE * nodes as u64 + BYTES_PER_POINT * points as u64
+        BYTES_PER_NODE * nodes as u64 + BYTES_PER_POINT * points as u64 + BASE_BYTES
     };
     let estimate = estimate_to(level_counts.len());
     let (limit, what) = match params.max_memory {
         Some(m) => (m, "the --max-memory limit"),
         None => match memory_budget() {
             Some(m) => (m, "the memory this machine has available"),
-            None => return Ok(()),
+            None => return Ok(estimate),
         },
     };
     if estimate <= limit {
-        return Ok(());
+        return Ok(estimate);
     }
     let nodes: usize = level_counts.iter().sum();
     let fits = (1..params.depth)
@@ -458,32 +470,59 @@ const OUTLIER_QUANTILE: f64 = 0.001;
 /// Bounding boxes larger than this many times the robust extent get a warning.
 const OUTLIER_RATIO: f64 = 20.0;
 
+/// Fewest usable points for which the outlier check is made (below, the quantiles mean
+/// little).
+const OUTLIER_MIN_POINTS: usize = 20;
+
 /// A warning when a few far points make the bounding cube much larger than the bulk of the
-/// cloud: the cube sets the finest cell size, so such outliers silently waste depth.
+/// cloud: the cube sets the finest cell size, so such outliers silently waste depth. Names
+/// how many points lie outside the bulk, the box that holds the bulk, and the two fixes.
 fn outlier_warning(points: &PointCloud, valid: &[usize], side: f64, depth: u32) -> Option<String> {
-    if valid.len() < 1000 {
+    let n = valid.len();
+    if n < OUTLIER_MIN_POINTS {
         return None;
     }
-    let k = ((valid.len() as f64 * OUTLIER_QUANTILE) as usize).max(1);
-    let robust = (0..3)
-        .map(|a| {
-            let mut c: Vec<f64> = valid.iter().map(|&i| points.positions[i][a]).collect();
-            let n = c.len();
-            let lo = *c.select_nth_unstable_by(k, f64::total_cmp).1;
-            let hi = *c.select_nth_unstable_by(n - 1 - k, f64::total_cmp).1;
-            hi - lo
-        })
-        .fold(0.0, f64::max);
+    // The bulk: on each axis, the range without the 0.1 % of points at either end (at least
+    // one point each side).
+    let k = ((n as f64 * OUTLIER_QUANTILE) as usize).max(1);
+    let mut lo = [0.0; 3];
+    let mut hi = [0.0; 3];
+    for a in 0..3 {
+        let mut c: Vec<f64> = valid.iter().map(|&i| points.positions[i][a]).collect();
+        lo[a] = *c.select_nth_unstable_by(k, f64::total_cmp).1;
+        hi[a] = *c.select_nth_unstable_by(n - 1 - k, f64::total_cmp).1;
+    }
+    let robust = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+    // Positions are finite here, so `robust` is a finite number, not NaN.
     if robust <= 0.0 || side <= OUTLIER_RATIO * robust {
         return None;
     }
+    // Points far from the bulk: outside its box grown by its own size on every side.
+    let far = valid
+        .iter()
+        .filter(|&&i| {
+            let p = points.positions[i];
+            (0..3).any(|a| p[a] < lo[a] - robust || p[a] > hi[a] + robust)
+        })
+        .count();
     let ratio = side / robust;
-    let lost = ratio.log2().floor();
+    let lost = ratio.log2().floor() as u32;
+    let fmt = |v: [f64; 3]| format!("({:.6e}, {:.6e}, {:.6e})", v[0], v[1], v[2]);
+    let deeper = depth + lost;
     Some(format!(
-        "the points span {side:.4e} units, but 99.8 % of them lie within {robust:.4e}: a few far \
-         outliers make the finest cells about {ratio:.0} times coarser (depth {depth} acts like \
-         depth {}); remove the outliers or crop the input",
-        depth.saturating_sub(lost as u32)
+        "{far} of {n} points ({:.3} %) lie far outside the box {} to {} that holds the \
+         others; they make the points span {side:.4e} units instead of {robust:.4e}, so the \
+         finest cells are about {ratio:.0} times coarser (--depth {depth} resolves the \
+         surface like --depth {}); remove those points (crop the input to that box){}",
+        100.0 * far as f64 / n as f64,
+        fmt(lo),
+        fmt(hi),
+        depth.saturating_sub(lost),
+        if deeper <= crate::MAX_DEPTH {
+            format!(", or raise --depth to {deeper}")
+        } else {
+            String::new()
+        }
     ))
 }
 
@@ -561,10 +600,7 @@ fn solve_implicit_from(
     let weight_of = |i: usize| -> f64 {
         match confidence {
             Some(a) => a.data.get(i).unwrap_or(f64::NAN),
-            None if params.confidence => {
-                let n = points.normals[i];
-                (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt()
-            }
+            None if params.confidence => normal_length(&points.normals[i]),
             None => 1.0,
         }
     };
@@ -614,7 +650,7 @@ fn solve_implicit_from(
         .map(|&i| {
             let p = points.positions[i];
             let n = points.normals[i];
-            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            let len = normal_length(&n);
             let w = weight_of(i);
             (
                 std::array::from_fn(|a| ((p[a] - origin[a]) / width).clamp(0.0, 1.0)),
@@ -720,7 +756,7 @@ fn solve_implicit_from(
         }
     }
     let closed = req.close(base, base);
-    check_memory(&closed.level_counts(), n_points, params)?;
+    let memory_estimate = check_memory(&closed.level_counts(), n_points, params)?;
     let tree = Octree::materialize(closed);
     timer.stop("octree");
 
@@ -884,6 +920,7 @@ fn solve_implicit_from(
             iso_value: iso,
             mean_sample_depth: sum_depth / sum_w,
             warnings,
+            memory_estimate,
             stages: timer.stats,
             peak_memory: timer.memory,
         },

@@ -440,7 +440,12 @@ fn a_far_outlier_is_reported_with_the_fix() {
     .unwrap();
     assert_eq!(out.stats.warnings.len(), 1, "{:?}", out.stats.warnings);
     let w = &out.stats.warnings[0];
-    assert!(w.contains("outliers") && w.contains("remove"), "{w}");
+    assert!(
+        w.starts_with("1 of 20001 points (0.005 %) lie far outside the box")
+            && w.contains("crop the input to that box")
+            && !w.contains("raise --depth"),
+        "{w}"
+    );
     // Without the outlier there is nothing to say.
     let clean = sphere(20_000, [0.0; 3], 1.0, 8);
     let out = reconstruct(

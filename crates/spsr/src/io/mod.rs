@@ -306,3 +306,69 @@ pub fn write_cloud(path: &Path, cloud: &PointCloud, opts: &WriteOptions) -> Resu
 pub fn check_output_path(output: &Path, input: &Path) -> Result<()> {
     write::check_output_path(output, input)
 }
+
+/// Writes a mesh in `format` to a writer, such as standard output; `name` is what error
+/// messages call the destination (e.g. `<stdout>`). Unlike [`write_mesh`] this cannot be
+/// atomic: a failure part way leaves part of the mesh written.
+///
+/// # Errors
+/// As [`write_mesh`].
+pub fn write_mesh_to(
+    out: &mut dyn std::io::Write,
+    name: &Path,
+    format: MeshFormat,
+    mesh: &Mesh,
+    opts: &WriteOptions,
+) -> Result<()> {
+    write::write_mesh_to(out, name, format, mesh, opts)
+}
+
+pub use write::remove_unfinished_files;
+
+/// Copies `input` into a temporary file (deleted afterwards, and by
+/// [`remove_unfinished_files`]) and reads it with `read`; errors name `name` instead of the
+/// temporary file. Standard input cannot seek, which LAS and E57 need, and the readers bound
+/// their reservations by the file's size, so every format is read this way.
+fn read_spooled<T>(
+    mut input: impl std::io::Read,
+    name: &Path,
+    read: impl FnOnce(&Path) -> Result<T>,
+) -> Result<T> {
+    let tmp = tempfile::Builder::new()
+        .prefix(".spsr-stdin-")
+        .tempfile()
+        .map_err(|e| io_err(name, e))?;
+    let _unfinished = write::Unfinished::register(tmp.path());
+    {
+        let mut w = std::io::BufWriter::with_capacity(READ_BUFFER, tmp.as_file());
+        std::io::copy(&mut input, &mut w).map_err(|e| io_err(name, e))?;
+        std::io::Write::flush(&mut w).map_err(|e| io_err(name, e))?;
+    }
+    read(tmp.path()).map_err(|e| e.with_path(tmp.path(), name))
+}
+
+/// [`read_points`] from a reader, such as standard input, in any format [`read_cloud`]
+/// recognises by its first bytes (anything else is read as text); `name` is what error
+/// messages call the source (e.g. `<stdin>`).
+///
+/// # Errors
+/// As [`read_points`].
+pub fn read_points_from(input: impl std::io::Read, name: &Path) -> Result<PointCloud> {
+    read_spooled(input, name, read_points)
+}
+
+/// [`read_cloud`] from a reader; see [`read_points_from`].
+///
+/// # Errors
+/// As [`read_cloud`].
+pub fn read_cloud_from(input: impl std::io::Read, name: &Path) -> Result<PointCloud> {
+    read_spooled(input, name, read_cloud)
+}
+
+/// [`read_mesh`] from a reader (PLY); see [`read_points_from`].
+///
+/// # Errors
+/// As [`read_mesh`].
+pub fn read_mesh_from(input: impl std::io::Read, name: &Path) -> Result<Mesh> {
+    read_spooled(input, name, read_mesh)
+}

@@ -179,6 +179,69 @@ fn temp_file_in(dir: &Path) -> std::io::Result<tempfile::NamedTempFile> {
     b.tempfile_in(dir)
 }
 
+/// Temporary files being written (or spooled from standard input) right now.
+static UNFINISHED: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+/// Registration of a temporary file in [`UNFINISHED`] for as long as the guard lives.
+pub(crate) struct Unfinished(PathBuf);
+
+impl Unfinished {
+    pub(crate) fn register(path: &Path) -> Self {
+        let mut list = UNFINISHED.lock().unwrap_or_else(|e| e.into_inner());
+        list.push(path.to_path_buf());
+        Unfinished(path.to_path_buf())
+    }
+}
+
+impl Drop for Unfinished {
+    fn drop(&mut self) {
+        let mut list = UNFINISHED.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(i) = list.iter().position(|p| *p == self.0) {
+            list.swap_remove(i);
+        }
+    }
+}
+
+/// Deletes every temporary file spsr is writing at this moment and returns how many it
+/// deleted. For an interrupt handler that then ends the process: the outputs being written
+/// never appear (a finished output has already been renamed into place and is not touched).
+pub fn remove_unfinished_files() -> usize {
+    let list = UNFINISHED.lock().unwrap_or_else(|e| e.into_inner());
+    list.iter()
+        .filter(|p| std::fs::remove_file(p).is_ok())
+        .count()
+}
+
+/// Writes a mesh in `format` to any writer (standard output, say); `name` is what errors
+/// call the destination.
+pub(crate) fn write_mesh_to(
+    out: &mut dyn Write,
+    name: &Path,
+    format: MeshFormat,
+    mesh: &Mesh,
+    opts: &WriteOptions,
+) -> Result<()> {
+    validate(name, mesh)?;
+    check_format(name, format, mesh)?;
+    let mut w = BufWriter::with_capacity(1 << 16, out);
+    let r = match format {
+        MeshFormat::Ply => write_ply::write_mesh(&mut w, mesh, opts.ascii),
+        MeshFormat::Obj => obj::write_obj(&mut w, mesh),
+        MeshFormat::Stl if opts.ascii => stl::write_ascii(&mut w, mesh),
+        MeshFormat::Stl => stl::write_binary(&mut w, mesh),
+        MeshFormat::Glb => glb::write_glb(&mut w, mesh),
+    };
+    r.and_then(|()| w.flush()).map_err(|e| io_err(name, e))
+}
+
+fn check_format(path: &Path, format: MeshFormat, mesh: &Mesh) -> Result<()> {
+    match format {
+        MeshFormat::Ply => write_ply::check_mesh_names(mesh).map_err(|m| output_err(path, m)),
+        MeshFormat::Glb => glb::check_size(mesh).map_err(|m| output_err(path, m)),
+        MeshFormat::Obj | MeshFormat::Stl => Ok(()),
+    }
+}
+
 /// Writes `path` through a temporary file in the same directory, renamed into place once
 /// `write` has succeeded; on any error the temporary file is removed and `path` untouched.
 fn write_atomically(
@@ -208,7 +271,9 @@ fn write_atomically(
             },
         )
     })?;
-    // On error `tmp` is dropped, which deletes the temporary file.
+    // On error `tmp` is dropped, which deletes the temporary file; an interrupted process
+    // deletes it through `remove_unfinished_files`.
+    let _unfinished = Unfinished::register(tmp.path());
     let mut w = BufWriter::with_capacity(1 << 16, tmp);
     write(&mut w).map_err(|e| io_err(path, e))?;
     let tmp = w.into_inner().map_err(|e| io_err(path, e.into_error()))?;
@@ -224,11 +289,7 @@ fn write_atomically(
 pub(crate) fn write_mesh(path: &Path, mesh: &Mesh, opts: &WriteOptions) -> Result<()> {
     validate(path, mesh)?;
     let format = MeshFormat::from_path(path);
-    match format {
-        MeshFormat::Ply => write_ply::check_mesh_names(mesh).map_err(|m| output_err(path, m))?,
-        MeshFormat::Glb => glb::check_size(mesh).map_err(|m| output_err(path, m))?,
-        MeshFormat::Obj | MeshFormat::Stl => {}
-    }
+    check_format(path, format, mesh)?;
     write_atomically(path, |w| match format {
         MeshFormat::Ply => write_ply::write_mesh(w, mesh, opts.ascii),
         MeshFormat::Obj => obj::write_obj(w, mesh),
