@@ -1009,15 +1009,7 @@ pub fn run_eval(args: &EvalArgs) -> Result<(), Failure> {
         (None, Some(spec)) => Some(parse_sphere(spec)?),
         (Some(_), None) => None,
     };
-    if let Some(n) = args.threads {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(n)
-            .build_global()
-            .map_err(|e| Failure {
-                code: exit::RESOURCE,
-                error: anyhow::anyhow!("cannot start {n} worker threads: {e}"),
-            })?;
-    }
+    start_threads(args.threads)?;
     let start = Instant::now();
     let mesh = read_eval_mesh(&args.mesh)?;
     let (reference, reference_name) = match (sphere, &args.reference) {
