@@ -528,8 +528,10 @@ pub fn install_interrupt_handler() {
 }
 
 /// Runs a parsed command line.
+///
+/// The `spsr` binary installs [`install_interrupt_handler`] first; an embedding process (the
+/// Python package) keeps its own signal handling.
 pub fn run(cli: &Cli) -> Result<(), Failure> {
-    install_interrupt_handler();
     match &cli.command {
         Command::Reconstruct(args) => reconstruct(args),
         Command::Trim(args) => run_trim(args),

@@ -5,6 +5,7 @@ use clap::Parser;
 
 fn main() -> ExitCode {
     let cli = spsr_cli::Cli::parse();
+    spsr_cli::install_interrupt_handler();
     match spsr_cli::run(&cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(failure) => {
