@@ -425,15 +425,6 @@ fn input_name(path: &Path) -> &Path {
     }
 }
 
-/// Reads oriented points from a file, or from standard input for `-`.
-pub fn read_points_arg(path: &Path) -> spsr::Result<spsr::PointCloud> {
-    if is_std_stream(path) {
-        spsr::io::read_points_from(std::io::stdin().lock(), Path::new(STDIN_NAME))
-    } else {
-        spsr::io::read_points(path)
-    }
-}
-
 /// Reads a cloud with or without normals from a file, or from standard input for `-`.
 pub fn read_cloud_arg(path: &Path) -> spsr::Result<spsr::PointCloud> {
     if is_std_stream(path) {
