@@ -9,7 +9,7 @@
 use std::path::PathBuf;
 use std::sync::OnceLock;
 
-use spsr::{Boundary, Mesh, Params, PointCloud};
+use spsr::{Boundary, Degree, Mesh, Params, PointCloud, PointWeights};
 
 /// A folder of this process for the files the readers are given (the readers take paths,
 /// as users' files do, so the targets go through exactly the code users run).
@@ -135,10 +135,18 @@ pub fn decode_reconstruct(data: &[u8]) -> Option<(Params, PointCloud)> {
     let params = Params {
         depth,
         full_depth: u32::from(head[3] % 7).min(depth),
-        degree: 1 + (flags & 1),
+        degree: if flags & 1 == 0 {
+            Degree::Linear
+        } else {
+            Degree::Quadratic
+        },
         boundary: [Boundary::Neumann, Boundary::Dirichlet, Boundary::Free]
             [usize::from((flags >> 1) % 4 % 3)],
-        confidence: flags & 8 != 0,
+        weights: if flags & 8 != 0 {
+            PointWeights::NormalLength
+        } else {
+            PointWeights::Uniform
+        },
         two_level_splat: flags & 16 != 0,
         linear_fit: flags & 32 != 0,
         density: flags & 64 != 0,

@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 mod normals;
+pub mod words;
 pub use normals::{NormalOptions, NormalsArgs, OrientArg};
 
 /// Exit codes of the `spsr` binary (also listed in `--help` and the README).
@@ -146,8 +147,8 @@ pub struct ReconstructArgs {
 
     /// B-spline degree of the finite elements, 1 or 2. Default as PoissonRecon 18 (the 2013 paper
     /// and PoissonRecon 6 use 2).
-    #[arg(long, value_name = "K", default_value_t = 1)]
-    pub degree: u8,
+    #[arg(long, value_name = "K", default_value = "1", value_parser = parse_degree)]
+    pub degree: spsr::Degree,
 
     /// Boundary condition on the bounding cube. Default as PoissonRecon 6 and 18.
     #[arg(long, value_enum, default_value_t = BoundaryArg::Neumann)]
@@ -326,7 +327,11 @@ impl ReconstructArgs {
             boundary: self.boundary.into(),
             scale: self.scale,
             iters: self.iters,
-            confidence: self.confidence,
+            weights: match (&self.confidence_property, self.confidence) {
+                (Some(name), _) => spsr::PointWeights::Property(name.clone()),
+                (None, true) => spsr::PointWeights::NormalLength,
+                (None, false) => spsr::PointWeights::Uniform,
+            },
             density: self.density || self.trim.is_some(),
             linear_fit: self.linear_fit,
             max_memory: self.max_memory,
@@ -334,9 +339,17 @@ impl ReconstructArgs {
             attributes: !self.no_attributes,
             data_pull: self.data_pull,
             normals: self.normals,
-            confidence_property: self.confidence_property.clone(),
         }
     }
+}
+
+/// Parses `--degree`: 1 or 2.
+fn parse_degree(s: &str) -> Result<spsr::Degree, String> {
+    s.trim()
+        .parse::<u8>()
+        .ok()
+        .and_then(spsr::Degree::from_number)
+        .ok_or_else(|| format!("'{s}' is not a supported degree; use 1 or 2"))
 }
 
 /// Parses `--trim`: `auto` (any case) or a finite density value.
@@ -386,6 +399,7 @@ impl Failure {
             | E::TooFewPoints { .. }
             | E::Degenerate(_)
             | E::InvalidMesh(_)
+            | E::MissingDensity
             | E::LengthMismatch { .. } => exit::DATA,
             E::ResourceLimit { .. } => exit::RESOURCE,
             _ => exit::DATA,
@@ -394,13 +408,15 @@ impl Failure {
             e,
             E::Io { .. } | E::Parse { .. } | E::MissingNormals { .. } | E::Output { .. }
         );
+        // The context carries the whole message in the command line's words, so printing it
+        // with `{}` gives one line; the library error stays reachable for downcasting.
+        let message = words::error(&e).unwrap_or_else(|| e.to_string());
         let error =
             if names_file || matches!(e, E::InvalidParameter { .. } | E::ResourceLimit { .. }) {
-                anyhow::Error::new(e)
+                anyhow::Error::new(e).context(message)
             } else {
-                // The context carries the whole message, so printing it with `{}` gives one line
-                // that names the file; the library error stays reachable for downcasting.
-                let message = format!("{}: {e}", input.display());
+                // Name the file whose content is at fault.
+                let message = format!("{}: {message}", input.display());
                 anyhow::Error::new(e).context(message)
             };
         Failure { code, error }
@@ -660,17 +676,8 @@ fn reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     let writing = t.elapsed();
     drop(progress);
 
-    let stats = &result.stats;
-    if stats.dropped > 0 {
-        eprintln!(
-            "spsr: warning: {}: {} of {} points dropped (non-finite coordinates or zero-length normals)",
-            input.display(),
-            stats.dropped,
-            stats.points
-        );
-    }
-    for w in &stats.warnings {
-        eprintln!("spsr: warning: {}: {w}", input.display());
+    for w in &result.stats.warnings {
+        eprintln!("spsr: warning: {}: {}", input.display(), words::warning(w));
     }
     let mesh = &result.mesh;
     if args.verbose {
@@ -1182,9 +1189,9 @@ mod tests {
         ])
         .params();
         assert_eq!(p.point_weight, Some(0.0));
-        assert_eq!(p.degree, 2);
+        assert_eq!(p.degree, spsr::Degree::Quadratic);
         assert_eq!(p.boundary, spsr::Boundary::Dirichlet);
-        assert!(p.confidence && p.density);
+        assert!(p.weights == spsr::PointWeights::NormalLength && p.density);
     }
 
     #[test]
@@ -1212,10 +1219,7 @@ mod tests {
         assert!(msg.starts_with("cloud.ply: too few usable points"), "{msg}");
         assert!(f.error.downcast_ref::<spsr::Error>().is_some());
 
-        let bad = spsr::Error::InvalidParameter {
-            name: "--depth",
-            message: "40".into(),
-        };
+        let bad = spsr::Error::invalid("depth", 40, "an integer from 1 to 18");
         let f = Failure::from_spsr(bad, input);
         assert_eq!(f.code, exit::USAGE);
         assert!(!f.error.to_string().contains("cloud.ply"));

@@ -169,7 +169,10 @@ fn each_exit_code_with_a_message_that_says_what_to_do() {
     let out = run(&["--depth", "0"]);
     let err = stderr(&out);
     assert_eq!(out.status.code(), Some(2), "{err}");
-    assert!(err.contains("--depth") && err.contains("1..="), "{err}");
+    assert!(
+        err.contains("--depth") && err.contains("from 1 to 18"),
+        "{err}"
+    );
     // 3: a resource limit, with the estimate and a depth that fits.
     let limit = format!("{}M", estimate_mib - 2);
     let out = run(&["--depth", "8", "--max-memory", &limit]);

@@ -53,19 +53,47 @@ impl Boundary {
     }
 }
 
-/// A 1-D B-spline basis: degree (1 or 2) and boundary type.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub struct Basis {
-    /// Degree, 1 or 2.
-    pub degree: u8,
-    /// Boundary type.
-    pub boundary: Boundary,
+/// Degree of the B-spline finite elements (ALGORITHM.md §5.1). Only these two are
+/// implemented, so an unsupported degree cannot be expressed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Degree {
+    /// Piecewise-linear elements (PoissonRecon 18's default).
+    #[default]
+    Linear = 1,
+    /// Piecewise-quadratic elements (the 2013 paper and PoissonRecon 6).
+    Quadratic = 2,
 }
 
-#[cold]
-#[inline(never)]
-fn bad_degree(degree: u8) -> ! {
-    panic!("unsupported B-spline degree {degree} (only 1 and 2 are implemented)")
+impl Degree {
+    /// The polynomial degree as a number, 1 or 2.
+    #[inline(always)]
+    pub const fn get(self) -> u8 {
+        self as u8
+    }
+
+    /// The degree numbered `d`, if it is implemented.
+    pub const fn from_number(d: u8) -> Option<Self> {
+        match d {
+            1 => Some(Degree::Linear),
+            2 => Some(Degree::Quadratic),
+            _ => None,
+        }
+    }
+}
+
+impl std::fmt::Display for Degree {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.get())
+    }
+}
+
+/// A 1-D B-spline basis: degree and boundary type.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Basis {
+    /// Degree.
+    pub degree: Degree,
+    /// Boundary type.
+    pub boundary: Boundary,
 }
 
 /// Cell containing `x` at resolution `n = 2^depth` (clamped to `0..n`) and the local
@@ -80,7 +108,7 @@ fn locate(n: i64, x: f64) -> (i64, f64) {
 
 impl Basis {
     /// A basis of the given degree and boundary type.
-    pub const fn new(degree: u8, boundary: Boundary) -> Self {
+    pub const fn new(degree: Degree, boundary: Boundary) -> Self {
         Self { degree, boundary }
     }
 
@@ -92,11 +120,10 @@ impl Basis {
     pub fn index_range(self, depth: u32) -> (i64, i64) {
         let n = 1i64 << depth;
         match (self.degree, self.boundary) {
-            (1, Boundary::Dirichlet) => (1, n - 1),
-            (1, _) => (0, n),
-            (2, Boundary::Free) => (-1, n),
-            (2, _) => (0, n - 1),
-            (d, _) => bad_degree(d),
+            (Degree::Linear, Boundary::Dirichlet) => (1, n - 1),
+            (Degree::Linear, _) => (0, n),
+            (Degree::Quadratic, Boundary::Free) => (-1, n),
+            (Degree::Quadratic, _) => (0, n - 1),
         }
     }
 
@@ -155,7 +182,7 @@ impl Basis {
     fn window_cell(self, n: i64, c: i64, t: f64) -> Window {
         let nf = n as f64;
         match self.degree {
-            1 => {
+            Degree::Linear => {
                 let mut values = [1.0 - t, t, 0.0];
                 let mut derivs = [-nf, nf, 0.0];
                 if self.boundary == Boundary::Dirichlet {
@@ -174,7 +201,7 @@ impl Basis {
                     derivs,
                 }
             }
-            2 => {
+            Degree::Quadratic => {
                 let s = 1.0 - t;
                 let m = t - 0.5;
                 let mut values = [0.5 * s * s, 0.75 - m * m, 0.5 * t * t];
@@ -202,7 +229,6 @@ impl Basis {
                     derivs,
                 }
             }
-            d => bad_degree(d),
         }
     }
 
@@ -222,7 +248,7 @@ impl Basis {
         let (clo, chi) = self.index_range(depth + 1);
         let mut count = 0usize;
         match self.degree {
-            1 => {
+            Degree::Linear => {
                 for (k, w) in [0.5, 1.0, 0.5].into_iter().enumerate() {
                     let j = 2 * i - 1 + k as i64;
                     if j >= clo && j <= chi {
@@ -231,7 +257,7 @@ impl Basis {
                     }
                 }
             }
-            2 => {
+            Degree::Quadratic => {
                 let n2 = 1i64 << (depth + 1);
                 let sign = self.boundary.mirror_sign();
                 for (k, w) in [0.25, 0.75, 0.75, 0.25].into_iter().enumerate() {
@@ -268,7 +294,6 @@ impl Basis {
                 }
                 count = kept;
             }
-            d => bad_degree(d),
         }
         count
     }
@@ -390,9 +415,8 @@ impl Spec {
         // Folded images land on the cells of the function itself, so its unfolded support,
         // clipped to the domain, bounds the cells to visit.
         let (c0, c1) = match self.a.degree {
-            1 => (i - 1, i),
-            2 => (i - 1, i + 1),
-            d => bad_degree(d),
+            Degree::Linear => (i - 1, i),
+            Degree::Quadratic => (i - 1, i + 1),
         };
         let (c0, c1) = (c0.max(0), c1.min(n - 1));
         let (da, dbv) = match self.integrand {
@@ -491,12 +515,12 @@ mod tests {
     use super::*;
 
     const ALL: [Basis; 6] = [
-        Basis::new(1, Boundary::Free),
-        Basis::new(1, Boundary::Neumann),
-        Basis::new(1, Boundary::Dirichlet),
-        Basis::new(2, Boundary::Free),
-        Basis::new(2, Boundary::Neumann),
-        Basis::new(2, Boundary::Dirichlet),
+        Basis::new(Degree::Linear, Boundary::Free),
+        Basis::new(Degree::Linear, Boundary::Neumann),
+        Basis::new(Degree::Linear, Boundary::Dirichlet),
+        Basis::new(Degree::Quadratic, Boundary::Free),
+        Basis::new(Degree::Quadratic, Boundary::Neumann),
+        Basis::new(Degree::Quadratic, Boundary::Dirichlet),
     ];
     const INTEGRANDS: [Integrand; 3] = [
         Integrand::ValueValue,
@@ -587,13 +611,17 @@ mod tests {
             return 0.0;
         }
         let nf = (1u64 << depth) as f64;
-        let shift = if b.degree == 2 { 0.5 } else { 0.0 };
+        let shift = if b.degree == Degree::Quadratic {
+            0.5
+        } else {
+            0.0
+        };
         let unfolded = |y: f64| -> f64 {
             let t = y * nf - i as f64 - shift;
             if deriv {
-                nf * beta_prime(b.degree, t)
+                nf * beta_prime(b.degree.get(), t)
             } else {
-                beta(b.degree, t)
+                beta(b.degree.get(), t)
             }
         };
         if b.boundary == Boundary::Free {
@@ -611,7 +639,7 @@ mod tests {
             let k2 = 2.0 * k as f64;
             sum += unfolded(x + k2) + sign * dsign * unfolded(k2 - x);
         }
-        let fixed = b.degree == 1 && (i == 0 || i == 1i64 << depth);
+        let fixed = b.degree == Degree::Linear && (i == 0 || i == 1i64 << depth);
         if fixed {
             sum * 0.5
         } else {
@@ -638,14 +666,14 @@ mod tests {
     fn beta_values_unit_integrals_and_partition_of_unity() {
         // β2(0) = 3/4, β2(±1) = 1/8 through the library (free degree-2 function (3, 3),
         // centred at 3.5/8), and hat values.
-        let b2 = Basis::new(2, Boundary::Free);
+        let b2 = Basis::new(Degree::Quadratic, Boundary::Free);
         assert_eq!(b2.value(3, 3, 3.5 / 8.0), 0.75);
         assert_eq!(b2.value(3, 3, 2.5 / 8.0), 0.125);
         assert_eq!(b2.value(3, 3, 4.5 / 8.0), 0.125);
         assert_eq!(b2.value(3, 3, 2.0 / 8.0), 0.0);
         assert_eq!(b2.value(3, 3, 5.0 / 8.0), 0.0);
         assert_eq!(b2.value(3, 3, 3.0 / 8.0), 0.5);
-        let b1 = Basis::new(1, Boundary::Free);
+        let b1 = Basis::new(Degree::Linear, Boundary::Free);
         assert_eq!(b1.value(3, 3, 3.0 / 8.0), 1.0);
         assert_eq!(b1.value(3, 3, 3.5 / 8.0), 0.5);
         assert_eq!(b1.value(3, 3, 4.0 / 8.0), 0.0);
@@ -679,7 +707,7 @@ mod tests {
             }
         }
         // Dirichlet destroys it; its functions vanish at the ends.
-        let d2 = Basis::new(2, Boundary::Dirichlet);
+        let d2 = Basis::new(Degree::Quadratic, Boundary::Dirichlet);
         for depth in 0..6 {
             let (lo, hi) = d2.index_range(depth);
             for i in lo..=hi {
@@ -688,7 +716,7 @@ mod tests {
             }
         }
         // Neumann degree 2: zero derivative at the ends; at depth 0 the single function is 1.
-        let n2 = Basis::new(2, Boundary::Neumann);
+        let n2 = Basis::new(Degree::Quadratic, Boundary::Neumann);
         assert_eq!(n2.index_range(0), (0, 0));
         for depth in 0..6 {
             let (lo, hi) = n2.index_range(depth);
@@ -702,13 +730,34 @@ mod tests {
             assert!(n2.derivative(0, 0, x).abs() < 1e-15);
         }
         // Index ranges of §5.2.
-        assert_eq!(Basis::new(1, Boundary::Neumann).index_range(3), (0, 8));
-        assert_eq!(Basis::new(1, Boundary::Free).index_range(3), (0, 8));
-        assert_eq!(Basis::new(1, Boundary::Dirichlet).index_range(3), (1, 7));
-        assert_eq!(Basis::new(1, Boundary::Dirichlet).index_range(0), (1, 0));
-        assert_eq!(Basis::new(2, Boundary::Neumann).index_range(3), (0, 7));
-        assert_eq!(Basis::new(2, Boundary::Dirichlet).index_range(3), (0, 7));
-        assert_eq!(Basis::new(2, Boundary::Free).index_range(3), (-1, 8));
+        assert_eq!(
+            Basis::new(Degree::Linear, Boundary::Neumann).index_range(3),
+            (0, 8)
+        );
+        assert_eq!(
+            Basis::new(Degree::Linear, Boundary::Free).index_range(3),
+            (0, 8)
+        );
+        assert_eq!(
+            Basis::new(Degree::Linear, Boundary::Dirichlet).index_range(3),
+            (1, 7)
+        );
+        assert_eq!(
+            Basis::new(Degree::Linear, Boundary::Dirichlet).index_range(0),
+            (1, 0)
+        );
+        assert_eq!(
+            Basis::new(Degree::Quadratic, Boundary::Neumann).index_range(3),
+            (0, 7)
+        );
+        assert_eq!(
+            Basis::new(Degree::Quadratic, Boundary::Dirichlet).index_range(3),
+            (0, 7)
+        );
+        assert_eq!(
+            Basis::new(Degree::Quadratic, Boundary::Free).index_range(3),
+            (-1, 8)
+        );
     }
 
     fn assert_row(t: &Table1D, i: i64, expect: [f64; 5], scale: f64, what: &str) {
@@ -725,8 +774,8 @@ mod tests {
         let h = 1.0 / 32.0;
         let i = 13;
         for bd in [Boundary::Neumann, Boundary::Dirichlet, Boundary::Free] {
-            let b1 = Basis::new(1, bd);
-            let b2 = Basis::new(2, bd);
+            let b1 = Basis::new(Degree::Linear, bd);
+            let b2 = Basis::new(Degree::Quadratic, bd);
             let m1 = table(b1, b1, depth, false, Integrand::ValueValue);
             let k1 = table(b1, b1, depth, false, Integrand::DerivDeriv);
             let d1 = table(b1, b1, depth, false, Integrand::DerivValue);
@@ -791,14 +840,14 @@ mod tests {
             }
         }
         // A few exact boundary rows. Degree-1 Neumann half-hat at 0: ∫ = h/3, h/6; K = 1/h, −1/h.
-        let n1 = Basis::new(1, Boundary::Neumann);
+        let n1 = Basis::new(Degree::Linear, Boundary::Neumann);
         let m = table(n1, n1, depth, false, Integrand::ValueValue);
         let k = table(n1, n1, depth, false, Integrand::DerivDeriv);
         assert_row(&m, 0, [0.0, 0.0, 1.0 / 3.0, 1.0 / 6.0, 0.0], h, "M1 row 0");
         assert_row(&k, 0, [0.0, 0.0, 1.0, -1.0, 0.0], 1.0 / h, "K1 row 0");
         assert_row(&m, 32, [0.0, 1.0 / 6.0, 1.0 / 3.0, 0.0, 0.0], h, "M1 row N");
         // Degree-2 Neumann at depth 0 is the constant 1: M = 1, K = 0.
-        let n2 = Basis::new(2, Boundary::Neumann);
+        let n2 = Basis::new(Degree::Quadratic, Boundary::Neumann);
         let m0 = table(n2, n2, 0, false, Integrand::ValueValue);
         let k0 = table(n2, n2, 0, false, Integrand::DerivDeriv);
         assert_row(&m0, 0, [0.0, 0.0, 1.0, 0.0, 0.0], 1.0, "M2 depth 0");
@@ -809,7 +858,7 @@ mod tests {
         assert_eq!(m.get(13, 3), 0.0);
         assert_eq!(m.get(13, -3), 0.0);
         // Empty range (degree-1 Dirichlet at depth 0).
-        let d1 = Basis::new(1, Boundary::Dirichlet);
+        let d1 = Basis::new(Degree::Linear, Boundary::Dirichlet);
         let e = table(d1, d1, 0, false, Integrand::ValueValue);
         assert_eq!(e.get(0, 0), 0.0);
         assert_eq!(e.get(1, 0), 0.0);
@@ -934,23 +983,23 @@ mod tests {
             assert_eq!(b.children(3, hi + 1, &mut out), 0);
         }
         // Worked examples of §5.3.
-        let n = Basis::new(2, Boundary::Neumann).children(3, 0, &mut out);
+        let n = Basis::new(Degree::Quadratic, Boundary::Neumann).children(3, 0, &mut out);
         assert_eq!(&out[..n], &[(0, 1.0), (1, 0.75), (2, 0.25)]);
-        let n = Basis::new(2, Boundary::Dirichlet).children(3, 0, &mut out);
+        let n = Basis::new(Degree::Quadratic, Boundary::Dirichlet).children(3, 0, &mut out);
         assert_eq!(&out[..n], &[(0, 0.5), (1, 0.75), (2, 0.25)]);
-        let n = Basis::new(2, Boundary::Neumann).children(0, 0, &mut out);
+        let n = Basis::new(Degree::Quadratic, Boundary::Neumann).children(0, 0, &mut out);
         assert_eq!(&out[..n], &[(0, 1.0), (1, 1.0)]);
-        let n = Basis::new(2, Boundary::Neumann).children(3, 7, &mut out);
+        let n = Basis::new(Degree::Quadratic, Boundary::Neumann).children(3, 7, &mut out);
         assert_eq!(&out[..n], &[(13, 0.25), (14, 0.75), (15, 1.0)]);
-        let n = Basis::new(1, Boundary::Neumann).children(3, 0, &mut out);
+        let n = Basis::new(Degree::Linear, Boundary::Neumann).children(3, 0, &mut out);
         assert_eq!(&out[..n], &[(0, 1.0), (1, 0.5)]);
-        let n = Basis::new(1, Boundary::Neumann).children(3, 8, &mut out);
+        let n = Basis::new(Degree::Linear, Boundary::Neumann).children(3, 8, &mut out);
         assert_eq!(&out[..n], &[(15, 0.5), (16, 1.0)]);
-        let n = Basis::new(1, Boundary::Dirichlet).children(3, 1, &mut out);
+        let n = Basis::new(Degree::Linear, Boundary::Dirichlet).children(3, 1, &mut out);
         assert_eq!(&out[..n], &[(1, 0.5), (2, 1.0), (3, 0.5)]);
-        let n = Basis::new(2, Boundary::Free).children(3, -1, &mut out);
+        let n = Basis::new(Degree::Quadratic, Boundary::Free).children(3, -1, &mut out);
         assert_eq!(&out[..n], &[(-1, 0.75), (0, 0.25)]);
-        let n = Basis::new(2, Boundary::Free).children(3, 5, &mut out);
+        let n = Basis::new(Degree::Quadratic, Boundary::Free).children(3, 5, &mut out);
         assert_eq!(&out[..n], &[(9, 0.25), (10, 0.75), (11, 0.75), (12, 0.25)]);
     }
 
@@ -995,7 +1044,7 @@ mod tests {
                 for x in points(&mut rng, depth, 200) {
                     let w = b.window(depth, x);
                     let c = ((x * n as f64).floor() as i64).clamp(0, n - 1);
-                    assert_eq!(w.first, if b.degree == 1 { c } else { c - 1 });
+                    assert_eq!(w.first, if b.degree == Degree::Linear { c } else { c - 1 });
                     for k in 0..3 {
                         let i = w.first + k as i64;
                         if k > b.degree as usize || i < lo || i > hi {
@@ -1170,13 +1219,13 @@ mod tests {
                 }
             }
         }
-        let b2 = Basis::new(2, Boundary::Neumann);
+        let b2 = Basis::new(Degree::Quadratic, Boundary::Neumann);
         let m = table(b2, b2, depth, false, Integrand::ValueValue);
         assert!((m.get(100_000, 0) / h - 11.0 / 20.0).abs() < 1e-14);
         assert!((m.get(100_001, 2) / h - 1.0 / 120.0).abs() < 1e-14);
         let k = table(b2, b2, depth, false, Integrand::DerivDeriv);
         assert!((k.get(123_457, -2) * h + 1.0 / 6.0).abs() < 1e-14);
-        let b1 = Basis::new(1, Boundary::Neumann);
+        let b1 = Basis::new(Degree::Linear, Boundary::Neumann);
         let m1 = table(b1, b1, depth, false, Integrand::ValueValue);
         assert!((m1.get(1 << depth, 0) / h - 1.0 / 3.0).abs() < 1e-14);
         assert!((m1.get((1 << depth) - 1, 0) / h - 2.0 / 3.0).abs() < 1e-14);

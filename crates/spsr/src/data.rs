@@ -15,17 +15,18 @@
 //! surfaces that are close but not touching; coarser depths only fill in where the finest
 //! nodes hold nothing (for example across a hole the reconstruction closed).
 
-use crate::octree::{Octree, DEPTH_OFFSET, NONE};
-use crate::system::NodeRank;
+use crate::octree::{NodeRank, Octree, DEPTH_OFFSET, NONE};
 
 /// The sums of one tree level: which nodes hold samples, and per such node `K + 1` numbers
 /// (`ΣW`, then `Σ W·a_k`).
+#[derive(Debug)]
 struct LevelData {
     members: NodeRank,
     sums: Vec<f64>,
 }
 
 /// Attribute sums of the samples on every level of the tree.
+#[derive(Debug)]
 pub(crate) struct DataField {
     channels: usize,
     pull: f64,

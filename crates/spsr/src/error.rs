@@ -29,13 +29,17 @@ pub enum Error {
         /// File concerned.
         path: PathBuf,
     },
-    /// A parameter is out of its allowed range.
-    #[error("invalid parameter {name}: {message}")]
+    /// A parameter is outside its allowed range.
+    #[error("invalid parameter {field} = {value}: expected {expected}")]
     InvalidParameter {
-        /// Parameter name as the command line spells it (e.g. `--depth`).
-        name: &'static str,
-        /// What is wrong and what is allowed.
-        message: String,
+        /// The parameter as the library names it: the field of [`crate::Params`] (or of the
+        /// operation's own parameters, such as `threshold` of [`crate::trim::TrimParams`]).
+        /// Front ends render it in their own spelling (`--depth`, `depth=`).
+        field: &'static str,
+        /// The value given, as text.
+        value: String,
+        /// What is allowed (for example `an integer from 1 to 18`).
+        expected: String,
     },
     /// Positions and normals (or other per-point arrays) differ in length.
     #[error("length mismatch: {positions} positions but {normals} normals")]
@@ -60,22 +64,16 @@ pub enum Error {
     Degenerate(String),
     /// The run would need more memory than allowed (`Params::max_memory`, or the memory the
     /// machine has available). Nothing large has been allocated yet.
-    #[error("{message}")]
-    ResourceLimit {
-        /// Estimated peak memory of the run, in bytes.
-        estimate: u64,
-        /// The limit, in bytes.
-        limit: u64,
-        /// The deepest `--depth` expected to fit.
-        suggested_depth: u32,
-        /// The full explanation, with what to do.
-        message: String,
-    },
+    #[error("{0}")]
+    ResourceLimit(MemoryShortfall),
     /// A mesh given to a mesh operation (such as [`crate::trim::trim`]) cannot be used: it
     /// lacks the per-vertex data the operation needs, holds non-finite values, refers to
     /// vertices that do not exist, or has no triangles.
     #[error("{0}")]
     InvalidMesh(String),
+    /// A mesh given to trimming has no per-vertex density.
+    #[error("the mesh has no per-vertex density; reconstruct it with the density on (Params::density) to get one")]
+    MissingDensity,
     /// The output path cannot be used.
     #[error("{}: {message}", path.display())]
     Output {
@@ -86,7 +84,167 @@ pub enum Error {
     },
 }
 
+/// Why a run was refused for its memory: the estimate, the limit and what would fit.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct MemoryShortfall {
+    /// Estimated peak memory of the run, in bytes.
+    pub estimate: u64,
+    /// The limit, in bytes.
+    pub limit: u64,
+    /// Where the limit came from.
+    pub source: MemoryLimit,
+    /// Octree nodes the run would hold.
+    pub nodes: usize,
+    /// The depth asked for.
+    pub depth: u32,
+    /// The deepest depth whose levels of the same tree fit, if any does.
+    pub suggested_depth: Option<u32>,
+}
+
+/// Where a memory limit came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MemoryLimit {
+    /// The caller's [`crate::Params::max_memory`].
+    Requested,
+    /// The memory the machine had available.
+    Available,
+}
+
+/// Bytes as GiB with two decimals, as messages show memory.
+pub fn gib(bytes: u64) -> String {
+    format!("{:.2} GiB", bytes as f64 / (1u64 << 30) as f64)
+}
+
+impl std::fmt::Display for MemoryShortfall {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let what = match self.source {
+            MemoryLimit::Requested => "the max_memory limit",
+            MemoryLimit::Available => "the memory this machine has available",
+        };
+        write!(
+            f,
+            "this reconstruction needs about {} ({} octree nodes at depth {}), more than {what} \
+             ({}); ",
+            gib(self.estimate),
+            self.nodes,
+            self.depth,
+            gib(self.limit)
+        )?;
+        match self.suggested_depth {
+            Some(d) => write!(
+                f,
+                "use depth {d} or less, a larger samples_per_node, or raise max_memory"
+            ),
+            None => write!(
+                f,
+                "even the coarsest depth does not fit: raise max_memory or use fewer points"
+            ),
+        }
+    }
+}
+
+/// Something about the input that did not stop the reconstruction but that the user should
+/// hear about, with its figures. Front ends render it in their own words.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum Warning {
+    /// Points were left out: a non-finite coordinate, a zero-length normal, or a weight that
+    /// is not a positive finite number.
+    DroppedPoints {
+        /// Points left out.
+        dropped: usize,
+        /// Points given.
+        total: usize,
+    },
+    /// A few far points make the bounding cube much larger than the bulk of the cloud; the
+    /// cube sets the finest cell size, so they silently waste depth.
+    FarOutliers(FarOutliers),
+}
+
+/// The figures of [`Warning::FarOutliers`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct FarOutliers {
+    /// Points far outside the bulk's box.
+    pub far: usize,
+    /// Usable points.
+    pub total: usize,
+    /// Lower corner of the box that holds the bulk of the points.
+    pub bulk_min: [f64; 3],
+    /// Upper corner of that box.
+    pub bulk_max: [f64; 3],
+    /// Largest side of all the points' bounding box.
+    pub extent: f64,
+    /// Largest side of the bulk's box.
+    pub bulk_extent: f64,
+    /// The depth asked for.
+    pub depth: u32,
+    /// The depth that resolves the surface as finely as `depth` would without the outliers.
+    pub effective_depth: u32,
+    /// The depth that would make up for the outliers, when it is allowed.
+    pub compensating_depth: Option<u32>,
+}
+
+impl std::fmt::Display for Warning {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Warning::DroppedPoints { dropped, total } => write!(
+                f,
+                "{dropped} of {total} points dropped (non-finite coordinates, zero-length \
+                 normals or unusable weights)"
+            ),
+            Warning::FarOutliers(o) => {
+                write!(
+                    f,
+                    "{}; remove those points (crop the input to that box)",
+                    o.describe("depth ")
+                )?;
+                if let Some(d) = o.compensating_depth {
+                    write!(f, ", or raise the depth to {d}")?;
+                }
+                Ok(())
+            }
+        }
+    }
+}
+
+impl FarOutliers {
+    /// The finding, with depths spelled `depth_word` followed by the number (a front end
+    /// passes `"--depth "` or `"depth="`), without the advice.
+    pub fn describe(&self, depth_word: &str) -> String {
+        let fmt = |v: [f64; 3]| format!("({:.6e}, {:.6e}, {:.6e})", v[0], v[1], v[2]);
+        format!(
+            "{} of {} points ({:.3} %) lie far outside the box {} to {} that holds the \
+             others; they make the points span {:.4e} units instead of {:.4e}, so the \
+             finest cells are about {:.0} times coarser ({depth_word}{} resolves the \
+             surface like {depth_word}{})",
+            self.far,
+            self.total,
+            100.0 * self.far as f64 / self.total as f64,
+            fmt(self.bulk_min),
+            fmt(self.bulk_max),
+            self.extent,
+            self.bulk_extent,
+            self.extent / self.bulk_extent,
+            self.depth,
+            self.effective_depth
+        )
+    }
+}
+
 impl Error {
+    /// An [`Error::InvalidParameter`] for `field` holding `value`.
+    pub fn invalid(
+        field: &'static str,
+        value: impl std::fmt::Display,
+        expected: impl Into<String>,
+    ) -> Self {
+        Error::InvalidParameter {
+            field,
+            value: value.to_string(),
+            expected: expected.into(),
+        }
+    }
+
     /// The same error with the file `from` called `to` (a temporary copy named after its
     /// source).
     pub(crate) fn with_path(mut self, from: &std::path::Path, to: &std::path::Path) -> Self {

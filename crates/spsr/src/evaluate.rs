@@ -7,9 +7,8 @@
 
 use crate::bspline::{Basis, Window};
 use crate::extract::Field;
-use crate::octree::{neighbor_in, window_index, Octree, DEPTH_OFFSET, NONE};
+use crate::octree::{func_index, neighbor_in, window_index, Octree, DEPTH_OFFSET, NONE};
 use crate::solver::Solution;
-use crate::system::func_index;
 
 /// Evaluates χ from a solved hierarchy.
 pub struct Evaluator<'a> {
@@ -33,7 +32,7 @@ impl<'a> Evaluator<'a> {
 
     /// B-spline degree of the elements.
     pub fn degree(&self) -> u8 {
-        self.fem.degree
+        self.fem.degree.get()
     }
 
     /// Deepest unit depth of the tree.
@@ -101,7 +100,7 @@ impl<'a> Evaluator<'a> {
         let level = &self.tree.levels[t as usize];
         let own = func_index(level.key(node), d);
         let w = self.windows(d, p);
-        let k = i64::from(self.fem.degree);
+        let k = i64::from(self.fem.degree.get());
         for z in 0..=k {
             for y in 0..=k {
                 for x in 0..=k {
@@ -135,7 +134,7 @@ impl<'a> Evaluator<'a> {
         let level = &self.tree.levels[t as usize];
         let own = func_index(level.key(node), d);
         let w = self.windows(d + 1, p);
-        let k = i64::from(self.fem.degree);
+        let k = i64::from(self.fem.degree.get());
         for z in 0..=k {
             for y in 0..=k {
                 for x in 0..=k {

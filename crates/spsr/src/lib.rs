@@ -27,17 +27,19 @@ pub mod metrics;
 pub mod normals;
 mod octree;
 mod params;
+mod pipeline;
 pub mod points;
-mod reconstruct;
+mod resources;
+mod shared_slice;
 mod solver;
 mod system;
 pub mod trim;
 
-pub use bspline::Boundary;
-pub use error::{Error, Result};
+pub use bspline::{Boundary, Degree};
+pub use error::{gib, Error, FarOutliers, MemoryLimit, MemoryShortfall, Result, Warning};
 pub use mesh::Mesh;
-pub use params::{Params, MAX_DEPTH};
-pub use points::{PointCloud, ScanOrigin};
-pub use reconstruct::{
+pub use params::{Params, PointWeights, MAX_DEPTH};
+pub use pipeline::{
     reconstruct, reconstruct_owned, reconstruct_with_progress, Reconstruction, Stats,
 };
+pub use points::{PointCloud, ScanOrigin};

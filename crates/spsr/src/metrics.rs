@@ -903,19 +903,15 @@ fn fscore(threshold: f64, precision: f64, recall: f64) -> FScore {
 /// whether it is the mesh or the reference).
 pub fn evaluate(mesh: &Mesh, reference: &Reference, opts: &EvalOptions) -> Result<Evaluation> {
     if opts.samples == 0 {
-        return Err(Error::InvalidParameter {
-            name: "--samples",
-            message: "must be at least 1".into(),
-        });
+        return Err(Error::invalid("samples", 0, "at least 1"));
     }
     if let Reference::Sphere { center, radius } = reference {
         if !(center.iter().all(|x| x.is_finite()) && *radius > 0.0 && radius.is_finite()) {
-            return Err(Error::InvalidParameter {
-                name: "--reference-sphere",
-                message: format!(
-                    "the centre must be finite and the radius positive, got centre {center:?}, radius {radius}"
-                ),
-            });
+            return Err(Error::invalid(
+                "reference_sphere",
+                format!("centre {center:?}, radius {radius}"),
+                "a finite centre and a positive radius",
+            ));
         }
     }
     check_mesh(mesh, "mesh")?;

@@ -430,6 +430,57 @@ fn prev_neighbor(level: &Level, n: u32, d: [i64; 3]) -> u32 {
     neighbor_in(level, n, window_index(d))
 }
 
+/// Function index (unit offset) of a tree key at unit depth `d`.
+#[inline]
+pub fn func_index(key: [u32; 3], d: u32) -> [i64; 3] {
+    let n = 1i64 << d;
+    [
+        i64::from(key[0]) - n,
+        i64::from(key[1]) - n,
+        i64::from(key[2]) - n,
+    ]
+}
+
+/// The rank of each member of a set of node indices (a bitmap with a running count per 64
+/// nodes: 1.5 bits per node instead of a 32-bit index per node).
+#[derive(Debug, Default, Clone)]
+pub struct NodeRank {
+    bits: Vec<u64>,
+    before: Vec<u32>,
+}
+
+impl NodeRank {
+    /// The set of `members` (strictly increasing) among `len` nodes; member `k` has rank `k`.
+    pub fn new(len: usize, members: impl Iterator<Item = u32>) -> Self {
+        let words = len.div_ceil(64);
+        let mut bits = vec![0u64; words];
+        for m in members {
+            bits[(m >> 6) as usize] |= 1 << (m & 63);
+        }
+        let mut before = Vec::with_capacity(words);
+        let mut count = 0u32;
+        for w in &bits {
+            before.push(count);
+            count += w.count_ones();
+        }
+        Self { bits, before }
+    }
+
+    /// Rank of node `m`, or [`NONE`] if it is not a member.
+    #[inline]
+    pub fn get(&self, m: u32) -> u32 {
+        let k = (m >> 6) as usize;
+        let Some(&word) = self.bits.get(k) else {
+            return NONE;
+        };
+        let bit = 1u64 << (m & 63);
+        if word & bit == 0 {
+            return NONE;
+        }
+        self.before[k] + (word & (bit - 1)).count_ones()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,6 +1,6 @@
 //! Reconstruction parameters. Each default says where it comes from (ALGORITHM.md §14).
 
-use crate::bspline::Boundary;
+use crate::bspline::{Boundary, Degree};
 use crate::{Error, Result};
 
 /// Deepest octree depth spsr accepts. Node keys are 64-bit Morton codes over a tree two levels
@@ -23,9 +23,9 @@ pub struct Params {
     /// Screening weight α; 0 gives the unscreened 2006 method. `None` means 2 × degree, the
     /// PoissonRecon 18 default (4 for degree 2, the paper's value).
     pub point_weight: Option<f64>,
-    /// B-spline degree of the finite elements: 1 or 2. Default 1, as PoissonRecon 18
-    /// (the paper and PoissonRecon 6 use 2).
-    pub degree: u8,
+    /// B-spline degree of the finite elements. Default linear, as PoissonRecon 18
+    /// (the paper and PoissonRecon 6 use quadratic).
+    pub degree: Degree,
     /// Boundary condition on the bounding cube. Default Neumann, as PoissonRecon 6 and 18.
     pub boundary: Boundary,
     /// The bounding cube is the points' bounding box's largest side times this factor.
@@ -33,8 +33,8 @@ pub struct Params {
     pub scale: f64,
     /// Gauss–Seidel sweeps per depth. Default 8, as PoissonRecon 6 and 18 and the paper.
     pub iters: u32,
-    /// Use each normal's length as the point's confidence weight. Default off.
-    pub confidence: bool,
+    /// Each point's weight in the fit (ALGORITHM.md §3.4). Default uniform.
+    pub weights: PointWeights,
     /// Compute per-vertex density (estimated sampling depth, ALGORITHM.md §9.5). Default off.
     pub density: bool,
     /// Place iso-vertices by linear interpolation along cell edges instead of the quadratic
@@ -62,10 +62,19 @@ pub struct Params {
     /// Compute per-vertex normals from the gradient of the implicit function (`−∇χ`,
     /// unit length). Default off.
     pub normals: bool,
-    /// Use this per-point property (for example `confidence` or `quality`) as each point's
-    /// weight instead of 1 or the normal's length. Points whose value is not a positive
-    /// finite number are dropped. Default none.
-    pub confidence_property: Option<String>,
+}
+
+/// How much each point counts in the fit (ALGORITHM.md §3.4).
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub enum PointWeights {
+    /// Every point weighs 1 (default).
+    #[default]
+    Uniform,
+    /// Each point weighs the length of its normal, as PoissonRecon's `--confidence`.
+    NormalLength,
+    /// Each point weighs the value of this per-point property (for example `confidence` or
+    /// `quality`). Points whose value is not a positive finite number are dropped.
+    Property(String),
 }
 
 impl Default for Params {
@@ -75,11 +84,11 @@ impl Default for Params {
             full_depth: 5,
             samples_per_node: 1.5,
             point_weight: None,
-            degree: 1,
+            degree: Degree::Linear,
             boundary: Boundary::Neumann,
             scale: 1.1,
             iters: 8,
-            confidence: false,
+            weights: PointWeights::Uniform,
             density: false,
             linear_fit: false,
             max_memory: None,
@@ -87,7 +96,6 @@ impl Default for Params {
             attributes: true,
             data_pull: 32.0,
             normals: false,
-            confidence_property: None,
         }
     }
 }
@@ -95,7 +103,8 @@ impl Default for Params {
 impl Params {
     /// The screening weight α actually used.
     pub fn alpha(&self) -> f64 {
-        self.point_weight.unwrap_or(2.0 * f64::from(self.degree))
+        self.point_weight
+            .unwrap_or(2.0 * f64::from(self.degree.get()))
     }
 
     /// Kernel depth of the density estimator, `max(D − 2, 0)` as PoissonRecon.
@@ -108,67 +117,73 @@ impl Params {
         self.full_depth.min(self.depth)
     }
 
-    /// Checks every parameter; the message names the command-line flag.
+    /// Checks every parameter. An error names the field (`depth`), the value and what is
+    /// allowed; each front end spells the field its own way.
     pub fn validate(&self) -> Result<()> {
-        let bad = |name, message: String| Err(Error::InvalidParameter { name, message });
         if self.depth == 0 || self.depth > MAX_DEPTH {
-            return bad(
-                "--depth",
-                format!("{} is outside 1..={MAX_DEPTH}", self.depth),
-            );
+            return Err(Error::invalid(
+                "depth",
+                self.depth,
+                format!("an integer from 1 to {MAX_DEPTH}"),
+            ));
         }
         if self.full_depth > self.depth {
-            return bad(
-                "--full-depth",
-                format!("{} is deeper than --depth {}", self.full_depth, self.depth),
-            );
+            return Err(Error::invalid(
+                "full_depth",
+                self.full_depth,
+                format!("at most the depth, {}", self.depth),
+            ));
         }
         if !(self.samples_per_node.is_finite() && self.samples_per_node > 0.0) {
-            return bad(
-                "--samples-per-node",
-                format!("{} must be a positive number", self.samples_per_node),
-            );
+            return Err(Error::invalid(
+                "samples_per_node",
+                self.samples_per_node,
+                "a positive number",
+            ));
         }
         if let Some(a) = self.point_weight {
             if !(a.is_finite() && a >= 0.0) {
-                return bad(
-                    "--point-weight",
-                    format!("{a} must be zero or a positive number"),
-                );
+                return Err(Error::invalid(
+                    "point_weight",
+                    a,
+                    "zero or a positive number",
+                ));
             }
         }
-        if self.degree != 1 && self.degree != 2 {
-            return bad(
-                "--degree",
-                format!("{} is not supported; use 1 or 2", self.degree),
-            );
-        }
         if !(self.scale.is_finite() && self.scale >= 1.0 && self.scale <= 1000.0) {
-            return bad(
-                "--scale",
-                format!(
-                    "{} must be at least 1 (points must lie inside the cube)",
-                    self.scale
-                ),
-            );
+            return Err(Error::invalid(
+                "scale",
+                self.scale,
+                "a number from 1 to 1000 (the points must lie inside the cube)",
+            ));
         }
         if self.max_memory == Some(0) {
-            return bad(
-                "--max-memory",
-                "0 bytes cannot hold any reconstruction".into(),
-            );
+            return Err(Error::invalid(
+                "max_memory",
+                0,
+                "a positive number of bytes",
+            ));
         }
         if !(self.data_pull.is_finite() && self.data_pull > 0.0) {
-            return bad(
-                "--data-pull",
-                format!("{} must be a positive number", self.data_pull),
-            );
+            return Err(Error::invalid(
+                "data_pull",
+                self.data_pull,
+                "a positive number",
+            ));
         }
-        if self.confidence_property.as_deref() == Some("") {
-            return bad("--confidence-property", "the property name is empty".into());
+        if self.weights == PointWeights::Property(String::new()) {
+            return Err(Error::invalid(
+                "weights",
+                "an empty property name",
+                "the name of a per-point property",
+            ));
         }
         if self.iters == 0 || self.iters > 10_000 {
-            return bad("--iters", format!("{} is outside 1..=10000", self.iters));
+            return Err(Error::invalid(
+                "iters",
+                self.iters,
+                "an integer from 1 to 10000",
+            ));
         }
         Ok(())
     }

@@ -10,11 +10,9 @@
 use rayon::prelude::*;
 
 use crate::bspline::Basis;
-use crate::octree::{neighbor_in, window_index, Level, Octree, DEPTH_OFFSET, NONE};
-use crate::system::{
-    cluster_offsets, divergence_constraints, func_index, prolong, Clusters, DepthTables,
-    SharedSlice,
-};
+use crate::octree::{func_index, neighbor_in, window_index, Level, Octree, DEPTH_OFFSET, NONE};
+use crate::shared_slice::SharedSlice;
+use crate::system::{cluster_offsets, divergence_constraints, prolong, Clusters, DepthTables};
 
 /// The screening target τ at the samples (PR18 convention: χ ≈ 1 inside, 0 outside).
 pub const TAU: f64 = 0.5;
@@ -73,7 +71,7 @@ impl<'a> Op<'a> {
         let tab = p.tables[t as usize]
             .as_ref()
             .expect("tables exist at solved levels");
-        let r = i64::from(p.fem.degree);
+        let r = i64::from(p.fem.degree.get());
         let mut win = Vec::new();
         for z in -r..=r {
             for y in -r..=r {
@@ -82,7 +80,7 @@ impl<'a> Op<'a> {
                 }
             }
         }
-        let co = cluster_offsets(p.fem.degree);
+        let co = cluster_offsets(p.fem.degree.get());
         let mut cwin = Vec::new();
         for &z in co {
             for &y in co {
@@ -98,7 +96,7 @@ impl<'a> Op<'a> {
             d: t - DEPTH_OFFSET,
             tab,
             cl: &p.clusters[t as usize],
-            degree: p.fem.degree,
+            degree: p.fem.degree.get(),
             win,
             cwin,
         }
@@ -545,7 +543,7 @@ pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
     let mut clock = std::time::Instant::now();
     let mut timings: Vec<(String, std::time::Duration, Option<u64>)> = Vec::new();
     let mut lap = |name: String, clock: &mut std::time::Instant| {
-        timings.push((name, clock.elapsed(), crate::reconstruct::peak_rss()));
+        timings.push((name, clock.elapsed(), crate::resources::peak_rss()));
         *clock = std::time::Instant::now();
     };
     // Constraints are stored in single precision (summed in double precision).
@@ -778,7 +776,7 @@ pub fn coarse_value(
     let wx = fem.window(d, pos[0]);
     let wy = fem.window(d, pos[1]);
     let wz = fem.window(d, pos[2]);
-    let k = i64::from(fem.degree);
+    let k = i64::from(fem.degree.get());
     let mut s = 0.0;
     for z in 0..=k {
         for y in 0..=k {

@@ -8,18 +8,10 @@
 use rayon::prelude::*;
 
 use crate::bspline::{table, Basis, Integrand, Table1D};
-use crate::octree::{neighbor_in, window_index, Level, Octree, DEPTH_OFFSET, NONE};
-
-/// Function index (unit offset) of a tree key at unit depth `d`.
-#[inline]
-pub fn func_index(key: [u32; 3], d: u32) -> [i64; 3] {
-    let n = 1i64 << d;
-    [
-        i64::from(key[0]) - n,
-        i64::from(key[1]) - n,
-        i64::from(key[2]) - n,
-    ]
-}
+use crate::octree::{
+    func_index, neighbor_in, window_index, Level, NodeRank, Octree, DEPTH_OFFSET, NONE,
+};
+use crate::shared_slice::SharedSlice;
 
 /// Inclusive index ranges of a basis at one depth, and range checks.
 #[derive(Debug, Clone, Copy)]
@@ -305,46 +297,6 @@ pub struct Clusters {
     pub vals: Vec<[[f32; 3]; 3]>,
 }
 
-/// The rank of each member of a set of node indices (a bitmap with a running count per 64
-/// nodes: 1.5 bits per node instead of a 32-bit index per node).
-#[derive(Debug, Default, Clone)]
-pub struct NodeRank {
-    bits: Vec<u64>,
-    before: Vec<u32>,
-}
-
-impl NodeRank {
-    /// The set of `members` (strictly increasing) among `len` nodes; member `k` has rank `k`.
-    pub fn new(len: usize, members: impl Iterator<Item = u32>) -> Self {
-        let words = len.div_ceil(64);
-        let mut bits = vec![0u64; words];
-        for m in members {
-            bits[(m >> 6) as usize] |= 1 << (m & 63);
-        }
-        let mut before = Vec::with_capacity(words);
-        let mut count = 0u32;
-        for w in &bits {
-            before.push(count);
-            count += w.count_ones();
-        }
-        Self { bits, before }
-    }
-
-    /// Rank of node `m`, or [`NONE`] if it is not a member.
-    #[inline]
-    pub fn get(&self, m: u32) -> u32 {
-        let k = (m >> 6) as usize;
-        let Some(&word) = self.bits.get(k) else {
-            return NONE;
-        };
-        let bit = 1u64 << (m & 63);
-        if word & bit == 0 {
-            return NONE;
-        }
-        self.before[k] + (word & (bit - 1)).count_ones()
-    }
-}
-
 impl Clusters {
     /// Value of FEM function `i` at cluster `c`.
     #[inline]
@@ -596,41 +548,6 @@ fn push_finer_v(
     g
 }
 
-/// A slice shared between threads that write disjoint elements (multi-colour Gauss–Seidel,
-/// coloured accumulation).
-pub(crate) struct SharedSlice<T> {
-    ptr: *mut T,
-    len: usize,
-}
-
-// SAFETY: access goes through `get`/`set`, whose callers guarantee disjoint writes.
-unsafe impl<T: Send> Sync for SharedSlice<T> {}
-
-impl<T: Copy> SharedSlice<T> {
-    pub(crate) fn new(s: &mut [T]) -> Self {
-        Self {
-            ptr: s.as_mut_ptr(),
-            len: s.len(),
-        }
-    }
-
-    /// # Safety
-    /// No concurrent write to element `i`.
-    #[inline]
-    pub(crate) unsafe fn get(&self, i: usize) -> T {
-        debug_assert!(i < self.len);
-        *self.ptr.add(i)
-    }
-
-    /// # Safety
-    /// No concurrent access to element `i`.
-    #[inline]
-    pub(crate) unsafe fn set(&self, i: usize, v: T) {
-        debug_assert!(i < self.len);
-        *self.ptr.add(i) = v;
-    }
-}
-
 /// `Σ_j c_ij y_j` over the children `j` (at the next level) of function `i` (node `n`).
 #[allow(clippy::too_many_arguments)]
 #[inline]
@@ -732,7 +649,7 @@ pub fn prolong<const K: usize, T: Send>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bspline::Boundary;
+    use crate::bspline::{Boundary, Degree};
 
     const BASES: [(u8, Boundary); 6] = [
         (1, Boundary::Neumann),
@@ -743,11 +660,16 @@ mod tests {
         (2, Boundary::Free),
     ];
 
+    fn as_degree(d: u8) -> Degree {
+        Degree::from_number(d).unwrap()
+    }
+
     #[test]
     fn stiffness_stencils_are_symmetric_and_annihilate_constants() {
-        for (degree, boundary) in BASES {
-            let fem = Basis::new(degree, boundary);
-            let vb = Basis::new(2, boundary.derivative());
+        for (d_num, boundary) in BASES {
+            let degree = d_num;
+            let fem = Basis::new(as_degree(d_num), boundary);
+            let vb = Basis::new(Degree::Quadratic, boundary.derivative());
             for d in [2u32, 3, 5] {
                 let tab = DepthTables::new(fem, vb, d);
                 let r = i64::from(degree);
@@ -800,8 +722,9 @@ mod tests {
 
     #[test]
     fn prolongation_weights_reproduce_the_two_scale_relation() {
-        for (degree, boundary) in BASES {
-            let basis = Basis::new(degree, boundary);
+        for (d_num, boundary) in BASES {
+            let degree = d_num;
+            let basis = Basis::new(as_degree(d_num), boundary);
             for d in 1..6u32 {
                 let p = Prolong::new(basis, d);
                 let (lo, hi) = basis.index_range(d);

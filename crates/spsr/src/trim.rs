@@ -89,28 +89,28 @@ impl TrimParams {
     /// Checks the parameters: a finite threshold value, area fractions in `[0, 1)`.
     ///
     /// # Errors
-    /// [`Error::InvalidParameter`] naming the command-line flag (`--trim`,
-    /// `--min-island-area`, `--hole-area`).
+    /// [`Error::InvalidParameter`] naming the field (`threshold`, `min_island_area`,
+    /// `hole_area`).
     pub fn validate(&self) -> Result<()> {
         if let Threshold::Value(v) = self.threshold {
             if !v.is_finite() {
-                return Err(Error::InvalidParameter {
-                    name: "--trim",
-                    message: format!("must be a finite density value or 'auto', got {v}"),
-                });
+                return Err(Error::invalid(
+                    "threshold",
+                    v,
+                    "a finite density value, or auto",
+                ));
             }
         }
-        for (name, v) in [
-            ("--min-island-area", self.min_island_area),
-            ("--hole-area", self.hole_area),
+        for (field, v) in [
+            ("min_island_area", self.min_island_area),
+            ("hole_area", self.hole_area),
         ] {
             if !(v.is_finite() && (0.0..1.0).contains(&v)) {
-                return Err(Error::InvalidParameter {
-                    name,
-                    message: format!(
-                        "must be a fraction of the total area in [0, 1) (e.g. 0.001), got {v}"
-                    ),
-                });
+                return Err(Error::invalid(
+                    field,
+                    v,
+                    "a fraction of the total area in [0, 1), such as 0.001",
+                ));
             }
         }
         Ok(())
@@ -159,13 +159,7 @@ fn invalid_mesh(message: String) -> Error {
 
 /// Checks the mesh can be trimmed and returns its densities.
 fn check_mesh(mesh: &Mesh) -> Result<&[f32]> {
-    let density = mesh.density.as_deref().ok_or_else(|| {
-        invalid_mesh(
-            "the mesh has no per-vertex density; reconstruct it with --density \
-             (Params::density) to get one"
-                .into(),
-        )
-    })?;
+    let density = mesh.density.as_deref().ok_or(Error::MissingDensity)?;
     let nv = mesh.vertices.len();
     if density.len() != nv {
         return Err(invalid_mesh(format!(
@@ -671,13 +665,14 @@ pub fn trim(mesh: &Mesh, params: &TrimParams) -> Result<(Mesh, TrimStats)> {
             .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| {
                 (lo.min(d), hi.max(d))
             });
-        return Err(Error::InvalidParameter {
-            name: "--trim",
-            message: format!(
-                "trimming at {threshold} removes the whole mesh (its densities range from \
-                 {lo} to {hi}); choose a lower value, or auto"
+        return Err(Error::invalid(
+            "threshold",
+            format!("{threshold}, which removes the whole mesh"),
+            format!(
+                "a value that keeps some of the mesh (its densities range from {lo} to {hi}), \
+                 or auto"
             ),
-        });
+        ));
     }
     let out = assemble(mesh, &cut, &sel.keep, threshold);
     let stats = TrimStats {

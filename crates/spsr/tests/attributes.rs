@@ -5,7 +5,7 @@ mod common;
 
 use common::*;
 use spsr::attributes::{Attribute, AttributeData};
-use spsr::{reconstruct, Error, Params, PointCloud};
+use spsr::{reconstruct, Error, Params, PointCloud, PointWeights};
 
 /// A sphere painted red (255, 0, 0) where x > 0 and blue (0, 0, 255) elsewhere, with a float
 /// `temperature` equal to the z coordinate.
@@ -149,7 +149,7 @@ fn a_confidence_property_weights_the_points() {
     cloud.attributes = vec![Attribute::new("confidence", AttributeData::F32(conf))];
     let params = Params {
         depth: 6,
-        confidence_property: Some("confidence".into()),
+        weights: PointWeights::Property("confidence".into()),
         attributes: false,
         ..Params::default()
     };
@@ -165,7 +165,7 @@ fn a_confidence_property_weights_the_points() {
         &reconstruct(
             &cloud,
             &Params {
-                confidence_property: None,
+                weights: PointWeights::Uniform,
                 ..params.clone()
             },
         )
@@ -188,16 +188,20 @@ fn a_confidence_property_weights_the_points() {
     let missing = reconstruct(
         &cloud,
         &Params {
-            confidence_property: Some("quality".into()),
+            weights: PointWeights::Property("quality".into()),
             ..params
         },
     );
     match missing {
-        Err(Error::InvalidParameter { name, message }) => {
-            assert_eq!(name, "--confidence-property");
+        Err(Error::InvalidParameter {
+            field,
+            value,
+            expected,
+        }) => {
+            assert_eq!(field, "weights");
             assert!(
-                message.contains("quality") && message.contains("confidence"),
-                "{message}"
+                value.contains("quality") && expected.contains("confidence"),
+                "{value} / {expected}"
             );
         }
         other => panic!("expected an error, got {other:?}"),

@@ -371,7 +371,7 @@ fn bad_inputs_are_errors() {
     assert!(matches!(
         evaluate(&good, &reference, &opts(0)),
         Err(Error::InvalidParameter {
-            name: "--samples",
+            field: "samples",
             ..
         })
     ));
@@ -383,7 +383,7 @@ fn bad_inputs_are_errors() {
         assert!(matches!(
             evaluate(&good, &Reference::Sphere { center, radius }, &opts(10)),
             Err(Error::InvalidParameter {
-                name: "--reference-sphere",
+                field: "reference_sphere",
                 ..
             })
         ));

@@ -11,7 +11,7 @@ mod common;
 
 use common::{repo_file, sphere, torus, Rng};
 use spsr::attributes::{Attribute, AttributeData, ScalarType};
-use spsr::{Boundary, Mesh, Params, PointCloud};
+use spsr::{Boundary, Degree, Mesh, Params, PointCloud, PointWeights};
 
 struct Fnv(u64);
 
@@ -128,7 +128,7 @@ fn sphere_degree_2_dirichlet_density_normals() {
     let cloud = sphere(20_000, [0.3, -0.1, 0.2], 1.5, 2);
     let params = Params {
         depth: 7,
-        degree: 2,
+        degree: Degree::Quadratic,
         boundary: Boundary::Dirichlet,
         density: true,
         normals: true,
@@ -159,7 +159,7 @@ fn bunny_depth_8_with_density_then_trimmed() {
 fn bunny_degree_2_free_boundary_two_level_splat_linear_fit() {
     let params = Params {
         depth: 7,
-        degree: 2,
+        degree: Degree::Quadratic,
         boundary: Boundary::Free,
         two_level_splat: true,
         linear_fit: true,
@@ -175,7 +175,7 @@ fn bunny_degree_2_free_boundary_two_level_splat_linear_fit() {
 fn torus_attributes_confidence_property_unscreened() {
     let params = Params {
         depth: 7,
-        confidence_property: Some("quality".into()),
+        weights: PointWeights::Property("quality".into()),
         point_weight: Some(0.0),
         iters: 5,
         data_pull: 8.0,
@@ -194,8 +194,8 @@ fn torus_normal_length_confidence_screened_heavily() {
     }
     let params = Params {
         depth: 6,
-        degree: 2,
-        confidence: true,
+        degree: Degree::Quadratic,
+        weights: PointWeights::NormalLength,
         point_weight: Some(10.0),
         attributes: false,
         ..Params::default()

@@ -8,7 +8,7 @@ mod common;
 mod harness;
 
 use common::{assert_closed_manifold, sphere};
-use spsr::{reconstruct, Error, Params, PointCloud};
+use spsr::{reconstruct, Error, Params, PointCloud, Warning};
 
 fn params(depth: u32) -> Params {
     Params {
@@ -202,25 +202,31 @@ fn one_outlier_a_million_units_away_is_reported_with_the_fix() {
     let out = reconstruct(&cloud, &params(8)).unwrap();
     assert_finite(&out.mesh);
     assert_eq!(out.stats.warnings.len(), 1, "{:?}", out.stats.warnings);
-    let w = &out.stats.warnings[0];
+    let Warning::FarOutliers(o) = &out.stats.warnings[0] else {
+        panic!("{:?}", out.stats.warnings)
+    };
+    assert_eq!((o.far, o.total, o.depth, o.effective_depth), (1, 501, 8, 0));
+    // Depth 8 + 18 is beyond the deepest depth: only cropping is suggested.
+    assert_eq!(o.compensating_depth, None);
+    let text = out.stats.warnings[0].to_string();
     for needle in [
         "1 of 501 points (0.200 %)",
         "lie far outside the box (",
-        "--depth 8 resolves the surface like --depth 0",
+        "depth 8 resolves the surface like depth 0",
         "crop the input to that box",
     ] {
-        assert!(w.contains(needle), "'{needle}' not in: {w}");
+        assert!(text.contains(needle), "'{needle}' not in: {text}");
     }
-    // Depth 8 + 18 is beyond the deepest depth: only cropping is suggested.
-    assert!(!w.contains("raise --depth"), "{w}");
+    assert!(!text.contains("raise the depth"), "{text}");
     // A nearer outlier costs fewer depths, and a deeper run is a fix too.
     cloud.positions.last_mut().unwrap()[0] = 100.0;
     let out = reconstruct(&cloud, &params(8)).unwrap();
-    let w = &out.stats.warnings[0];
-    assert!(
-        w.contains("like --depth 3") && w.contains("or raise --depth to 13"),
-        "{w}"
-    );
+    let Warning::FarOutliers(o) = &out.stats.warnings[0] else {
+        panic!("{:?}", out.stats.warnings)
+    };
+    assert_eq!((o.effective_depth, o.compensating_depth), (3, Some(13)));
+    let text = out.stats.warnings[0].to_string();
+    assert!(text.contains("or raise the depth to 13"), "{text}");
 }
 
 #[test]
@@ -235,5 +241,8 @@ fn depths_up_to_the_maximum_work_on_a_small_cloud() {
         assert_eq!(harness::open_edges_inside_cube(&out.mesh, &cloud, &p), 0);
     }
     let e = reconstruct(&cloud, &params(spsr::MAX_DEPTH + 1)).unwrap_err();
-    assert!(e.to_string().contains("--depth"), "{e}");
+    assert!(
+        matches!(&e, Error::InvalidParameter { field: "depth", value, .. } if value == "19"),
+        "{e}"
+    );
 }

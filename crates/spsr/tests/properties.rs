@@ -145,7 +145,7 @@ proptest! {
         let params = Params {
             depth: c.depth,
             full_depth: c.depth.min(5),
-            degree: c.degree,
+            degree: spsr::Degree::from_number(c.degree).unwrap(),
             boundary: [Boundary::Neumann, Boundary::Dirichlet, Boundary::Free][c.boundary as usize],
             density: true,
             ..Params::default()

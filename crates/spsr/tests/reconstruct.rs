@@ -3,7 +3,7 @@
 mod common;
 
 use common::*;
-use spsr::{reconstruct, Boundary, Error, Params, PointCloud};
+use spsr::{reconstruct, Boundary, Degree, Error, MemoryLimit, Params, PointCloud};
 
 fn radial_errors(mesh: &spsr::Mesh, c: [f64; 3], r: f64) -> Vec<f64> {
     mesh.vertices
@@ -76,7 +76,7 @@ fn sphere_with_degree_2_and_dirichlet_or_free_boundaries() {
     let (c, r) = ([0.0, 0.0, 0.0], 2.0);
     let cloud = sphere(60_000, c, r, 3);
     for boundary in [Boundary::Neumann, Boundary::Dirichlet, Boundary::Free] {
-        for degree in [1u8, 2] {
+        for degree in [Degree::Linear, Degree::Quadratic] {
             let params = Params {
                 depth: 7,
                 degree,
@@ -292,53 +292,48 @@ fn unusable_inputs_are_clear_errors() {
                 depth: 40,
                 ..p.clone()
             },
-            "--depth",
+            "depth",
         ),
         (
             Params {
                 point_weight: Some(-1.0),
                 ..p.clone()
             },
-            "--point-weight",
+            "point_weight",
         ),
         (
             Params {
                 iters: 0,
                 ..p.clone()
             },
-            "--iters",
+            "iters",
         ),
         (
             Params {
                 samples_per_node: 0.0,
                 ..p.clone()
             },
-            "--samples-per-node",
-        ),
-        (
-            Params {
-                degree: 3,
-                ..p.clone()
-            },
-            "--degree",
+            "samples_per_node",
         ),
         (
             Params {
                 scale: 0.5,
                 ..p.clone()
             },
-            "--scale",
+            "scale",
         ),
         (
             Params {
                 full_depth: 9,
                 ..p.clone()
             },
-            "--full-depth",
+            "full_depth",
         ),
     ] {
-        let e = reconstruct(&cloud, &bad).unwrap_err();
-        assert!(e.to_string().contains(flag), "{e}");
+        match reconstruct(&cloud, &bad) {
+            Err(Error::InvalidParameter { field, .. }) => assert_eq!(field, flag),
+            other => panic!("{flag}: expected an invalid-parameter error, got {other:?}"),
+        }
     }
 }
 
@@ -439,11 +434,11 @@ fn a_far_outlier_is_reported_with_the_fix() {
     )
     .unwrap();
     assert_eq!(out.stats.warnings.len(), 1, "{:?}", out.stats.warnings);
-    let w = &out.stats.warnings[0];
+    let w = out.stats.warnings[0].to_string();
     assert!(
         w.starts_with("1 of 20001 points (0.005 %) lie far outside the box")
             && w.contains("crop the input to that box")
-            && !w.contains("raise --depth"),
+            && !w.contains("raise the depth"),
         "{w}"
     );
     // Without the outlier there is nothing to say.
@@ -468,16 +463,14 @@ fn a_run_over_the_memory_limit_is_refused_with_a_depth_that_fits() {
         ..Params::default()
     };
     match reconstruct(&cloud, &params) {
-        Err(Error::ResourceLimit {
-            estimate,
-            limit,
-            suggested_depth,
-            message,
-        }) => {
-            assert!(estimate > limit);
+        Err(Error::ResourceLimit(m)) => {
+            assert!(m.estimate > m.limit);
+            assert_eq!((m.source, m.depth), (MemoryLimit::Requested, 9));
+            let suggested_depth = m.suggested_depth.unwrap();
             assert!(suggested_depth < 9);
+            let message = m.to_string();
             assert!(
-                message.contains("--depth") && message.contains("--max-memory"),
+                message.contains("use depth") && message.contains("max_memory"),
                 "{message}"
             );
             // The suggestion fits.

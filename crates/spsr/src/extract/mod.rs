@@ -141,10 +141,15 @@ pub fn extract(
 }
 
 fn bad_leaves(message: &str) -> crate::Error {
-    crate::Error::InvalidParameter {
-        name: "leaves",
-        message: message.to_string(),
-    }
+    crate::Error::invalid("leaves", message, "leaves that tile the unit cube")
+}
+
+fn depth_too_large(depth: u32) -> crate::Error {
+    crate::Error::invalid(
+        "depth",
+        depth,
+        format!("at most {MAX_SUPPORTED_DEPTH}, the deepest extraction supports"),
+    )
 }
 
 /// A leaf list as [`Cells`]: the refined cells are the leaves' proper ancestors, and the
@@ -159,12 +164,7 @@ struct LeafSet<'a> {
 impl<'a> LeafSet<'a> {
     fn new(leaves: &'a [Leaf], max_depth: u32) -> crate::Result<Self> {
         if max_depth > MAX_SUPPORTED_DEPTH {
-            return Err(crate::Error::InvalidParameter {
-                name: "--depth",
-                message: format!(
-                    "extraction supports depths up to {MAX_SUPPORTED_DEPTH}, got {max_depth}"
-                ),
-            });
+            return Err(depth_too_large(max_depth));
         }
         if leaves.is_empty() {
             return Err(bad_leaves("no leaves: they must tile the unit cube"));
@@ -412,12 +412,7 @@ pub fn extract_blocks<C: Cells>(
 ) -> crate::Result<Blocks> {
     let max_depth = cells.max_depth();
     if max_depth > MAX_SUPPORTED_DEPTH {
-        return Err(crate::Error::InvalidParameter {
-            name: "--depth",
-            message: format!(
-                "extraction supports depths up to {MAX_SUPPORTED_DEPTH}, got {max_depth}"
-            ),
-        });
+        return Err(depth_too_large(max_depth));
     }
     let ctx = Ctx {
         cells,

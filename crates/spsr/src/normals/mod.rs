@@ -150,16 +150,14 @@ pub const MIN_POINTS: usize = 3;
 /// [`Error::InvalidParameter`] for 0 neighbours or a non-positive target error.
 pub fn estimate(positions: &[[f64; 3]], params: &NormalParams) -> Result<Estimated> {
     if params.neighbours == Some(0) {
-        return Err(Error::InvalidParameter {
-            name: "--neighbours",
-            message: "must be at least 1".into(),
-        });
+        return Err(Error::invalid("neighbours", 0, "at least 1"));
     }
     if !(params.target_error > 0.0 && params.target_error.is_finite()) {
-        return Err(Error::InvalidParameter {
-            name: "--target-error",
-            message: format!("must be positive, got {}", params.target_error),
-        });
+        return Err(Error::invalid(
+            "target_error",
+            params.target_error,
+            "a positive number",
+        ));
     }
     check_len(positions.len())?;
     let finite = finite_points(positions);
@@ -333,39 +331,38 @@ pub fn orient(
     };
     match how {
         Orientation::Viewpoint(v) => {
-            check_origin(*v, "--viewpoint")?;
+            check_origin(*v, "viewpoint")?;
             stats.flipped = orient::towards(positions, normals, |_| *v);
         }
         Orientation::ScanOrigins(scans) => {
-            if scans.first().map(|s| s.0) != Some(0) {
-                return Err(Error::InvalidParameter {
-                    name: "scan origins",
-                    message: "the first scan must start at point 0".into(),
-                });
+            if let Some(s) = scans.first().filter(|s| s.0 != 0) {
+                return Err(Error::invalid(
+                    "scan_origins",
+                    format!("a first scan starting at point {}", s.0),
+                    "a first scan starting at point 0",
+                ));
+            }
+            if scans.is_empty() {
+                return Err(Error::invalid("scan_origins", "none", "at least one scan"));
             }
             for w in scans.windows(2) {
                 if w[1].0 <= w[0].0 {
-                    return Err(Error::InvalidParameter {
-                        name: "scan origins",
-                        message: format!(
-                            "scans must start at increasing points, got {} after {}",
-                            w[1].0, w[0].0
-                        ),
-                    });
+                    return Err(Error::invalid(
+                        "scan_origins",
+                        format!("a scan starting at point {} after {}", w[1].0, w[0].0),
+                        "scans starting at increasing points",
+                    ));
                 }
             }
             for s in scans {
-                check_origin(s.1, "scan origins")?;
+                check_origin(s.1, "scan_origins")?;
             }
             let origin_of = |i: usize| scans[scans.partition_point(|s| s.0 <= i) - 1].1;
             stats.flipped = orient::towards(positions, normals, origin_of);
         }
         Orientation::Mst { neighbours } | Orientation::Global { neighbours, .. } => {
             if *neighbours == 0 {
-                return Err(Error::InvalidParameter {
-                    name: "--orient-neighbours",
-                    message: "must be at least 1".into(),
-                });
+                return Err(Error::invalid("orient_neighbours", 0, "at least 1"));
             }
             let before: Vec<[f64; 3]> = normals.to_vec();
             let graph = orient::Graph::new(positions, normals, *neighbours);
@@ -389,10 +386,11 @@ fn check_origin(o: [f64; 3], name: &'static str) -> Result<()> {
     if o.iter().all(|c| c.is_finite()) {
         Ok(())
     } else {
-        Err(Error::InvalidParameter {
+        Err(Error::invalid(
             name,
-            message: format!("the sensor position must be finite, got {o:?}"),
-        })
+            format!("{o:?}"),
+            "a finite sensor position",
+        ))
     }
 }
 
@@ -480,10 +478,11 @@ pub(crate) fn norm(a: [f64; 3]) -> f64 {
 /// Point indices are stored in 32 bits.
 fn check_len(n: usize) -> Result<()> {
     if n >= knn::NONE as usize {
-        return Err(Error::InvalidParameter {
-            name: "points",
-            message: format!("at most {} points are supported, got {n}", knn::NONE - 1),
-        });
+        return Err(Error::invalid(
+            "points",
+            n,
+            format!("at most {} points", knn::NONE - 1),
+        ));
     }
     Ok(())
 }

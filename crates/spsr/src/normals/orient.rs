@@ -349,7 +349,7 @@ pub(crate) fn correct(
                 ]
             })
             .collect();
-        let vals = crate::reconstruct::implicit_gradients(&cloud, &params, &at)?.values;
+        let vals = crate::pipeline::implicit_gradients(&cloud, &params, &at)?.values;
         drop(cloud);
         let mut steps: Vec<f64> = vals.chunks(2).map(|v| v[0] - v[1]).collect();
         let mid = steps.len() / 2;

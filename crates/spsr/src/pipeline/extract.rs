@@ -1,0 +1,215 @@
+//! Stage 8 (ALGORITHM.md §9): the iso-surface of χ at γ, extracted block by block from the
+//! octree's leaves, with the per-vertex values that need χ, the tree or the density
+//! (attributes, density, normals), then mapped back to the input's frame.
+
+use rayon::prelude::*;
+
+use super::Implicit;
+use crate::attributes::Attribute;
+use crate::evaluate::{CornerField, Evaluator};
+use crate::extract::{extract_blocks, Cells, ExtractOptions};
+use crate::octree::{func_index, neighbor_in, window_index, Octree, DEPTH_OFFSET, NONE};
+use crate::{Mesh, Params, Result};
+
+/// Extracts the mesh of the implicit function (stage 8). Without attributes, the tree and the
+/// solution are released before the vertices are numbered.
+pub fn extract(implicit: Implicit, params: &Params) -> Result<Mesh> {
+    let Implicit {
+        tree,
+        solution,
+        fem,
+        density,
+        iso,
+        frame,
+        data,
+        attribute_types,
+    } = implicit;
+    let eval = Evaluator::new(&tree, fem, &solution);
+    let cells = TreeCells::new(&tree, params.base_depth());
+    let field = CornerField {
+        eval: &eval,
+        depth: cells.max_depth,
+    };
+    let options = ExtractOptions {
+        linear_fit: params.linear_fit,
+        normals: params.normals,
+    };
+    let blocks = extract_blocks(&cells, &field, iso, &options)?;
+    drop(cells);
+    let mut mesh = match data {
+        Some(data) => {
+            // Per-vertex values that need the tree: computed before it goes.
+            let mut mesh = blocks.assemble()?;
+            mesh.attributes = interpolate_attributes(&mesh, &data, &tree, &attribute_types);
+            drop(solution);
+            drop(tree);
+            mesh
+        }
+        None => {
+            drop(solution);
+            drop(tree);
+            blocks.assemble()?
+        }
+    };
+    if params.density {
+        mesh.density = Some(
+            mesh.vertices
+                .par_iter()
+                .map(|p| density.query(*p).depth as f32)
+                .collect(),
+        );
+    }
+    for p in &mut mesh.vertices {
+        *p = frame.to_world(*p);
+    }
+    Ok(mesh)
+}
+
+/// Each attribute at each vertex, from the data summed up the tree.
+fn interpolate_attributes(
+    mesh: &Mesh,
+    data: &crate::data::DataField,
+    tree: &Octree,
+    types: &[Attribute],
+) -> Vec<Attribute> {
+    let k = data.channels();
+    let mut values = vec![0.0f64; mesh.vertices.len() * k];
+    values
+        .par_chunks_mut(k)
+        .zip(&mesh.vertices)
+        .for_each(|(out, p)| data.eval(tree, *p, out));
+    types
+        .iter()
+        .enumerate()
+        .map(|(c, a)| {
+            Attribute::new(
+                a.name.clone(),
+                a.data
+                    .like_from_f64(values.iter().skip(c).step_by(k).copied()),
+            )
+        })
+        .collect()
+}
+
+/// The octree's leaves inside the unit cube, as extraction sees them. Blocks are the cells of
+/// a depth at most the base depth (complete, so every leaf lies in one), chosen so that a
+/// block spans about 32 finest cells per axis.
+struct TreeCells<'a> {
+    tree: &'a Octree,
+    max_depth: u32,
+    block_level: u32,
+    blocks: Vec<u32>,
+}
+
+impl<'a> TreeCells<'a> {
+    /// `base_depth`: a unit depth down to which the tree is complete.
+    fn new(tree: &'a Octree, base_depth: u32) -> Self {
+        let max_depth = tree.depth_count() - 1 - DEPTH_OFFSET;
+        let block_level = max_depth.saturating_sub(5).min(base_depth) + DEPTH_OFFSET;
+        let d = block_level - DEPTH_OFFSET;
+        let level = &tree.levels[block_level as usize];
+        let n = 1i64 << d;
+        let blocks = (0..level.len() as u32)
+            .filter(|&b| {
+                func_index(level.key(b), d)
+                    .iter()
+                    .all(|&c| (0..n).contains(&c))
+            })
+            .collect();
+        Self {
+            tree,
+            max_depth,
+            block_level,
+            blocks,
+        }
+    }
+}
+
+impl Cells for TreeCells<'_> {
+    type Handle = (u32, u32);
+
+    fn max_depth(&self) -> u32 {
+        self.max_depth
+    }
+
+    fn block_count(&self) -> usize {
+        self.blocks.len()
+    }
+
+    fn for_each_leaf(&self, b: usize, f: &mut dyn FnMut((u32, u32), u32, [u32; 3])) {
+        // Depth-first, children in order: Morton order within the block.
+        let mut stack = vec![(self.block_level, self.blocks[b])];
+        while let Some((t, n)) = stack.pop() {
+            let level = &self.tree.levels[t as usize];
+            let c = level.child(n);
+            if c == NONE {
+                let d = t - DEPTH_OFFSET;
+                let o = func_index(level.key(n), d);
+                f((t, n), d, [o[0] as u32, o[1] as u32, o[2] as u32]);
+            } else {
+                for k in (0..8).rev() {
+                    stack.push((t + 1, c * 8 + k));
+                }
+            }
+        }
+    }
+
+    fn refined_around(&self, (t, n): (u32, u32), _depth: u32, _offset: [u32; 3]) -> u32 {
+        let level = &self.tree.levels[t as usize];
+        let next = self.tree.levels.get(t as usize + 1);
+        let mut mask = 0;
+        if next.is_none() {
+            return 0;
+        }
+        for s in 0..27u32 {
+            let o = [
+                i64::from(s % 3) - 1,
+                i64::from((s / 3) % 3) - 1,
+                i64::from(s / 9) - 1,
+            ];
+            let m = neighbor_in(level, n, window_index(o));
+            if m != NONE && level.child(m) != NONE {
+                mask |= 1 << s;
+            }
+        }
+        mask
+    }
+
+    fn refined(&self, (t, n): (u32, u32), depth: u32, offset: [u32; 3]) -> bool {
+        let d = t - DEPTH_OFFSET;
+        let levels = &self.tree.levels;
+        let own = func_index(levels[t as usize].key(n), d);
+        // The cell's ancestor at the leaf's depth is a neighbour of the leaf.
+        let shift = depth.saturating_sub(d);
+        let rel: [i64; 3] = std::array::from_fn(|a| i64::from(offset[a] >> shift) - own[a]);
+        let (mut tt, mut m) = if depth >= d && rel.iter().all(|&r| (-2..=2).contains(&r)) {
+            (t, neighbor_in(&levels[t as usize], n, window_index(rel)))
+        } else {
+            // Not expected (the cell touches the leaf and is no coarser); look it up from the
+            // root.
+            let key: [u64; 3] = std::array::from_fn(|a| u64::from(offset[a]) + (1u64 << depth));
+            let tk = depth + DEPTH_OFFSET;
+            let (reached, node) = self.tree.descend(key, tk, tk);
+            if reached != tk {
+                return false;
+            }
+            (tk, node)
+        };
+        if m == NONE {
+            return false;
+        }
+        while tt < depth + DEPTH_OFFSET {
+            let b = levels[tt as usize].child(m);
+            if b == NONE {
+                return false;
+            }
+            tt += 1;
+            let s = depth + DEPTH_OFFSET - tt;
+            let bits = ((offset[0] >> s) & 1)
+                | (((offset[1] >> s) & 1) << 1)
+                | (((offset[2] >> s) & 1) << 2);
+            m = b * 8 + bits;
+        }
+        levels[tt as usize].child(m) != NONE
+    }
+}

@@ -1,0 +1,395 @@
+//! The front door: the pipeline of ALGORITHM.md §2, one stage per module, each taking the
+//! previous stage's output and returning its own plain data.
+//!
+//! | stage | module | ALGORITHM.md | output |
+//! |---|---|---|---|
+//! | 1 preparing points | [`prepare`] | §3.1, §3.2, §3.4 | [`prepare::Prepared`] |
+//! | 2 density | [`density`] | §3.3, §3.5 | [`density::Sampled`] |
+//! | 3 octree | [`tree`] | §3.6, §4.2 | [`tree::Refined`] |
+//! | 4 splatting | [`splat`] | §3.6 | [`splat::VectorField`] |
+//! | 5 clusters | [`system`] | §3.7 | [`system::Screening`] |
+//! | 6 solving | [`solve`] | §6, §7 | [`crate::solver::Solution`] |
+//! | 7 iso-value | [`iso`] | §1.5 | [`Implicit`] |
+//! | 8 extraction | [`extract`] | §9 | [`Mesh`] |
+
+use std::time::{Duration, Instant};
+
+use rayon::prelude::*;
+
+use crate::attributes::Attribute;
+use crate::bspline::Basis;
+use crate::data::DataField;
+use crate::density::Density;
+use crate::error::Warning;
+use crate::evaluate::Evaluator;
+use crate::octree::{Octree, DEPTH_OFFSET};
+use crate::solver::Solution;
+use crate::{resources, Error, Mesh, Params, PointCloud, Result};
+
+pub mod density;
+pub mod extract;
+pub mod iso;
+pub mod prepare;
+pub mod solve;
+pub mod splat;
+pub mod system;
+pub mod tree;
+
+pub use prepare::Frame;
+
+/// The output of [`reconstruct`].
+#[derive(Debug, Clone)]
+pub struct Reconstruction {
+    /// The mesh, in the input's frame and units.
+    pub mesh: Mesh,
+    /// Counts and timings of the run.
+    pub stats: Stats,
+}
+
+/// Counts and timings gathered during a reconstruction.
+#[derive(Debug, Clone, Default)]
+pub struct Stats {
+    /// Points given.
+    pub points: usize,
+    /// Points dropped (non-finite values, zero-length normals or unusable weights).
+    pub dropped: usize,
+    /// Samples after merging points that share a finest cell.
+    pub samples: usize,
+    /// Octree nodes per depth (index 0 is the unit cube).
+    pub nodes_per_depth: Vec<usize>,
+    /// The iso-value γ.
+    pub iso_value: f64,
+    /// Weighted mean of the samples' estimated depths.
+    pub mean_sample_depth: f64,
+    /// Wall time of each stage, in order.
+    pub stages: Vec<(String, Duration)>,
+    /// What the user should hear about the input (dropped points, far outliers).
+    pub warnings: Vec<Warning>,
+    /// The peak memory estimated before the octree was built (bytes), which
+    /// [`Params::max_memory`] (or the available memory) was checked against.
+    pub memory_estimate: u64,
+    /// Peak resident memory of the process (bytes) at the end of each stage, where the
+    /// platform reports it (Linux); same order as `stages`.
+    pub peak_memory: Vec<Option<u64>>,
+}
+
+/// The solved implicit function χ and what extraction needs besides: the output of stages
+/// 1–7.
+#[derive(Debug)]
+pub struct Implicit {
+    /// The octree.
+    pub tree: Octree,
+    /// χ's coefficients.
+    pub solution: Solution,
+    /// The finite elements.
+    pub fem: Basis,
+    /// The sampling density (for the per-vertex density).
+    pub density: Density,
+    /// The iso-value γ.
+    pub iso: f64,
+    /// The unit cube in the input's frame.
+    pub frame: Frame,
+    /// The cloud's attributes summed up the tree, when they are carried onto the mesh.
+    pub data: Option<DataField>,
+    /// Name and type of each carried attribute (empty columns), in channel order.
+    pub attribute_types: Vec<Attribute>,
+}
+
+impl Implicit {
+    /// χ and its gradient (in world units) at a world-space point; points outside the
+    /// bounding cube are clamped to it.
+    #[cfg(test)]
+    pub fn value_grad(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
+        let (v, g) =
+            Evaluator::new(&self.tree, self.fem, &self.solution).value_grad(self.frame.to_unit(p));
+        (v, g.map(|c| c / self.frame.width))
+    }
+}
+
+/// Reconstructs a watertight surface from oriented points.
+pub fn reconstruct(points: &PointCloud, params: &Params) -> Result<Reconstruction> {
+    reconstruct_with_progress(points, params, &|_| {})
+}
+
+/// As [`reconstruct`], calling `progress` with the name of each stage as it starts.
+pub fn reconstruct_with_progress(
+    points: &PointCloud,
+    params: &Params,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<Reconstruction> {
+    reconstruct_input(Input::Borrowed(points), params, progress)
+}
+
+/// As [`reconstruct_with_progress`], taking the cloud by value: it is released as soon as
+/// the points are normalised, which lowers the peak memory of a large run by the cloud's size.
+pub fn reconstruct_owned(
+    points: PointCloud,
+    params: &Params,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<Reconstruction> {
+    reconstruct_input(Input::Owned(points), params, progress)
+}
+
+/// The points handed to the pipeline: an owned cloud is released as soon as its unit-cube
+/// copy exists, which lowers the peak memory by the cloud's size.
+pub(crate) enum Input<'a> {
+    Borrowed(&'a PointCloud),
+    Owned(PointCloud),
+}
+
+impl Input<'_> {
+    fn cloud(&self) -> &PointCloud {
+        match self {
+            Input::Borrowed(c) => c,
+            Input::Owned(c) => c,
+        }
+    }
+}
+
+fn reconstruct_input(
+    input: Input,
+    params: &Params,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<Reconstruction> {
+    let mut run = Run::new(progress);
+    let (implicit, mut stats) = solve_implicit(input, params, &mut run)?;
+    let mesh = run.stage("extraction", || extract::extract(implicit, params))?;
+    (stats.stages, stats.peak_memory) = run.finish();
+    Ok(Reconstruction { mesh, stats })
+}
+
+/// Stages 1–7: the implicit function χ and its iso-value, with the run's counts (the timings
+/// so far stay in `run`).
+pub(crate) fn solve_implicit(
+    input: Input,
+    params: &Params,
+    run: &mut Run,
+) -> Result<(Implicit, Stats)> {
+    params.validate()?;
+    let cloud = input.cloud();
+    if cloud.positions.len() != cloud.normals.len() {
+        return Err(Error::LengthMismatch {
+            positions: cloud.positions.len(),
+            normals: cloud.normals.len(),
+        });
+    }
+    let prepared = run.stage("preparing points", || prepare::prepare(cloud, params))?;
+    drop(input);
+    let prepare::Prepared {
+        points,
+        carried,
+        frame,
+        input_points,
+        dropped,
+        warnings,
+    } = prepared;
+    let sampled = run.stage("density", || density::sample(points, carried, params));
+    let refined = run.stage("octree", || tree::build(&sampled, params, input_points))?;
+    let field = run.stage("splatting", || splat::splat(&refined, &sampled, params))?;
+    let density::Sampled {
+        samples,
+        values,
+        attribute_types,
+        density,
+        depths,
+    } = sampled;
+    drop(depths);
+    let tree::Refined {
+        tree,
+        memory_estimate,
+        ..
+    } = refined;
+    // From here on only the samples' positions and weights are needed.
+    let samples_len = samples.len();
+    let points = system::SamplePoints {
+        positions: samples.iter().map(|s| s.pos).collect(),
+        weights: samples.iter().map(|s| s.weight).collect(),
+    };
+    drop(samples);
+    let fem = Basis::new(params.degree, params.boundary);
+    let channels = attribute_types.len();
+    let screening = run.stage("clusters", || {
+        system::screening(
+            &tree,
+            fem,
+            &points,
+            values,
+            channels,
+            field.mean_area,
+            params,
+        )
+    });
+    let system::Screening { clusters, data } = screening;
+    let solution = run.stage("solving", || {
+        solve::solve(&tree, fem, &clusters, field.v, params, run.progress)
+    });
+    drop(clusters);
+    run.add_parts(&solution.timings);
+    let eval = Evaluator::new(&tree, fem, &solution);
+    let iso = run.stage("iso-value", || iso::iso_value(&eval, &points));
+    let stats = Stats {
+        points: input_points,
+        dropped,
+        samples: samples_len,
+        nodes_per_depth: tree.levels[DEPTH_OFFSET as usize..]
+            .iter()
+            .map(|l| l.len())
+            .collect(),
+        iso_value: iso,
+        mean_sample_depth: field.mean_depth,
+        warnings,
+        memory_estimate,
+        ..Stats::default()
+    };
+    let implicit = Implicit {
+        tree,
+        solution,
+        fem,
+        density,
+        iso,
+        frame,
+        data,
+        attribute_types,
+    };
+    Ok((implicit, stats))
+}
+
+/// The implicit function at given points, from [`implicit_gradients`].
+pub(crate) struct ImplicitSamples {
+    /// χ at each point (χ ≈ 1 inside, 0 outside).
+    pub values: Vec<f64>,
+}
+
+/// The implicit function solved from `cloud` with `params`, sampled at the points `at`
+/// (points outside the bounding cube are clamped to it). Used by the global orientation of
+/// normals (`normals::orient`).
+pub(crate) fn implicit_gradients(
+    cloud: &PointCloud,
+    params: &Params,
+    at: &[[f64; 3]],
+) -> Result<ImplicitSamples> {
+    let (imp, _) = solve_implicit(Input::Borrowed(cloud), params, &mut Run::new(&|_| {}))?;
+    let eval = Evaluator::new(&imp.tree, imp.fem, &imp.solution);
+    let values = at
+        .par_iter()
+        .map(|p| eval.value(imp.frame.to_unit(*p)))
+        .collect();
+    Ok(ImplicitSamples { values })
+}
+
+/// Times the stages of a run and reports each as it starts.
+pub(crate) struct Run<'a> {
+    stages: Vec<(String, Duration)>,
+    memory: Vec<Option<u64>>,
+    progress: &'a (dyn Fn(&str) + Sync),
+}
+
+impl<'a> Run<'a> {
+    pub(crate) fn new(progress: &'a (dyn Fn(&str) + Sync)) -> Self {
+        Self {
+            stages: Vec::new(),
+            memory: Vec::new(),
+            progress,
+        }
+    }
+
+    /// Runs one stage: reports its name, then records its wall time and the peak memory.
+    pub(crate) fn stage<T>(&mut self, name: &'static str, f: impl FnOnce() -> T) -> T {
+        (self.progress)(name);
+        let start = Instant::now();
+        let out = f();
+        self.stages.push((name.to_string(), start.elapsed()));
+        self.memory.push(resources::peak_rss());
+        out
+    }
+
+    /// Records the parts of the last stage (indented under it).
+    fn add_parts(&mut self, parts: &[(String, Duration, Option<u64>)]) {
+        for (n, d, m) in parts {
+            self.stages.push((format!("  {n}"), *d));
+            self.memory.push(*m);
+        }
+    }
+
+    fn finish(self) -> (Vec<(String, Duration)>, Vec<Option<u64>>) {
+        (self.stages, self.memory)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points on a sphere by the golden-angle spiral, with exact outward normals.
+    fn sphere(n: usize, c: [f64; 3], r: f64) -> PointCloud {
+        let mut pos = Vec::with_capacity(n);
+        let mut nor = Vec::with_capacity(n);
+        let ga = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        for i in 0..n {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let rho = (1.0 - z * z).sqrt();
+            let th = ga * i as f64;
+            let u = [rho * th.cos(), rho * th.sin(), z];
+            pos.push([c[0] + r * u[0], c[1] + r * u[1], c[2] + r * u[2]]);
+            nor.push(u);
+        }
+        PointCloud::new(pos, nor).unwrap()
+    }
+
+    fn radial_crossing(imp: &Implicit, c: [f64; 3], r: f64, dir: [f64; 3]) -> f64 {
+        // Bisection on χ − γ along the ray, between 0.5 r and 1.05 r.
+        let f = |s: f64| {
+            imp.value_grad([c[0] + s * dir[0], c[1] + s * dir[1], c[2] + s * dir[2]])
+                .0
+                - imp.iso
+        };
+        let (mut a, mut b) = (0.5 * r, 1.05 * r);
+        assert!(
+            f(a) > 0.0 && f(b) < 0.0,
+            "no sign change: {} {}",
+            f(a),
+            f(b)
+        );
+        for _ in 0..60 {
+            let m = 0.5 * (a + b);
+            if f(m) > 0.0 {
+                a = m
+            } else {
+                b = m
+            }
+        }
+        0.5 * (a + b)
+    }
+
+    #[test]
+    fn sphere_implicit_function_crosses_the_iso_value_on_the_sphere() {
+        for degree in [crate::Degree::Linear, crate::Degree::Quadratic] {
+            let c = [0.1, -0.2, 0.3];
+            let cloud = sphere(60_000, c, 1.0);
+            let params = Params {
+                depth: 7,
+                degree,
+                ..Params::default()
+            };
+            let (imp, _) =
+                solve_implicit(Input::Borrowed(&cloud), &params, &mut Run::new(&|_| {})).unwrap();
+            let cell = 2.2 / 128.0;
+            assert!((imp.iso - 0.5).abs() < 0.05, "iso {}", imp.iso);
+            let mut worst: f64 = 0.0;
+            for k in 0..50 {
+                let z = 1.0 - 2.0 * (k as f64 + 0.5) / 50.0;
+                let rho = (1.0 - z * z).sqrt();
+                let th = 2.39996 * k as f64;
+                let dir = [rho * th.cos(), rho * th.sin(), z];
+                let s = radial_crossing(&imp, c, 1.0, dir);
+                worst = worst.max((s - 1.0).abs());
+            }
+            eprintln!(
+                "degree {degree}: iso {} worst radial error {worst} ({} cells)",
+                imp.iso,
+                worst / cell
+            );
+            assert!(worst < 0.1 * cell, "degree {degree}: radial error {worst}");
+        }
+    }
+}

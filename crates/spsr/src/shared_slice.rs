@@ -1,0 +1,37 @@
+//! A slice that several threads write at disjoint indices (multi-colour Gauss–Seidel,
+//! coloured accumulation): the one place where the numeric core shares a buffer unsafely.
+
+/// A slice shared between threads that write disjoint elements (multi-colour Gauss–Seidel,
+/// coloured accumulation).
+pub struct SharedSlice<T> {
+    ptr: *mut T,
+    len: usize,
+}
+
+// SAFETY: access goes through `get`/`set`, whose callers guarantee disjoint writes.
+unsafe impl<T: Send> Sync for SharedSlice<T> {}
+
+impl<T: Copy> SharedSlice<T> {
+    pub fn new(s: &mut [T]) -> Self {
+        Self {
+            ptr: s.as_mut_ptr(),
+            len: s.len(),
+        }
+    }
+
+    /// # Safety
+    /// No concurrent write to element `i`.
+    #[inline]
+    pub unsafe fn get(&self, i: usize) -> T {
+        debug_assert!(i < self.len);
+        *self.ptr.add(i)
+    }
+
+    /// # Safety
+    /// No concurrent access to element `i`.
+    #[inline]
+    pub unsafe fn set(&self, i: usize, v: T) {
+        debug_assert!(i < self.len);
+        *self.ptr.add(i) = v;
+    }
+}
