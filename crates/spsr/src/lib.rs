@@ -40,6 +40,7 @@ pub use error::{gib, Error, FarOutliers, MemoryLimit, MemoryShortfall, Result, W
 pub use mesh::Mesh;
 pub use params::{Params, PointWeights, MAX_DEPTH};
 pub use pipeline::{
-    reconstruct, reconstruct_owned, reconstruct_with_progress, Reconstruction, Stats,
+    reconstruct, reconstruct_and_trim, reconstruct_owned, reconstruct_with_progress,
+    Reconstruction, Stats,
 };
 pub use points::{PointCloud, ScanOrigin};

@@ -493,3 +493,42 @@ fn a_filled_scanning_gap_survives_a_conservative_value() {
         assert!(!in_ball(p, 1.2 * HOLE_RADIUS), "the fill was cut at {p:?}");
     }
 }
+
+#[test]
+fn reconstruct_and_trim_equals_reconstructing_with_density_then_trimming() {
+    let cloud = spsr::io::read_points(&common::repo_file("examples/bunny.ply")).unwrap();
+    let params = Params {
+        depth: 6,
+        ..Params::default()
+    };
+    let trim_params = TrimParams::default();
+    let (out, stats) =
+        spsr::reconstruct_and_trim(cloud.clone(), &params, &trim_params, &|_| {}).unwrap();
+    let with_density = Params {
+        density: true,
+        ..params.clone()
+    };
+    let full = spsr::reconstruct(&cloud, &with_density).unwrap().mesh;
+    let (mut expected, expected_stats) = trim(&full, &trim_params).unwrap();
+    assert_eq!(stats, expected_stats);
+    // The density was asked for only by the trimming: it is not kept.
+    expected.density = None;
+    assert_eq!(out.mesh, expected);
+    assert_eq!(out.stats.stages.last().unwrap().0, "trimming");
+    // Bad trimming parameters are refused before any work.
+    let bad = TrimParams {
+        hole_area: 2.0,
+        ..trim_params
+    };
+    let e = spsr::reconstruct_and_trim(cloud, &params, &bad, &|_| panic!("started")).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            Error::InvalidParameter {
+                field: "hole_area",
+                ..
+            }
+        ),
+        "{e}"
+    );
+}

@@ -24,6 +24,7 @@ use crate::error::Warning;
 use crate::evaluate::Evaluator;
 use crate::octree::{Octree, DEPTH_OFFSET};
 use crate::solver::Solution;
+use crate::trim::{TrimParams, TrimStats};
 use crate::{resources, Error, Mesh, Params, PointCloud, Result};
 
 pub mod density;
@@ -128,6 +129,35 @@ pub fn reconstruct_owned(
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<Reconstruction> {
     reconstruct_input(Input::Owned(points), params, progress)
+}
+
+/// Reconstructs, then trims the mesh where its density is low (ALGORITHM.md §10): the one
+/// call behind the front ends' `trim` option. Both sets of parameters are checked before any
+/// work; the density is computed for the trimming and kept on the mesh only when
+/// `params.density` asks for it. The trimming is timed as the last stage.
+pub fn reconstruct_and_trim(
+    points: PointCloud,
+    params: &Params,
+    trim: &TrimParams,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<(Reconstruction, TrimStats)> {
+    params.validate()?;
+    trim.validate()?;
+    let with_density = Params {
+        density: true,
+        ..params.clone()
+    };
+    let mut out = reconstruct_owned(points, &with_density, progress)?;
+    let mut run = Run::new(progress);
+    let (mesh, trimmed) = run.stage("trimming", || crate::trim::trim(&out.mesh, trim))?;
+    out.mesh = mesh;
+    if !params.density {
+        out.mesh.density = None;
+    }
+    let (stages, memory) = run.finish();
+    out.stats.stages.extend(stages);
+    out.stats.peak_memory.extend(memory);
+    Ok((out, trimmed))
 }
 
 /// The points handed to the pipeline: an owned cloud is released as soon as its unit-cube
