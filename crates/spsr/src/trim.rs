@@ -466,6 +466,18 @@ struct Selection {
     holes_filled: usize,
 }
 
+/// The edge-connected components of each side of the cut and their neighbour graph.
+struct Components {
+    /// Component of each triangle, numbered in the order of their first triangle.
+    of_triangle: Vec<u32>,
+    /// Area of each component.
+    area: Vec<f64>,
+    /// Side of each component (kept or not).
+    keep: Vec<bool>,
+    /// The components on the other side that share an edge with each component.
+    neighbours: Vec<Vec<u32>>,
+}
+
 /// Edge-connected components of each side, their neighbour graph, and the merging of small
 /// components into their neighbours (ALGORITHM.md §10 step 2).
 fn select(
@@ -475,6 +487,24 @@ fn select(
     total: f64,
     params: &TrimParams,
 ) -> Selection {
+    let mut c = components(triangles, keep, areas);
+    let island = params.min_island_area * total;
+    let hole = params.hole_area * total;
+    let (mut parent, islands_removed, holes_filled) = merge_small(&mut c, island, hole);
+    let keep = c
+        .of_triangle
+        .iter()
+        .map(|&t| c.keep[find(&mut parent, t) as usize])
+        .collect();
+    Selection {
+        keep,
+        islands_removed,
+        holes_filled,
+    }
+}
+
+/// The components of each side (`keep`) of the triangles, joined across shared edges.
+fn components(triangles: &[[u32; 3]], keep: &[bool], areas: &[f64]) -> Components {
     let nf = triangles.len();
     // Every edge with the triangles that use it, grouped by sorting.
     let mut edges: Vec<(u32, u32, u32)> = Vec::with_capacity(3 * nf);
@@ -539,8 +569,26 @@ fn select(
         n.dedup();
     }
 
-    let island = params.min_island_area * total;
-    let hole = params.hole_area * total;
+    Components {
+        of_triangle: comp_of,
+        area: comp_area,
+        keep: comp_keep,
+        neighbours,
+    }
+}
+
+/// Merges components smaller than `island` (kept) or `hole` (discarded) area into their
+/// neighbours, smallest first, each switching side; then removes kept pieces below `island`
+/// with no neighbour at all. Returns the union-find forest over the components and the
+/// numbers of islands removed and holes filled.
+fn merge_small(c: &mut Components, island: f64, hole: f64) -> (Vec<u32>, usize, usize) {
+    let Components {
+        area: comp_area,
+        keep: comp_keep,
+        neighbours,
+        ..
+    } = c;
+    let nc = comp_area.len();
     let small = |area: f64, keep: bool| if keep { area < island } else { area < hole };
     let mut parent: Vec<u32> = (0..nc as u32).collect();
     // Lazy min-heap over (area, component): entries whose area no longer matches are stale.
@@ -610,17 +658,7 @@ fn select(
             }
         }
     }
-    let keep = (0..nf)
-        .map(|f| {
-            let r = find(&mut parent, comp_of[f]) as usize;
-            comp_keep[r]
-        })
-        .collect();
-    Selection {
-        keep,
-        islands_removed,
-        holes_filled,
-    }
+    (parent, islands_removed, holes_filled)
 }
 
 /// Trims `mesh` at a density level (see the [module documentation](self)).

@@ -132,77 +132,12 @@ pub(crate) fn read_e57(
 ) -> Result<PointCloud> {
     let mut e57 = E57Reader::new(reader).map_err(|e| e57_err(path, e))?;
     let scans = e57.pointclouds();
-    // The attributes of all scans, in order of first appearance, with a common type.
     let mut attributes: Vec<Attribute> = Vec::new();
     let mut roles: Vec<Vec<Role>> = Vec::with_capacity(scans.len());
     let mut has_normals = false;
     for (s, pc) in scans.iter().enumerate() {
-        let mut r = Vec::with_capacity(pc.prototype.len());
-        let mut axes = [false; 3];
-        for rec in &pc.prototype {
-            let role = match &rec.name {
-                RecordName::CartesianX => Role::Cartesian(0),
-                RecordName::CartesianY => Role::Cartesian(1),
-                RecordName::CartesianZ => Role::Cartesian(2),
-                RecordName::CartesianInvalidState => Role::CartesianInvalid,
-                RecordName::SphericalRange => Role::Spherical(0),
-                RecordName::SphericalAzimuth => Role::Spherical(1),
-                RecordName::SphericalElevation => Role::Spherical(2),
-                RecordName::SphericalInvalidState => Role::SphericalInvalid,
-                RecordName::IsColorInvalid => Role::ColorInvalid,
-                RecordName::IsIntensityInvalid => Role::IntensityInvalid,
-                RecordName::IsTimeStampInvalid => Role::Skip,
-                name => match (normal_axis(name), attribute_name(name)) {
-                    (Some(a), _) => {
-                        axes[a] = true;
-                        Role::Normal(a)
-                    }
-                    (None, Some(n)) => {
-                        let ty = record_type(&rec.data_type);
-                        let index = match attributes.iter().position(|a| a.name == n) {
-                            Some(i) => {
-                                if attributes[i].data.scalar_type() != ty {
-                                    attributes[i].data = AttributeData::new(ScalarType::F64);
-                                }
-                                i
-                            }
-                            None => {
-                                attributes.push(Attribute::new(n, AttributeData::new(ty)));
-                                attributes.len() - 1
-                            }
-                        };
-                        Role::Attr {
-                            index,
-                            color: matches!(
-                                name,
-                                RecordName::ColorRed
-                                    | RecordName::ColorGreen
-                                    | RecordName::ColorBlue
-                            ),
-                            intensity: matches!(name, RecordName::Intensity),
-                        }
-                    }
-                    (None, None) => Role::Skip,
-                },
-            };
-            r.push(role);
-        }
-        if axes.iter().any(|&a| a) && !axes.iter().all(|&a| a) {
-            return Err(parse_err(
-                path,
-                format!("scan {s} has only some of the normal fields normalX, normalY, normalZ"),
-            ));
-        }
-        has_normals |= axes[0];
-        let has = |f: fn(&Role) -> bool| r.iter().filter(|x| f(x)).count() == 3;
-        if !has(|x| matches!(x, Role::Cartesian(_))) && !has(|x| matches!(x, Role::Spherical(_))) {
-            return Err(parse_err(
-                path,
-                format!(
-                    "scan {s} has neither Cartesian (cartesianX/Y/Z) nor spherical (sphericalRange/Azimuth/Elevation) coordinates"
-                ),
-            ));
-        }
+        let (r, normals) = scan_roles(path, s, pc, &mut attributes)?;
+        has_normals |= normals;
         roles.push(r);
     }
     if need_normals && !has_normals {
@@ -218,93 +153,20 @@ pub(crate) fn read_e57(
         a.data.reserve(cap);
     }
     let mut scan_origins = Vec::with_capacity(scans.len());
-    let mut vals = vec![0.0f64; attributes.len()];
     for (s, (pc, roles)) in scans.iter().zip(&roles).enumerate() {
-        let rot = pc.transform.as_ref().map(rotation);
-        let shift = pc.transform.as_ref().map_or([0.0; 3], |t| {
-            [t.translation.x, t.translation.y, t.translation.z]
-        });
         scan_origins.push(ScanOrigin {
             first_point: positions.len(),
-            origin: shift,
+            origin: pc.transform.as_ref().map_or([0.0; 3], |t| {
+                [t.translation.x, t.translation.y, t.translation.z]
+            }),
         });
-        let use_cartesian = roles
-            .iter()
-            .filter(|r| matches!(r, Role::Cartesian(_)))
-            .count()
-            == 3;
-        let types: Vec<&RecordDataType> = pc.prototype.iter().map(|r| &r.data_type).collect();
-        let iter = e57.pointcloud_raw(pc).map_err(|e| e57_err(path, e))?;
-        for (i, point) in iter.enumerate() {
-            let point = point.map_err(|e| {
-                parse_err(
-                    path,
-                    format!("not a valid E57 file: scan {s}, point {i}: {e}"),
-                )
-            })?;
-            let mut cart = [0.0; 3];
-            let mut sph = [0.0; 3];
-            let mut normal = [0.0; 3];
-            let mut invalid = false;
-            let mut color_invalid = false;
-            let mut intensity_invalid = false;
-            vals.iter_mut().for_each(|v| *v = 0.0);
-            for ((role, value), dt) in roles.iter().zip(&point).zip(&types) {
-                let v = value.to_f64(dt).map_err(|e| {
-                    parse_err(
-                        path,
-                        format!("not a valid E57 file: scan {s}, point {i}: {e}"),
-                    )
-                })?;
-                match *role {
-                    Role::Cartesian(a) => cart[a] = v,
-                    Role::Spherical(a) => sph[a] = v,
-                    Role::Normal(a) => normal[a] = v,
-                    Role::CartesianInvalid if use_cartesian => invalid |= v != 0.0,
-                    Role::SphericalInvalid if !use_cartesian => invalid |= v != 0.0,
-                    Role::ColorInvalid => color_invalid = v != 0.0,
-                    Role::IntensityInvalid => intensity_invalid = v != 0.0,
-                    Role::Attr { index, .. } => vals[index] = v,
-                    _ => {}
-                }
-            }
-            let mut p = if use_cartesian {
-                cart
-            } else {
-                let [r, az, el] = sph;
-                [
-                    r * el.cos() * az.cos(),
-                    r * el.cos() * az.sin(),
-                    r * el.sin(),
-                ]
-            };
-            if invalid {
-                p = [f64::NAN; 3];
-            }
-            if let Some(rot) = &rot {
-                p = apply(rot, p);
-                normal = apply(rot, normal);
-            }
-            positions.push([p[0] + shift[0], p[1] + shift[1], p[2] + shift[2]]);
-            if has_normals {
-                normals.push(normal);
-            }
-            for role in roles {
-                if let Role::Attr {
-                    index,
-                    color,
-                    intensity,
-                } = *role
-                {
-                    if (color && color_invalid) || (intensity && intensity_invalid) {
-                        vals[index] = 0.0;
-                    }
-                }
-            }
-            for (a, &v) in attributes.iter_mut().zip(&vals) {
-                a.data.push_f64(v);
-            }
-        }
+        let mut out = Columns {
+            positions: &mut positions,
+            normals: &mut normals,
+            attributes: &mut attributes,
+            has_normals,
+        };
+        read_scan(path, &mut e57, s, pc, roles, &mut out)?;
     }
     Ok(PointCloud {
         positions,
@@ -312,4 +174,181 @@ pub(crate) fn read_e57(
         attributes,
         scan_origins,
     })
+}
+
+/// The role of each record of scan `s`, adding its attributes to `attributes` (in order of
+/// first appearance, with a common type); also whether the scan has normals.
+fn scan_roles(
+    path: &Path,
+    s: usize,
+    pc: &e57::PointCloud,
+    attributes: &mut Vec<Attribute>,
+) -> Result<(Vec<Role>, bool)> {
+    let mut r = Vec::with_capacity(pc.prototype.len());
+    let mut axes = [false; 3];
+    for rec in &pc.prototype {
+        let role = match &rec.name {
+            RecordName::CartesianX => Role::Cartesian(0),
+            RecordName::CartesianY => Role::Cartesian(1),
+            RecordName::CartesianZ => Role::Cartesian(2),
+            RecordName::CartesianInvalidState => Role::CartesianInvalid,
+            RecordName::SphericalRange => Role::Spherical(0),
+            RecordName::SphericalAzimuth => Role::Spherical(1),
+            RecordName::SphericalElevation => Role::Spherical(2),
+            RecordName::SphericalInvalidState => Role::SphericalInvalid,
+            RecordName::IsColorInvalid => Role::ColorInvalid,
+            RecordName::IsIntensityInvalid => Role::IntensityInvalid,
+            RecordName::IsTimeStampInvalid => Role::Skip,
+            name => match (normal_axis(name), attribute_name(name)) {
+                (Some(a), _) => {
+                    axes[a] = true;
+                    Role::Normal(a)
+                }
+                (None, Some(n)) => {
+                    let ty = record_type(&rec.data_type);
+                    let index = match attributes.iter().position(|a| a.name == n) {
+                        Some(i) => {
+                            if attributes[i].data.scalar_type() != ty {
+                                attributes[i].data = AttributeData::new(ScalarType::F64);
+                            }
+                            i
+                        }
+                        None => {
+                            attributes.push(Attribute::new(n, AttributeData::new(ty)));
+                            attributes.len() - 1
+                        }
+                    };
+                    Role::Attr {
+                        index,
+                        color: matches!(
+                            name,
+                            RecordName::ColorRed | RecordName::ColorGreen | RecordName::ColorBlue
+                        ),
+                        intensity: matches!(name, RecordName::Intensity),
+                    }
+                }
+                (None, None) => Role::Skip,
+            },
+        };
+        r.push(role);
+    }
+    if axes.iter().any(|&a| a) && !axes.iter().all(|&a| a) {
+        return Err(parse_err(
+            path,
+            format!("scan {s} has only some of the normal fields normalX, normalY, normalZ"),
+        ));
+    }
+    let has = |f: fn(&Role) -> bool| r.iter().filter(|x| f(x)).count() == 3;
+    if !has(|x| matches!(x, Role::Cartesian(_))) && !has(|x| matches!(x, Role::Spherical(_))) {
+        return Err(parse_err(
+            path,
+            format!(
+                "scan {s} has neither Cartesian (cartesianX/Y/Z) nor spherical (sphericalRange/Azimuth/Elevation) coordinates"
+            ),
+        ));
+    }
+    Ok((r, axes[0]))
+}
+
+/// Where the points of one scan go.
+struct Columns<'a> {
+    positions: &'a mut Vec<[f64; 3]>,
+    normals: &'a mut Vec<[f64; 3]>,
+    attributes: &'a mut [Attribute],
+    has_normals: bool,
+}
+
+/// Reads the points of scan `s` into `out`, in the file's frame.
+fn read_scan(
+    path: &Path,
+    e57: &mut E57Reader<BufReader<File>>,
+    s: usize,
+    pc: &e57::PointCloud,
+    roles: &[Role],
+    out: &mut Columns,
+) -> Result<()> {
+    let mut vals = vec![0.0f64; out.attributes.len()];
+    let rot = pc.transform.as_ref().map(rotation);
+    let shift = pc.transform.as_ref().map_or([0.0; 3], |t| {
+        [t.translation.x, t.translation.y, t.translation.z]
+    });
+    let use_cartesian = roles
+        .iter()
+        .filter(|r| matches!(r, Role::Cartesian(_)))
+        .count()
+        == 3;
+    let types: Vec<&RecordDataType> = pc.prototype.iter().map(|r| &r.data_type).collect();
+    let iter = e57.pointcloud_raw(pc).map_err(|e| e57_err(path, e))?;
+    for (i, point) in iter.enumerate() {
+        let point = point.map_err(|e| {
+            parse_err(
+                path,
+                format!("not a valid E57 file: scan {s}, point {i}: {e}"),
+            )
+        })?;
+        let mut cart = [0.0; 3];
+        let mut sph = [0.0; 3];
+        let mut normal = [0.0; 3];
+        let mut invalid = false;
+        let mut color_invalid = false;
+        let mut intensity_invalid = false;
+        vals.iter_mut().for_each(|v| *v = 0.0);
+        for ((role, value), dt) in roles.iter().zip(&point).zip(&types) {
+            let v = value.to_f64(dt).map_err(|e| {
+                parse_err(
+                    path,
+                    format!("not a valid E57 file: scan {s}, point {i}: {e}"),
+                )
+            })?;
+            match *role {
+                Role::Cartesian(a) => cart[a] = v,
+                Role::Spherical(a) => sph[a] = v,
+                Role::Normal(a) => normal[a] = v,
+                Role::CartesianInvalid if use_cartesian => invalid |= v != 0.0,
+                Role::SphericalInvalid if !use_cartesian => invalid |= v != 0.0,
+                Role::ColorInvalid => color_invalid = v != 0.0,
+                Role::IntensityInvalid => intensity_invalid = v != 0.0,
+                Role::Attr { index, .. } => vals[index] = v,
+                _ => {}
+            }
+        }
+        let mut p = if use_cartesian {
+            cart
+        } else {
+            let [r, az, el] = sph;
+            [
+                r * el.cos() * az.cos(),
+                r * el.cos() * az.sin(),
+                r * el.sin(),
+            ]
+        };
+        if invalid {
+            p = [f64::NAN; 3];
+        }
+        if let Some(rot) = &rot {
+            p = apply(rot, p);
+            normal = apply(rot, normal);
+        }
+        out.positions
+            .push([p[0] + shift[0], p[1] + shift[1], p[2] + shift[2]]);
+        if out.has_normals {
+            out.normals.push(normal);
+        }
+        for role in roles {
+            if let Role::Attr {
+                index,
+                color,
+                intensity,
+            } = *role
+            {
+                if (color && color_invalid) || (intensity && intensity_invalid) {
+                    vals[index] = 0.0;
+                }
+            }
+        }
+        for (a, &v) in out.attributes.iter_mut().zip(&vals) {
+            a.data.push_f64(v);
+        }
+    }
+    Ok(())
 }

@@ -190,15 +190,23 @@ fn read_line<R: BufRead>(path: &Path, r: &mut R, buf: &mut Vec<u8>) -> Result<us
     Ok(n)
 }
 
+/// The header's lines as written, before they are checked against each other.
+#[derive(Default)]
+struct RawHeader {
+    names: Option<Vec<String>>,
+    sizes: Option<Vec<usize>>,
+    types: Option<Vec<u8>>,
+    counts: Option<Vec<usize>>,
+    width: Option<u64>,
+    height: Option<u64>,
+    points: Option<u64>,
+    viewpoint: Option<[f64; 7]>,
+}
+
 fn parse_header<R: BufRead>(path: &Path, r: &mut R) -> Result<(Header, u64)> {
     let mut buf = Vec::new();
     let mut consumed = 0u64;
-    let mut names: Option<Vec<String>> = None;
-    let mut sizes: Option<Vec<usize>> = None;
-    let mut types: Option<Vec<u8>> = None;
-    let mut counts: Option<Vec<usize>> = None;
-    let (mut width, mut height, mut points) = (None::<u64>, None::<u64>, None::<u64>);
-    let mut viewpoint = None;
+    let mut raw = RawHeader::default();
     let mut line = 0usize;
     let data = loop {
         let n = read_line(path, r, &mut buf)?;
@@ -224,83 +232,149 @@ fn parse_header<R: BufRead>(path: &Path, r: &mut R) -> Result<(Header, u64)> {
             continue;
         }
         let tok: Vec<&str> = t.split_whitespace().collect();
-        let err = |what: String| parse_err(path, format!("header line {line}: {what}"));
-        let numbers = |what: &str| -> Result<Vec<usize>> {
-            tok[1..]
-                .iter()
-                .map(|s| {
-                    s.parse::<usize>().map_err(|_| {
-                        err(format!(
-                            "{what}: '{}' is not a non-negative integer",
-                            short(s)
-                        ))
-                    })
-                })
-                .collect()
-        };
-        let single = |what: &str| -> Result<u64> {
-            match tok[1..] {
-                [s] => s.parse::<u64>().map_err(|_| {
+        if let Some(data) = header_line(path, line, &tok, &mut raw)? {
+            break data;
+        }
+    };
+    let names = raw
+        .names
+        .filter(|n| !n.is_empty())
+        .ok_or_else(|| parse_err(path, "the PCD header has no FIELDS line".into()))?;
+    let sizes = raw
+        .sizes
+        .ok_or_else(|| parse_err(path, "the PCD header has no SIZE line".into()))?;
+    let types = raw
+        .types
+        .ok_or_else(|| parse_err(path, "the PCD header has no TYPE line".into()))?;
+    let counts = raw.counts.unwrap_or_else(|| vec![1; names.len()]);
+    let mut fields = header_fields(path, names, &sizes, &types, &counts)?;
+    let points = point_count(path, raw.points, raw.width, raw.height)?;
+    let has_normals = assign_roles(path, &mut fields)?;
+    Ok((
+        Header {
+            fields,
+            points,
+            data,
+            viewpoint: raw.viewpoint,
+            has_normals,
+            lines: line,
+        },
+        consumed,
+    ))
+}
+
+/// Reads one header line (`tok`, split at white space) into `raw`; the DATA line ends the
+/// header and gives the body's encoding.
+fn header_line(
+    path: &Path,
+    line: usize,
+    tok: &[&str],
+    raw: &mut RawHeader,
+) -> Result<Option<Data>> {
+    let err = |what: String| parse_err(path, format!("header line {line}: {what}"));
+    let numbers = |what: &str| -> Result<Vec<usize>> {
+        tok[1..]
+            .iter()
+            .map(|s| {
+                s.parse::<usize>().map_err(|_| {
                     err(format!(
                         "{what}: '{}' is not a non-negative integer",
                         short(s)
                     ))
-                }),
-                _ => Err(err(format!("{what} needs exactly one number"))),
-            }
-        };
-        match tok[0].to_ascii_uppercase().as_str() {
-            "VERSION" => {}
-            "FIELDS" | "COLUMNS" => names = Some(tok[1..].iter().map(|s| s.to_string()).collect()),
-            "SIZE" => sizes = Some(numbers("SIZE")?),
-            "COUNT" => counts = Some(numbers("COUNT")?),
-            "TYPE" => {
-                let mut v = Vec::new();
-                for s in &tok[1..] {
-                    match s.to_ascii_uppercase().as_str() {
-                        "I" => v.push(b'I'),
-                        "U" => v.push(b'U'),
-                        "F" => v.push(b'F'),
-                        _ => return Err(err(format!("TYPE '{}' is not I, U or F", short(s)))),
-                    }
-                }
-                types = Some(v);
-            }
-            "WIDTH" => width = Some(single("WIDTH")?),
-            "HEIGHT" => height = Some(single("HEIGHT")?),
-            "POINTS" => points = Some(single("POINTS")?),
-            "VIEWPOINT" => {
-                let v: Option<Vec<f64>> = tok[1..].iter().map(|s| s.parse().ok()).collect();
-                match v.as_deref() {
-                    Some(&[a, b, c, d, e, f, g]) => viewpoint = Some([a, b, c, d, e, f, g]),
-                    _ => {
-                        return Err(err(
-                            "VIEWPOINT needs seven numbers (tx ty tz qw qx qy qz)".into()
-                        ))
-                    }
-                }
-            }
-            "DATA" => match tok.get(1).map(|s| s.to_ascii_lowercase()).as_deref() {
-                Some("ascii") => break Data::Ascii,
-                Some("binary") => break Data::Binary,
-                Some("binary_compressed") => break Data::Compressed,
-                other => {
-                    return Err(err(format!(
-                        "unknown DATA '{}' (expected ascii, binary or binary_compressed)",
-                        short(other.unwrap_or(""))
-                    )))
-                }
-            },
-            other => return Err(err(format!("unknown keyword '{}'", short(other)))),
+                })
+            })
+            .collect()
+    };
+    let single = |what: &str| -> Result<u64> {
+        match tok[1..] {
+            [s] => s.parse::<u64>().map_err(|_| {
+                err(format!(
+                    "{what}: '{}' is not a non-negative integer",
+                    short(s)
+                ))
+            }),
+            _ => Err(err(format!("{what} needs exactly one number"))),
         }
     };
-    let names = names
-        .filter(|n| !n.is_empty())
-        .ok_or_else(|| parse_err(path, "the PCD header has no FIELDS line".into()))?;
+    match tok[0].to_ascii_uppercase().as_str() {
+        "VERSION" => {}
+        "FIELDS" | "COLUMNS" => raw.names = Some(tok[1..].iter().map(|s| s.to_string()).collect()),
+        "SIZE" => raw.sizes = Some(numbers("SIZE")?),
+        "COUNT" => raw.counts = Some(numbers("COUNT")?),
+        "TYPE" => {
+            let mut v = Vec::new();
+            for s in &tok[1..] {
+                match s.to_ascii_uppercase().as_str() {
+                    "I" => v.push(b'I'),
+                    "U" => v.push(b'U'),
+                    "F" => v.push(b'F'),
+                    _ => return Err(err(format!("TYPE '{}' is not I, U or F", short(s)))),
+                }
+            }
+            raw.types = Some(v);
+        }
+        "WIDTH" => raw.width = Some(single("WIDTH")?),
+        "HEIGHT" => raw.height = Some(single("HEIGHT")?),
+        "POINTS" => raw.points = Some(single("POINTS")?),
+        "VIEWPOINT" => {
+            let v: Option<Vec<f64>> = tok[1..].iter().map(|s| s.parse().ok()).collect();
+            match v.as_deref() {
+                Some(&[a, b, c, d, e, f, g]) => raw.viewpoint = Some([a, b, c, d, e, f, g]),
+                _ => {
+                    return Err(err(
+                        "VIEWPOINT needs seven numbers (tx ty tz qw qx qy qz)".into()
+                    ))
+                }
+            }
+        }
+        "DATA" => {
+            return match tok.get(1).map(|s| s.to_ascii_lowercase()).as_deref() {
+                Some("ascii") => Ok(Some(Data::Ascii)),
+                Some("binary") => Ok(Some(Data::Binary)),
+                Some("binary_compressed") => Ok(Some(Data::Compressed)),
+                other => Err(err(format!(
+                    "unknown DATA '{}' (expected ascii, binary or binary_compressed)",
+                    short(other.unwrap_or(""))
+                ))),
+            }
+        }
+        other => return Err(err(format!("unknown keyword '{}'", short(other)))),
+    }
+    Ok(None)
+}
+
+/// The number of points: POINTS, which must agree with WIDTH × HEIGHT when both are given.
+fn point_count(
+    path: &Path,
+    points: Option<u64>,
+    width: Option<u64>,
+    height: Option<u64>,
+) -> Result<u64> {
+    match (points, width, height) {
+        (Some(p), Some(w), Some(h)) if w.checked_mul(h) != Some(p) => Err(parse_err(
+            path,
+            format!("the PCD header says POINTS {p} but WIDTH × HEIGHT = {w} × {h}"),
+        )),
+        (Some(p), _, _) => Ok(p),
+        (None, Some(w), h) => w
+            .checked_mul(h.unwrap_or(1))
+            .ok_or_else(|| parse_err(path, "WIDTH × HEIGHT is too large".into())),
+        (None, None, _) => Err(parse_err(
+            path,
+            "the PCD header has neither POINTS nor WIDTH".into(),
+        )),
+    }
+}
+
+/// The fields of the header's FIELDS, SIZE, TYPE and COUNT lines, checked.
+fn header_fields(
+    path: &Path,
+    names: Vec<String>,
+    sizes: &[usize],
+    types: &[u8],
+    counts: &[usize],
+) -> Result<Vec<Field>> {
     let nf = names.len();
-    let sizes = sizes.ok_or_else(|| parse_err(path, "the PCD header has no SIZE line".into()))?;
-    let types = types.ok_or_else(|| parse_err(path, "the PCD header has no TYPE line".into()))?;
-    let counts = counts.unwrap_or_else(|| vec![1; nf]);
     for (what, len) in [
         ("SIZE", sizes.len()),
         ("TYPE", types.len()),
@@ -313,26 +387,8 @@ fn parse_header<R: BufRead>(path: &Path, r: &mut R) -> Result<(Header, u64)> {
             ));
         }
     }
-    let points = match (points, width, height) {
-        (Some(p), Some(w), Some(h)) if w.checked_mul(h) != Some(p) => {
-            return Err(parse_err(
-                path,
-                format!("the PCD header says POINTS {p} but WIDTH × HEIGHT = {w} × {h}"),
-            ))
-        }
-        (Some(p), _, _) => p,
-        (None, Some(w), h) => w
-            .checked_mul(h.unwrap_or(1))
-            .ok_or_else(|| parse_err(path, "WIDTH × HEIGHT is too large".into()))?,
-        (None, None, _) => {
-            return Err(parse_err(
-                path,
-                "the PCD header has neither POINTS nor WIDTH".into(),
-            ))
-        }
-    };
     let mut fields = Vec::with_capacity(nf);
-    for i in 0..nf {
+    for (i, name) in names.into_iter().enumerate() {
         let ty = Ty {
             kind: types[i],
             size: sizes[i],
@@ -346,7 +402,7 @@ fn parse_header<R: BufRead>(path: &Path, r: &mut R) -> Result<(Header, u64)> {
                 path,
                 format!(
                     "field '{}' has TYPE {} with SIZE {} (allowed: I and U with 1, 2, 4 or 8 bytes, F with 4 or 8)",
-                    names[i], ty.kind as char, ty.size
+                    name, ty.kind as char, ty.size
                 ),
             ));
         }
@@ -355,29 +411,18 @@ fn parse_header<R: BufRead>(path: &Path, r: &mut R) -> Result<(Header, u64)> {
                 path,
                 format!(
                     "field '{}' has COUNT {} (expected 1 to 100000)",
-                    names[i], counts[i]
+                    name, counts[i]
                 ),
             ));
         }
         fields.push(Field {
-            name: names[i].clone(),
+            name,
             ty,
             count: counts[i],
             role: Role::Skip,
         });
     }
-    let has_normals = assign_roles(path, &mut fields)?;
-    Ok((
-        Header {
-            fields,
-            points,
-            data,
-            viewpoint,
-            has_normals,
-            lines: line,
-        },
-        consumed,
-    ))
+    Ok(fields)
 }
 
 fn short(s: &str) -> String {
