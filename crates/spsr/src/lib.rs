@@ -24,6 +24,7 @@ pub mod extract;
 pub mod io;
 pub mod mesh;
 pub mod metrics;
+mod morton;
 pub mod normals;
 mod octree;
 mod params;

@@ -9,6 +9,7 @@
 use rayon::prelude::*;
 
 use crate::mesh::Topology;
+use crate::morton::BoxKeys;
 use crate::{Error, Mesh, Result};
 
 type V3 = [f64; 3];
@@ -767,46 +768,17 @@ fn diagonal(mesh: &Mesh) -> f64 {
     norm2(sub(hi, lo)).sqrt()
 }
 
-/// The Morton (Z-order) key of a point of the box `lo..hi`, 21 bits per axis.
-fn morton(lo: V3, hi: V3) -> impl Fn(V3) -> u64 + Sync {
-    let spread = (0..3).map(|k| hi[k] - lo[k]).fold(0.0, f64::max);
-    let scale = if spread > 0.0 {
-        ((1u64 << 21) - 1) as f64 / spread
-    } else {
-        0.0
-    };
-    let spread_bits = |x: u64| {
-        let mut x = x & 0x1f_ffff;
-        x = (x | x << 32) & 0x1f_0000_0000_ffff;
-        x = (x | x << 16) & 0x1f_0000_ff00_00ff;
-        x = (x | x << 8) & 0x100f_00f0_0f00_f00f;
-        x = (x | x << 4) & 0x10c3_0c30_c30c_30c3;
-        (x | x << 2) & 0x1249_2492_4924_9249
-    };
-    move |p: V3| {
-        // Saturating float-to-int casts keep out-of-box or NaN input in range.
-        let q = |k: usize| (((p[k] - lo[k]) * scale) as u64).min((1 << 21) - 1);
-        spread_bits(q(0)) | spread_bits(q(1)) << 1 | spread_bits(q(2)) << 2
-    }
-}
-
 /// Sorts samples along a Morton (Z-order) curve, so consecutive queries visit the same parts
 /// of the hierarchy (far fewer cache misses). The order is fully determined by the samples.
 fn sort_spatially(samples: &mut [SurfaceSample]) {
     if samples.is_empty() {
         return;
     }
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for s in samples.iter() {
-        for k in 0..3 {
-            lo[k] = lo[k].min(s.point[k]);
-            hi[k] = hi[k].max(s.point[k]);
-        }
-    }
-    let key = morton(lo, hi);
-    let mut keyed: Vec<(u64, SurfaceSample)> =
-        samples.par_iter().map(|s| (key(s.point), *s)).collect();
+    let keys = BoxKeys::around(samples.iter().map(|s| s.point));
+    let mut keyed: Vec<(u64, SurfaceSample)> = samples
+        .par_iter()
+        .map(|s| (keys.key(s.point), *s))
+        .collect();
     // Stable, so equal keys keep their (deterministic) sample order.
     keyed.par_sort_by_key(|e| e.0);
     samples
