@@ -33,6 +33,7 @@ mod reconstruct;
 mod solver;
 mod system;
 pub mod trim;
+mod vec3;
 
 pub use bspline::Boundary;
 pub use error::{Error, Result};

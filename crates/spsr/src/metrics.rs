@@ -10,33 +10,8 @@ use rayon::prelude::*;
 
 use crate::mesh::Topology;
 use crate::morton::BoxKeys;
+use crate::vec3::{add, cross, dot, norm, norm2, scale, sub, V3};
 use crate::{Error, Mesh, Result};
-
-type V3 = [f64; 3];
-
-#[inline]
-fn sub(x: V3, y: V3) -> V3 {
-    [x[0] - y[0], x[1] - y[1], x[2] - y[2]]
-}
-
-#[inline]
-fn dot(x: V3, y: V3) -> f64 {
-    x[0] * y[0] + x[1] * y[1] + x[2] * y[2]
-}
-
-#[inline]
-fn cross(a: V3, b: V3) -> V3 {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-#[inline]
-fn norm2(x: V3) -> f64 {
-    dot(x, x)
-}
 
 /// The point of the triangle `abc` closest to `p` (exact, by the Voronoi regions of the
 /// triangle's vertices, edges and face; degenerate triangles are handled as segments or points).
@@ -58,7 +33,7 @@ pub fn closest_point_on_triangle(p: V3, a: V3, b: V3, c: V3) -> V3 {
     let vc = d1 * d4 - d3 * d2;
     if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
         let v = d1 / (d1 - d3);
-        return [a[0] + v * ab[0], a[1] + v * ab[1], a[2] + v * ab[2]];
+        return add(a, scale(ab, v));
     }
     let cp = sub(p, c);
     let d5 = dot(ab, cp);
@@ -69,13 +44,13 @@ pub fn closest_point_on_triangle(p: V3, a: V3, b: V3, c: V3) -> V3 {
     let vb = d5 * d2 - d1 * d6;
     if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
         let w = d2 / (d2 - d6);
-        return [a[0] + w * ac[0], a[1] + w * ac[1], a[2] + w * ac[2]];
+        return add(a, scale(ac, w));
     }
     let va = d3 * d6 - d5 * d4;
     if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
         let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
         let bc = sub(c, b);
-        return [b[0] + w * bc[0], b[1] + w * bc[1], b[2] + w * bc[2]];
+        return add(b, scale(bc, w));
     }
     let denom = va + vb + vc;
     if denom.abs() < f64::MIN_POSITIVE || !denom.is_finite() {
@@ -88,11 +63,7 @@ pub fn closest_point_on_triangle(p: V3, a: V3, b: V3, c: V3) -> V3 {
     }
     let v = vb / denom;
     let w = vc / denom;
-    [
-        a[0] + ab[0] * v + ac[0] * w,
-        a[1] + ab[1] * v + ac[1] * w,
-        a[2] + ab[2] * v + ac[2] * w,
-    ]
+    add(add(a, scale(ab, v)), scale(ac, w))
 }
 
 fn closest_point_on_segment(p: V3, a: V3, b: V3) -> V3 {
@@ -102,18 +73,18 @@ fn closest_point_on_segment(p: V3, a: V3, b: V3) -> V3 {
         return a;
     }
     let t = (dot(sub(p, a), ab) / l).clamp(0.0, 1.0);
-    [a[0] + t * ab[0], a[1] + t * ab[1], a[2] + t * ab[2]]
+    add(a, scale(ab, t))
 }
 
 /// Exact Euclidean distance from `p` to the triangle `abc` (closest point by Voronoi regions).
 pub fn point_triangle_distance(p: V3, a: V3, b: V3, c: V3) -> f64 {
-    norm2(sub(p, closest_point_on_triangle(p, a, b, c))).sqrt()
+    norm(sub(p, closest_point_on_triangle(p, a, b, c)))
 }
 
 /// Unit normal of the triangle `abc` (counter-clockwise), or zero for a degenerate triangle.
 pub fn triangle_normal(a: V3, b: V3, c: V3) -> V3 {
     let n = cross(sub(b, a), sub(c, a));
-    let l = norm2(n).sqrt();
+    let l = norm(n);
     if l > 0.0 && l.is_finite() {
         [n[0] / l, n[1] / l, n[2] / l]
     } else {
@@ -479,7 +450,7 @@ pub fn sample_surface_with_normals(mesh: &Mesh, n: usize, seed: u64) -> Vec<Surf
                 return 0.0;
             }
             let [a, b, c] = t.map(|i| mesh.vertices[i as usize]);
-            let a2 = 0.5 * norm2(cross(sub(b, a), sub(c, a))).sqrt();
+            let a2 = 0.5 * norm(cross(sub(b, a), sub(c, a)));
             if a2.is_finite() {
                 a2
             } else {
@@ -765,7 +736,7 @@ fn diagonal(mesh: &Mesh) -> f64 {
             }
         }
     }
-    norm2(sub(hi, lo)).sqrt()
+    norm(sub(hi, lo))
 }
 
 /// Sorts samples along a Morton (Z-order) curve, so consecutive queries visit the same parts
@@ -810,7 +781,7 @@ fn measure_against_sphere(samples: &[SurfaceSample], center: V3, radius: f64) ->
         .par_iter()
         .map(|s| {
             let d = sub(s.point, center);
-            let r = norm2(d).sqrt();
+            let r = norm(d);
             // At the centre every point of the sphere is closest; no radial direction exists.
             let cos = if r > 0.0 {
                 (dot(s.normal, d) / r).abs().min(1.0)
@@ -1090,7 +1061,7 @@ mod tests {
             // The reported triangle really is at that distance, and so is the reported point.
             let [a, b, cc] = mesh.triangles[c.triangle as usize].map(|v| mesh.vertices[v as usize]);
             assert!((point_triangle_distance(p, a, b, cc) - bd).abs() < 1e-12);
-            assert!((norm2(sub(p, c.point)).sqrt() - bd).abs() < 1e-12);
+            assert!((norm(sub(p, c.point)) - bd).abs() < 1e-12);
             if c.triangle as usize != bt {
                 // Only a tie may pick another triangle.
                 let [a, b, cc] = mesh.triangles[bt].map(|v| mesh.vertices[v as usize]);
@@ -1159,13 +1130,13 @@ mod tests {
         let mut mean = [0.0; 3];
         for x in &s {
             let d = sub(x.point, [1.0, 2.0, 3.0]);
-            assert!((norm2(d).sqrt() - 2.0).abs() < 1e-12);
+            assert!((norm(d) - 2.0).abs() < 1e-12);
             assert!((dot(d, x.normal) - 2.0).abs() < 1e-12);
             for k in 0..3 {
                 mean[k] += x.normal[k] / s.len() as f64;
             }
         }
-        assert!(norm2(mean).sqrt() < 0.02, "{mean:?}");
+        assert!(norm(mean) < 0.02, "{mean:?}");
         // Upper hemisphere above z = 0.5 holds a quarter of the area (Archimedes).
         let cap = s.iter().filter(|x| x.normal[2] > 0.5).count() as f64 / s.len() as f64;
         assert!((cap - 0.25).abs() < 0.01, "{cap}");
