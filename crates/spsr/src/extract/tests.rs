@@ -1,7 +1,9 @@
 //! Extraction tests on analytic fields and synthetic octrees.
 
+use super::blocks::extract_impl;
+use super::vertex::edge_root;
 use super::*;
-use crate::mesh::Topology;
+use crate::mesh::{Mesh, Topology};
 use crate::vec3::{norm, norm2, sub};
 use std::collections::{HashMap, HashSet};
 
