@@ -5,12 +5,12 @@
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
-use super::cells::{bad_leaves, LeafSet};
-use super::faces::{face, Here};
+use super::cells::{bad_leaves, check_depth, LeafSet};
+use super::faces::{leaf_faces, Here};
 use super::table::Table;
-use super::triangulate::finish_leaf;
-use super::vertex::Crossing;
-use super::{pack, Cells, Field, Leaf, BARY, MAX_SUPPORTED_DEPTH};
+use super::triangulate::triangulate_loops;
+use super::vertex::{place_vertices, Crossing};
+use super::{pack, Cells, Field, Leaf, BARY};
 use crate::mesh::Mesh;
 
 /// Options of [`extract`].
@@ -168,14 +168,7 @@ pub fn extract_blocks<C: Cells>(
     opts: &ExtractOptions,
 ) -> crate::Result<Blocks> {
     let max_depth = cells.max_depth();
-    if max_depth > MAX_SUPPORTED_DEPTH {
-        return Err(crate::Error::InvalidParameter {
-            name: "--depth",
-            message: format!(
-                "extraction supports depths up to {MAX_SUPPORTED_DEPTH}, got {max_depth}"
-            ),
-        });
-    }
+    check_depth(max_depth)?;
     let ctx = Ctx {
         cells,
         field,
@@ -249,7 +242,6 @@ impl Blocks {
         let mut normals: Vec<[f32; 3]> = Vec::with_capacity(if with_normals { total } else { 0 });
         let mut vertices = Vec::with_capacity(total);
         let mut is_edge = Vec::with_capacity(if cfg!(test) { total } else { 0 });
-        let mut unowned = false;
         for (c, &base) in chunks.into_iter().zip(&bases) {
             let bary_base = (base + c.owned_keys.len()) as u64;
             triangles.par_extend(c.tris.par_iter().map(|t| {
@@ -273,44 +265,19 @@ impl Blocks {
             }
         }
         drop(vt);
-        unowned |= triangles.par_iter().flatten().any(|&i| i == u32::MAX);
+        let unowned = triangles.par_iter().flatten().any(|&i| i == u32::MAX);
         if unowned {
             return Err(bad_leaves(
                 "the leaves do not tile the unit cube (unowned iso-vertex)",
             ));
         }
-        // Drop vertices no triangle uses (possible only next to dropped two-vertex loops).
-        let mut used = vec![false; vertices.len()];
-        for &i in triangles.iter().flatten() {
-            used[i as usize] = true;
-        }
-        if used.iter().any(|&u| !u) {
-            let mut remap = vec![u32::MAX; vertices.len()];
-            let mut kept = Vec::with_capacity(vertices.len());
-            let mut kept_nrm = Vec::with_capacity(normals.len());
-            for (i, v) in vertices.iter().enumerate() {
-                if used[i] {
-                    remap[i] = kept.len() as u32;
-                    kept.push(*v);
-                    if with_normals {
-                        kept_nrm.push(normals[i]);
-                    }
-                }
-            }
-            vertices = kept;
-            normals = kept_nrm;
-            if cfg!(test) {
-                is_edge = is_edge
-                    .iter()
-                    .zip(&used)
-                    .filter(|(_, &u)| u)
-                    .map(|(&e, _)| e)
-                    .collect();
-            }
-            triangles
-                .par_iter_mut()
-                .for_each(|t| *t = t.map(|i| remap[i as usize]));
-        }
+        drop_unused(
+            &mut vertices,
+            &mut normals,
+            with_normals,
+            &mut is_edge,
+            &mut triangles,
+        );
         Ok((
             Mesh {
                 vertices,
@@ -322,6 +289,49 @@ impl Blocks {
             is_edge,
         ))
     }
+}
+
+/// Drops the vertices no triangle uses (possible only next to dropped two-vertex loops), with
+/// their normals and (in test builds) edge flags, and renumbers the triangles.
+fn drop_unused(
+    vertices: &mut Vec<[f64; 3]>,
+    normals: &mut Vec<[f32; 3]>,
+    with_normals: bool,
+    is_edge: &mut Vec<bool>,
+    triangles: &mut [[u32; 3]],
+) {
+    let mut used = vec![false; vertices.len()];
+    for &i in triangles.iter().flatten() {
+        used[i as usize] = true;
+    }
+    if used.iter().all(|&u| u) {
+        return;
+    }
+    let mut remap = vec![u32::MAX; vertices.len()];
+    let mut kept = Vec::with_capacity(vertices.len());
+    let mut kept_nrm = Vec::with_capacity(normals.len());
+    for (i, v) in vertices.iter().enumerate() {
+        if used[i] {
+            remap[i] = kept.len() as u32;
+            kept.push(*v);
+            if with_normals {
+                kept_nrm.push(normals[i]);
+            }
+        }
+    }
+    *vertices = kept;
+    *normals = kept_nrm;
+    if cfg!(test) {
+        *is_edge = is_edge
+            .iter()
+            .zip(&used)
+            .filter(|(_, &u)| u)
+            .map(|(&e, _)| e)
+            .collect();
+    }
+    triangles
+        .par_iter_mut()
+        .for_each(|t| *t = t.map(|i| remap[i as usize]));
 }
 
 /// Builds and triangulates the iso-polygons of one leaf.
@@ -363,23 +373,10 @@ fn process_leaf<C: Cells>(
     };
     sc.cross.clear();
     sc.segs.clear();
-    for n in 0..3 {
-        let (u, v) = ((n + 1) % 3, (n + 2) % 3);
-        for side in 0..2u32 {
-            let mut origin = lo;
-            origin[n] += side * s;
-            let c0 = (side as usize) << n;
-            let known = [
-                cidx[c0],
-                cidx[c0 | 1 << u],
-                cidx[c0 | 1 << u | 1 << v],
-                cidx[c0 | 1 << v],
-            ];
-            face(ctx, sc, &here, origin, s, n, side == 0, Some(known));
-        }
-    }
+    leaf_faces(ctx, sc, here, lo, s, &cidx);
     if sc.segs.is_empty() || sc.bad {
         return;
     }
-    finish_leaf(ctx, sc, lo, s, out);
+    place_vertices(ctx, sc, lo, s, out);
+    triangulate_loops(sc, lo, s, out);
 }

@@ -69,6 +69,19 @@ pub(super) fn bad_leaves(message: &str) -> crate::Error {
     }
 }
 
+/// Rejects a `max_depth` beyond [`MAX_SUPPORTED_DEPTH`].
+pub(super) fn check_depth(max_depth: u32) -> crate::Result<()> {
+    if max_depth > MAX_SUPPORTED_DEPTH {
+        return Err(crate::Error::InvalidParameter {
+            name: "--depth",
+            message: format!(
+                "extraction supports depths up to {MAX_SUPPORTED_DEPTH}, got {max_depth}"
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// A leaf list as [`Cells`]: the refined cells are the leaves' proper ancestors, and the
 /// blocks are the cells of the shallowest leaf depth (at most 3).
 pub(super) struct LeafSet<'a> {
@@ -80,14 +93,7 @@ pub(super) struct LeafSet<'a> {
 
 impl<'a> LeafSet<'a> {
     pub(super) fn new(leaves: &'a [Leaf], max_depth: u32) -> crate::Result<Self> {
-        if max_depth > MAX_SUPPORTED_DEPTH {
-            return Err(crate::Error::InvalidParameter {
-                name: "--depth",
-                message: format!(
-                    "extraction supports depths up to {MAX_SUPPORTED_DEPTH}, got {max_depth}"
-                ),
-            });
-        }
+        check_depth(max_depth)?;
         if leaves.is_empty() {
             return Err(bad_leaves("no leaves: they must tile the unit cube"));
         }

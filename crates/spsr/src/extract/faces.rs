@@ -44,147 +44,246 @@ fn depth_of(ctx_max: u32, size: u32) -> u32 {
     ctx_max - size.trailing_zeros()
 }
 
-/// Visits the pieces tiling the square `origin + [0,size]²` (normal `n`) of a leaf face; the
-/// leaf lies above the square when `flip`, below otherwise.
-#[allow(clippy::too_many_arguments)]
-pub(super) fn face<C: Cells>(
-    ctx: &Ctx<C>,
-    sc: &mut Scratch<C::Handle>,
-    here: &Here<C::Handle>,
+/// A square of a leaf face: `origin + [0,size]²` in the plane normal to axis `n`; the leaf
+/// lies above it when `flip`, below otherwise.
+#[derive(Clone, Copy)]
+struct Square {
     origin: [u32; 3],
     size: u32,
     n: usize,
     flip: bool,
-    known: Option<[u32; 4]>,
-) {
-    let (u, v) = ((n + 1) % 3, (n + 2) % 3);
-    if size > 1 {
-        // The square is subdivided iff the cell of its size across it is refined.
-        let k = depth_of(ctx.max_depth, size);
-        let across = if flip {
-            origin[n].checked_sub(size)
-        } else {
-            (origin[n] < ctx.full).then_some(origin[n])
-        };
-        if let Some(a) = across {
-            let mut cell = origin.map(|x| x / size);
-            cell[n] = a / size;
-            if here.refined(ctx.cells, k, cell) {
-                let half = size / 2;
-                for (du, dv) in [(0, 0), (1, 0), (1, 1), (0, 1)] {
-                    let mut o = origin;
-                    o[u] += du * half;
-                    o[v] += dv * half;
-                    face(ctx, sc, here, o, half, n, flip, None);
-                }
-                return;
-            }
-        }
-    }
-    piece(ctx, sc, here, origin, size, n, flip, known);
 }
 
-/// Whether the midpoint of the dyadic segment from `a` (length `len` along `axis`, towards +
-/// when `forward`) is a leaf corner: iff one of the four cells of size `len` around the
-/// segment is refined.
-fn segment_split<C: Cells>(
-    ctx: &Ctx<C>,
-    here: &Here<C::Handle>,
+impl Square {
+    /// The in-plane axes `(u, v)`, so that `(u, v, n)` is a cyclic order of the axes.
+    #[inline]
+    fn axes(&self) -> (usize, usize) {
+        ((self.n + 1) % 3, (self.n + 2) % 3)
+    }
+}
+
+/// A dyadic segment: from `a`, `len` long along `axis`, towards + when `forward`.
+#[derive(Clone, Copy)]
+struct Side {
     a: [u32; 3],
     axis: usize,
     forward: bool,
     len: u32,
-) -> bool {
-    let k = depth_of(ctx.max_depth, len);
-    let mut e = a;
-    if !forward {
-        e[axis] -= len;
-    }
-    let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
-    let cell_count = ctx.full / len;
-    for du in 0..2u32 {
-        for dv in 0..2u32 {
-            let (Some(cu), Some(cv)) = ((e[u] / len).checked_sub(du), (e[v] / len).checked_sub(dv))
-            else {
-                continue;
+}
+
+/// The walk over one leaf's boundary: the shared state, and the leaf.
+struct Walk<'a, C: Cells> {
+    ctx: &'a Ctx<'a, C>,
+    here: Here<C::Handle>,
+}
+
+/// Visits the six faces of the leaf at `lo` (size `s`) whose corners have the cache indices
+/// `cidx` (bit `a` of the corner number set for the far side along axis `a`), appending the
+/// leaf's crossings and oriented segments.
+pub(super) fn leaf_faces<C: Cells>(
+    ctx: &Ctx<C>,
+    sc: &mut Scratch<C::Handle>,
+    here: Here<C::Handle>,
+    lo: [u32; 3],
+    s: u32,
+    cidx: &[u32; 8],
+) {
+    let walk = Walk { ctx, here };
+    for n in 0..3 {
+        let (u, v) = ((n + 1) % 3, (n + 2) % 3);
+        for side in 0..2u32 {
+            let mut origin = lo;
+            origin[n] += side * s;
+            let c0 = (side as usize) << n;
+            let known = [
+                cidx[c0],
+                cidx[c0 | 1 << u],
+                cidx[c0 | 1 << u | 1 << v],
+                cidx[c0 | 1 << v],
+            ];
+            let square = Square {
+                origin,
+                size: s,
+                n,
+                flip: side == 0,
             };
-            if cu >= cell_count || cv >= cell_count {
-                continue;
-            }
-            let mut cell = [0u32; 3];
-            cell[axis] = e[axis] / len;
-            cell[u] = cu;
-            cell[v] = cv;
-            if here.refined(ctx.cells, k, cell) {
-                return true;
-            }
+            walk.face(sc, square, Some(known));
         }
     }
-    false
 }
 
-/// Pushes the leaf corners strictly inside the dyadic segment from `a` (length `len` along
-/// `axis`, direction `forward`), in order from `a`.
-#[allow(clippy::too_many_arguments)]
-fn split_side<C: Cells>(
-    ctx: &Ctx<C>,
-    sc: &mut Scratch<C::Handle>,
-    here: &Here<C::Handle>,
-    a: [u32; 3],
-    axis: usize,
-    forward: bool,
-    len: u32,
-) {
-    if len <= 1 || !segment_split(ctx, here, a, axis, forward, len) {
-        return;
+impl<C: Cells> Walk<'_, C> {
+    /// Visits the pieces tiling the square `sq` of a leaf face. `known` holds the cache indices of
+    /// the square's corners (counter-clockwise around +n from the origin) when the caller has them.
+    fn face(&self, sc: &mut Scratch<C::Handle>, sq: Square, known: Option<[u32; 4]>) {
+        let Square {
+            origin, size, n, ..
+        } = sq;
+        let (u, v) = sq.axes();
+        if size > 1 {
+            // The square is subdivided iff the cell of its size across it is refined.
+            let k = depth_of(self.ctx.max_depth, size);
+            let across = if sq.flip {
+                origin[n].checked_sub(size)
+            } else {
+                (origin[n] < self.ctx.full).then_some(origin[n])
+            };
+            if let Some(a) = across {
+                let mut cell = origin.map(|x| x / size);
+                cell[n] = a / size;
+                if self.here.refined(self.ctx.cells, k, cell) {
+                    let half = size / 2;
+                    for (du, dv) in [(0, 0), (1, 0), (1, 1), (0, 1)] {
+                        let mut o = origin;
+                        o[u] += du * half;
+                        o[v] += dv * half;
+                        let quarter = Square {
+                            origin: o,
+                            size: half,
+                            ..sq
+                        };
+                        self.face(sc, quarter, None);
+                    }
+                    return;
+                }
+            }
+        }
+        self.piece(sc, sq, known);
     }
-    let half = len / 2;
-    let mut m = a;
-    if forward {
-        m[axis] += half;
-    } else {
-        m[axis] -= half;
+
+    /// Whether the midpoint of the dyadic segment `side` is a leaf corner: iff one of the four
+    /// cells of size `len` around the segment is refined.
+    fn segment_split(&self, side: Side) -> bool {
+        let Side {
+            a,
+            axis,
+            forward,
+            len,
+        } = side;
+        let k = depth_of(self.ctx.max_depth, len);
+        let mut e = a;
+        if !forward {
+            e[axis] -= len;
+        }
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        let cell_count = self.ctx.full / len;
+        for du in 0..2u32 {
+            for dv in 0..2u32 {
+                let (Some(cu), Some(cv)) =
+                    ((e[u] / len).checked_sub(du), (e[v] / len).checked_sub(dv))
+                else {
+                    continue;
+                };
+                if cu >= cell_count || cv >= cell_count {
+                    continue;
+                }
+                let mut cell = [0u32; 3];
+                cell[axis] = e[axis] / len;
+                cell[u] = cu;
+                cell[v] = cv;
+                if self.here.refined(self.ctx.cells, k, cell) {
+                    return true;
+                }
+            }
+        }
+        false
     }
-    split_side(ctx, sc, here, a, axis, forward, half);
-    let i = sc.corners.get(ctx, m);
-    sc.bv.push((m, i));
-    split_side(ctx, sc, here, m, axis, forward, half);
+
+    /// Pushes the leaf corners strictly inside the dyadic segment `side`, in order from its start.
+    fn split_side(&self, sc: &mut Scratch<C::Handle>, side: Side) {
+        if side.len <= 1 || !self.segment_split(side) {
+            return;
+        }
+        let half = side.len / 2;
+        let mut m = side.a;
+        if side.forward {
+            m[side.axis] += half;
+        } else {
+            m[side.axis] -= half;
+        }
+        self.split_side(sc, Side { len: half, ..side });
+        let i = sc.corners.get(self.ctx, m);
+        sc.bv.push((m, i));
+        self.split_side(
+            sc,
+            Side {
+                a: m,
+                len: half,
+                ..side
+            },
+        );
+    }
+
+    /// Marching squares on one face piece; appends its oriented segments and crossings.
+    fn piece(&self, sc: &mut Scratch<C::Handle>, sq: Square, known: Option<[u32; 4]>) {
+        let idx = self.piece_boundary(sc, sq, known);
+        let d = &sc.corners.d;
+        let first = d[sc.bv[0].1 as usize] > 0.0;
+        if sc.bv.iter().all(|b| (d[b.1 as usize] > 0.0) == first) {
+            return;
+        }
+        piece_crossings(sc);
+        // Pairing rule (see module docs).
+        let d = &sc.corners.d;
+        let f = idx.map(|i| d[i as usize]);
+        let fin = f.map(|x| x > 0.0);
+        let join_outside = sc.cr.len() == 4
+            && fin[0] == fin[2]
+            && fin[1] == fin[3]
+            && fin[0] != fin[1]
+            && (f[0] * f[2] - f[1] * f[3]) / (f[0] + f[2] - f[1] - f[3]) > 0.0;
+        let m = sc.cr.len();
+        for i in 0..m {
+            let (ki, entry) = sc.cr[i];
+            let kn = sc.cr[(i + 1) % m].0;
+            let seg = match (entry, join_outside) {
+                (true, false) => (ki, kn),
+                (false, true) => (kn, ki),
+                _ => continue,
+            };
+            sc.segs.push(if sq.flip { (seg.1, seg.0) } else { seg });
+        }
+    }
+
+    /// Fills `sc.bv` with the boundary of the piece `sq`, counter-clockwise around +n: its four
+    /// corners and the leaf corners on its sides. Returns the cache indices of the four corners.
+    fn piece_boundary(
+        &self,
+        sc: &mut Scratch<C::Handle>,
+        sq: Square,
+        known: Option<[u32; 4]>,
+    ) -> [u32; 4] {
+        let (u, v) = sq.axes();
+        let size = sq.size;
+        let mut p = [sq.origin; 4];
+        p[1][u] += size;
+        p[2][u] += size;
+        p[2][v] += size;
+        p[3][v] += size;
+        let idx = match known {
+            Some(k) => k,
+            None => p.map(|c| sc.corners.get(self.ctx, c)),
+        };
+        sc.bv.clear();
+        let sides = [(u, true), (v, true), (u, false), (v, false)];
+        for (c, &(axis, forward)) in sides.iter().enumerate() {
+            sc.bv.push((p[c], idx[c]));
+            let side = Side {
+                a: p[c],
+                axis,
+                forward,
+                len: size,
+            };
+            self.split_side(sc, side);
+        }
+        idx
+    }
 }
 
-/// Marching squares on one face piece; appends its oriented segments and crossings.
-#[allow(clippy::too_many_arguments)]
-fn piece<C: Cells>(
-    ctx: &Ctx<C>,
-    sc: &mut Scratch<C::Handle>,
-    here: &Here<C::Handle>,
-    origin: [u32; 3],
-    size: u32,
-    n: usize,
-    flip: bool,
-    known: Option<[u32; 4]>,
-) {
-    let (u, v) = ((n + 1) % 3, (n + 2) % 3);
-    let mut p = [origin; 4];
-    p[1][u] += size;
-    p[2][u] += size;
-    p[2][v] += size;
-    p[3][v] += size;
-    let idx = match known {
-        Some(k) => k,
-        None => p.map(|c| sc.corners.get(ctx, c)),
-    };
-    // Boundary, counter-clockwise around +n.
-    sc.bv.clear();
-    let sides = [(u, true), (v, true), (u, false), (v, false)];
-    for (c, &(axis, fwd)) in sides.iter().enumerate() {
-        sc.bv.push((p[c], idx[c]));
-        split_side(ctx, sc, here, p[c], axis, fwd, size);
-    }
+/// Records the sign changes along the boundary in `sc.bv`: in `sc.cr` (edge key, and whether
+/// the crossing enters the inside), in boundary order, and in `sc.cross`.
+fn piece_crossings<H>(sc: &mut Scratch<H>) {
     let d = &sc.corners.d;
-    let first = d[sc.bv[0].1 as usize] > 0.0;
-    if sc.bv.iter().all(|b| (d[b.1 as usize] > 0.0) == first) {
-        return;
-    }
     sc.cr.clear();
     let nb = sc.bv.len();
     for i in 0..nb {
@@ -216,24 +315,5 @@ fn piece<C: Cells>(
             i0,
             i1,
         });
-    }
-    // Pairing rule (see module docs).
-    let f = idx.map(|i| d[i as usize]);
-    let fin = f.map(|x| x > 0.0);
-    let join_outside = sc.cr.len() == 4
-        && fin[0] == fin[2]
-        && fin[1] == fin[3]
-        && fin[0] != fin[1]
-        && (f[0] * f[2] - f[1] * f[3]) / (f[0] + f[2] - f[1] - f[3]) > 0.0;
-    let m = sc.cr.len();
-    for i in 0..m {
-        let (ki, entry) = sc.cr[i];
-        let kn = sc.cr[(i + 1) % m].0;
-        let seg = match (entry, join_outside) {
-            (true, false) => (ki, kn),
-            (false, true) => (kn, ki),
-            _ => continue,
-        };
-        sc.segs.push(if flip { (seg.1, seg.0) } else { seg });
     }
 }

@@ -1,8 +1,9 @@
 //! Iso-vertices: one per finest edge with a sign change, placed by the quadratic fit of the
 //! field along the edge (ALGORITHM.md §9.2) and owned by exactly one leaf.
 
-use super::blocks::{CornerCache, Ctx};
+use super::blocks::{ChunkOut, CornerCache, Ctx, Scratch};
 use super::Cells;
+use crate::vec3::norm;
 
 /// One crossing on a finest edge, as seen by a leaf.
 #[derive(Clone, Copy)]
@@ -67,8 +68,38 @@ pub(super) fn edge_root(x0: f64, x1: f64, g0: f64, g1: f64, linear: bool) -> f64
     }
 }
 
+/// Places the iso-vertices of the leaf at `lo` (size `s`): sorts and dedups `sc.cross` by key,
+/// fills `sc.pos` (and `sc.nrm` with normals on), and emits the vertices the leaf owns.
+pub(super) fn place_vertices<C: Cells>(
+    ctx: &Ctx<C>,
+    sc: &mut Scratch<C::Handle>,
+    lo: [u32; 3],
+    s: u32,
+    out: &mut ChunkOut,
+) {
+    sc.cross.sort_unstable_by_key(|c| c.key);
+    sc.cross.dedup_by_key(|c| c.key);
+    sc.pos.clear();
+    sc.nrm.clear();
+    for k in 0..sc.cross.len() {
+        let c = sc.cross[k];
+        let (p, n) = crossing_point(ctx, &mut sc.corners, &c);
+        sc.pos.push(p);
+        if ctx.normals {
+            sc.nrm.push(n);
+        }
+        if owns(ctx, lo, s, &c) {
+            out.owned_keys.push(c.key);
+            out.owned_pos.push(p);
+            if ctx.normals {
+                out.owned_nrm.push(unit_f32(n));
+            }
+        }
+    }
+}
+
 /// The iso-vertex position on a crossing's edge.
-pub(super) fn crossing_point<C: Cells>(
+fn crossing_point<C: Cells>(
     ctx: &Ctx<C>,
     corners: &mut CornerCache,
     c: &Crossing,
@@ -89,7 +120,7 @@ pub(super) fn crossing_point<C: Cells>(
     if ctx.normals {
         let (g0, g1) = (corners.grad(ctx, c.i0), corners.grad(ctx, c.i1));
         let g: [f64; 3] = std::array::from_fn(|a| -((1.0 - t) * g0[a] + t * g1[a]));
-        let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        let len = norm(g);
         if len > 0.0 && len.is_finite() {
             n = g.map(|x| x / len);
         }
@@ -99,7 +130,7 @@ pub(super) fn crossing_point<C: Cells>(
 
 /// A unit vector as `f32`, or zero when `v` has no direction.
 pub(super) fn unit_f32(v: [f64; 3]) -> [f32; 3] {
-    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    let len = norm(v);
     if len > 0.0 && len.is_finite() {
         v.map(|x| (x / len) as f32)
     } else {
@@ -109,7 +140,7 @@ pub(super) fn unit_f32(v: [f64; 3]) -> [f32; 3] {
 
 /// Whether the leaf at `lo` (size `s`) owns the edge vertex of `c`: it contains the edge's
 /// midpoint nudged towards + along both other axes (towards − on the cube's far faces).
-pub(super) fn owns<C: Cells>(ctx: &Ctx<C>, lo: [u32; 3], s: u32, c: &Crossing) -> bool {
+fn owns<C: Cells>(ctx: &Ctx<C>, lo: [u32; 3], s: u32, c: &Crossing) -> bool {
     let a = c.axis as usize;
     (0..3).filter(|&b| b != a).all(|b| {
         let e = c.lo[b];
