@@ -32,6 +32,11 @@
 //!
 //! Inside is `χ > iso`; corners with `χ == iso` count as outside. Output order depends only on
 //! the blocks and their leaf order, never on the thread count.
+//!
+//! The code follows the steps: `cells` (what extraction reads: [`Cells`], [`Field`], [`Leaf`]
+//! lists), `blocks` (step 1, and numbering the blocks' vertices into one mesh), `faces`
+//! (steps 2 and 4), `vertex` (step 3), `triangulate` (step 5); `table` is the concurrent
+//! edge-key → vertex-index table used when numbering.
 
 mod blocks;
 mod cells;
@@ -50,6 +55,7 @@ const MAX_SUPPORTED_DEPTH: u32 = 18;
 /// Marks a triangle reference to a barycentre vertex (local to a block).
 const BARY: u64 = 1 << 63;
 
+/// Key of a corner (20 bits per axis, x lowest).
 #[inline]
 fn pack(c: [u32; 3]) -> u64 {
     c[0] as u64 | (c[1] as u64) << 20 | (c[2] as u64) << 40
