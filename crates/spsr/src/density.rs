@@ -132,14 +132,9 @@ pub fn merge_samples_grouped(
     (samples, sample_of)
 }
 
+/// Morton code of a cell (the low 21 bits of each coordinate, as two's complement).
 fn morton_cell(c: [i64; 3]) -> u64 {
-    let mut m = 0u64;
-    for bit in 0..21 {
-        for (a, &v) in c.iter().enumerate() {
-            m |= (((v as u64) >> bit) & 1) << (3 * bit + a);
-        }
-    }
-    m
+    crate::morton::encode(c.map(|v| v as u64))
 }
 
 /// The density estimator: splatted sample weights at every depth `0..=K`.

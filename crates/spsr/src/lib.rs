@@ -24,6 +24,7 @@ pub mod extract;
 pub mod io;
 pub mod mesh;
 pub mod metrics;
+mod morton;
 pub mod normals;
 mod octree;
 mod params;
@@ -34,6 +35,7 @@ mod shared_slice;
 mod solver;
 mod system;
 pub mod trim;
+mod vec3;
 
 pub use bspline::{Boundary, Degree};
 pub use error::{gib, Error, FarOutliers, MemoryLimit, MemoryShortfall, Result, Warning};

@@ -1,6 +1,7 @@
 //! Triangle meshes produced by the reconstruction, and their topological checks.
 
 use crate::attributes::{self, Attribute, Colors};
+use crate::vec3::{cross, dot, norm, sub};
 
 /// A triangle mesh with optional per-vertex normals, density and attributes.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -63,18 +64,6 @@ fn uf_union(parent: &mut [u32], a: u32, b: u32) {
         let (lo, hi) = if ra < rb { (ra, rb) } else { (rb, ra) };
         parent[hi as usize] = lo;
     }
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 impl Mesh {
@@ -238,8 +227,7 @@ impl Mesh {
             .iter()
             .map(|t| {
                 let [a, b, c] = t.map(|i| self.vertices[i as usize]);
-                let x = cross(b, c);
-                (a[0] * x[0] + a[1] * x[1] + a[2] * x[2]) / 6.0
+                dot(a, cross(b, c)) / 6.0
             })
             .sum()
     }
@@ -250,8 +238,7 @@ impl Mesh {
             .iter()
             .map(|t| {
                 let [a, b, c] = t.map(|i| self.vertices[i as usize]);
-                let x = cross(sub(b, a), sub(c, a));
-                0.5 * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt()
+                0.5 * norm(cross(sub(b, a), sub(c, a)))
             })
             .sum()
     }

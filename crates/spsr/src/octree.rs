@@ -156,16 +156,7 @@ fn unpack(p: u64) -> [u32; 3] {
 /// Interleaves the bits of a key (x lowest) into a Morton code.
 #[cfg(test)]
 fn morton(k: [u32; 3]) -> u64 {
-    fn spread(v: u32) -> u64 {
-        let mut x = u64::from(v) & 0x1f_ffff;
-        x = (x | (x << 32)) & 0x001f_0000_0000_ffff;
-        x = (x | (x << 16)) & 0x001f_0000_ff00_00ff;
-        x = (x | (x << 8)) & 0x100f_00f0_0f00_f00f;
-        x = (x | (x << 4)) & 0x10c3_0c30_c30c_30c3;
-        x = (x | (x << 2)) & 0x1249_2492_4924_9249;
-        x
-    }
-    spread(k[0]) | (spread(k[1]) << 1) | (spread(k[2]) << 2)
+    crate::morton::encode(k.map(u64::from))
 }
 
 /// Requests gathered before building: nodes that must exist, by tree depth.

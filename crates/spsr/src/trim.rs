@@ -50,6 +50,7 @@ use rustc_hash::FxHashMap;
 use crate::attributes::{Attribute, AttributeData};
 use crate::error::Error;
 use crate::mesh::Mesh;
+use crate::vec3::{cross, norm, norm2, sub};
 use crate::Result;
 
 /// Which density level to cut at.
@@ -225,23 +226,9 @@ fn check_mesh(mesh: &Mesh) -> Result<&[f32]> {
     Ok(density)
 }
 
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn norm2(a: [f64; 3]) -> f64 {
-    a[0] * a[0] + a[1] * a[1] + a[2] * a[2]
-}
-
 fn triangle_area(p: &[[f64; 3]], t: [u32; 3]) -> f64 {
     let [a, b, c] = t.map(|i| p[i as usize]);
-    let (u, v) = (sub(b, a), sub(c, a));
-    let x = [
-        u[1] * v[2] - u[2] * v[1],
-        u[2] * v[0] - u[0] * v[2],
-        u[0] * v[1] - u[1] * v[0],
-    ];
-    0.5 * norm2(x).sqrt()
+    0.5 * norm(cross(sub(b, a), sub(c, a)))
 }
 
 /// Area-weighted quantile of `(value, weight)` pairs sorted by value: the smallest value
@@ -785,7 +772,7 @@ fn assemble(mesh: &Mesh, cut: &Cut, keep: &[bool], threshold: f32) -> Mesh {
                 // Direction interpolated and renormalised, length interpolated: unit normals
                 // stay unit, weighted ones keep their interpolated weight.
                 let m: [f64; 3] = std::array::from_fn(|k| na[k] + u * (nb[k] - na[k]));
-                let (la, lb, lm) = (norm2(na).sqrt(), norm2(nb).sqrt(), norm2(m).sqrt());
+                let (la, lb, lm) = (norm(na), norm(nb), norm(m));
                 let len = la + u * (lb - la);
                 if lm > 0.0 {
                     m.map(|x| (x / lm * len) as f32)

@@ -1,7 +1,10 @@
 //! Extraction tests on analytic fields and synthetic octrees.
 
+use super::blocks::extract_impl;
+use super::vertex::edge_root;
 use super::*;
-use crate::mesh::Topology;
+use crate::mesh::{Mesh, Topology};
+use crate::vec3::{norm, norm2, sub};
 use std::collections::{HashMap, HashSet};
 
 // ---------------------------------------------------------------- fields
@@ -24,14 +27,6 @@ impl<A: Analytic + ?Sized> Field for Grid<'_, A> {
     }
 }
 
-fn norm(v: [f64; 3]) -> f64 {
-    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
-}
-
-fn diff(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
 /// χ = 1 − |p − c|²/r² (a quadric: the quadratic fit is exact on grid edges).
 struct Sphere {
     c: [f64; 3],
@@ -40,15 +35,12 @@ struct Sphere {
 
 impl Analytic for Sphere {
     fn eval(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
-        let d = diff(p, self.c);
+        let d = sub(p, self.c);
         let r2 = self.r * self.r;
-        (
-            1.0 - (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) / r2,
-            d.map(|x| -2.0 * x / r2),
-        )
+        (1.0 - norm2(d) / r2, d.map(|x| -2.0 * x / r2))
     }
     fn dist(&self, p: [f64; 3]) -> f64 {
-        (norm(diff(p, self.c)) - self.r).abs()
+        (norm(sub(p, self.c)) - self.r).abs()
     }
 }
 
@@ -60,14 +52,11 @@ struct ExactSphere {
 
 impl Analytic for ExactSphere {
     fn eval(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
-        let d = diff(p, self.c);
-        (
-            self.r * self.r - (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]),
-            d.map(|x| -2.0 * x),
-        )
+        let d = sub(p, self.c);
+        (self.r * self.r - norm2(d), d.map(|x| -2.0 * x))
     }
     fn dist(&self, p: [f64; 3]) -> f64 {
-        (norm(diff(p, self.c)) - self.r).abs()
+        (norm(sub(p, self.c)) - self.r).abs()
     }
 }
 
@@ -104,7 +93,7 @@ struct Torus {
 
 impl Analytic for Torus {
     fn eval(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
-        let d = diff(p, self.c);
+        let d = sub(p, self.c);
         let q = (d[0] * d[0] + d[1] * d[1]).sqrt().max(1e-300);
         let k = q - self.big;
         (
@@ -113,7 +102,7 @@ impl Analytic for Torus {
         )
     }
     fn dist(&self, p: [f64; 3]) -> f64 {
-        let d = diff(p, self.c);
+        let d = sub(p, self.c);
         let q = (d[0] * d[0] + d[1] * d[1]).sqrt();
         (((q - self.big).powi(2) + d[2] * d[2]).sqrt() - self.small).abs()
     }

@@ -9,6 +9,8 @@ use kiddo::immutable::float::kdtree::ImmutableKdTree;
 use kiddo::SquaredEuclidean;
 use rayon::prelude::*;
 
+use crate::morton::BoxKeys;
+
 /// Marks an empty slot of a neighbour list.
 pub(crate) const NONE: u32 = u32::MAX;
 
@@ -22,41 +24,15 @@ pub(crate) struct Tree {
     index: Vec<u32>,
 }
 
-/// Spreads the low 21 bits of `x` to every third bit.
-fn spread_bits(x: u64) -> u64 {
-    let mut x = x & 0x1f_ffff;
-    x = (x | x << 32) & 0x1f_0000_0000_ffff;
-    x = (x | x << 16) & 0x1f_0000_ff00_00ff;
-    x = (x | x << 8) & 0x100f_00f0_0f00_f00f;
-    x = (x | x << 4) & 0x10c3_0c30_c30c_30c3;
-    (x | x << 2) & 0x1249_2492_4924_9249
-}
-
 /// The points `keep` (indices into `positions`) sorted along a Z-order curve of their bounding
 /// box, ties by index: neighbouring queries then visit the same parts of the tree, which is
 /// several times faster on large clouds stored in random order.
 fn morton_order(positions: &[[f64; 3]], mut keep: Vec<u32>) -> Vec<u32> {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for &i in &keep {
-        for a in 0..3 {
-            lo[a] = lo[a].min(positions[i as usize][a]);
-            hi[a] = hi[a].max(positions[i as usize][a]);
-        }
-    }
-    let span = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
-    let scale = if span > 0.0 && span.is_finite() {
-        ((1u64 << 21) - 1) as f64 / span
-    } else {
-        0.0
-    };
-    let key = |i: u32| {
-        let p = positions[i as usize];
-        // Saturating float-to-integer casts keep every key in range.
-        let q = |a: usize| (((p[a] - lo[a]) * scale) as u64).min((1 << 21) - 1);
-        spread_bits(q(0)) | spread_bits(q(1)) << 1 | spread_bits(q(2)) << 2
-    };
-    let mut keyed: Vec<(u64, u32)> = keep.par_iter().map(|&i| (key(i), i)).collect();
+    let keys = BoxKeys::around(keep.iter().map(|&i| positions[i as usize]));
+    let mut keyed: Vec<(u64, u32)> = keep
+        .par_iter()
+        .map(|&i| (keys.key(positions[i as usize]), i))
+        .collect();
     keyed.par_sort_unstable();
     keep.clear();
     keep.extend(keyed.iter().map(|e| e.1));

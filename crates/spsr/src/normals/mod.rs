@@ -76,6 +76,7 @@ mod orient;
 
 use rayon::prelude::*;
 
+use crate::vec3::{dot, norm};
 use crate::{Error, Result};
 use knn::{finite_points, Tree};
 
@@ -465,14 +466,6 @@ pub fn compare(normals: &[[f64; 3]], reference: &[[f64; 3]]) -> Result<Compariso
     c.median_angle_deg = q(0.5);
     c.p95_angle_deg = q(0.95);
     Ok(c)
-}
-
-pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-pub(crate) fn norm(a: [f64; 3]) -> f64 {
-    dot(a, a).sqrt()
 }
 
 /// Point indices are stored in 32 bits.

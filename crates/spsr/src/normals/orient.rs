@@ -5,7 +5,7 @@ use rayon::prelude::*;
 
 use super::graph::{spanning_forest, symmetric_edges, Forest};
 use super::knn::{k_nearest, Neighbours, Tree};
-use super::{dot, norm};
+use crate::vec3::{dot, norm, sub};
 
 /// Sum of `f(i)` over `0..n` in a fixed order (chunks summed in parallel, then in sequence), so
 /// that the result does not depend on the thread count.
@@ -30,7 +30,7 @@ pub(crate) fn towards(
         .map(|(i, n)| {
             let p = positions[i];
             let o = origin_of(i);
-            let v = [o[0] - p[0], o[1] - p[1], o[2] - p[2]];
+            let v = sub(o, p);
             if dot(*n, v) < 0.0 {
                 *n = n.map(|c| -c);
                 1
@@ -89,7 +89,7 @@ impl Graph {
                 let (p, n) = (positions[i], unit(normals[i]));
                 buf.extend(nb.of(i).map(|j| {
                     let q = positions[j];
-                    dot([q[0] - p[0], q[1] - p[1], q[2] - p[2]], n).abs()
+                    dot(sub(q, p), n).abs()
                 }));
                 if buf.is_empty() {
                     return 0.0;
@@ -202,7 +202,7 @@ pub(crate) fn outward(
         .map(|&i| {
             let (p, n) = (positions[i as usize], unit(normals[i as usize]));
             let r = graph.nb.radius[i as usize];
-            r * r * dot([p[0] - g[0], p[1] - g[1], p[2] - g[2]], n)
+            r * r * dot(sub(p, g), n)
         })
         .collect();
     let mut vote = vec![0.0; components];

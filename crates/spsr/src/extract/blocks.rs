@@ -1,0 +1,382 @@
+//! Block scheduling: the leaves are polygonised block by block in parallel
+//! ([`extract_blocks`]), each block with its own corner cache and output, and the blocks'
+//! outputs are then numbered globally and assembled into one mesh ([`Blocks::assemble`]).
+
+use rayon::prelude::*;
+use rustc_hash::FxHashMap;
+
+use super::cells::{bad_leaves, check_depth, LeafSet};
+use super::faces::{leaf_faces, Here};
+use super::table::Table;
+use super::triangulate::triangulate_loops;
+use super::vertex::{place_vertices, Crossing};
+use super::{pack, Cells, Field, Leaf, BARY};
+use crate::mesh::Mesh;
+
+/// Options of [`extract`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ExtractOptions {
+    /// Place iso-vertices by linear interpolation instead of the quadratic fit.
+    pub linear_fit: bool,
+    /// Give every vertex a unit normal: `−∇χ` interpolated linearly between the gradients at
+    /// the ends of its edge (as PoissonRecon 18 does); a barycentre vertex gets the mean of its
+    /// polygon's vertex normals.
+    pub normals: bool,
+}
+
+/// Extracts the level set `χ = iso` over `leaves`, which tile the unit cube. Inside is
+/// `χ > iso`. Vertices are in unit-cube coordinates; triangles are counter-clockwise seen
+/// from outside (their normals point along −∇χ).
+pub fn extract(
+    leaves: &[Leaf],
+    max_depth: u32,
+    field: &dyn Field,
+    iso: f64,
+    opts: &ExtractOptions,
+) -> crate::Result<Mesh> {
+    extract_impl(leaves, max_depth, field, iso, opts).map(|(mesh, _, _)| mesh)
+}
+
+/// Shared read-only state of the per-leaf pass.
+pub(super) struct Ctx<'a, C: Cells> {
+    pub(super) cells: &'a C,
+    field: &'a dyn Field,
+    iso: f64,
+    pub(super) max_depth: u32,
+    pub(super) full: u32,
+    pub(super) inv: f64,
+    pub(super) linear: bool,
+    pub(super) normals: bool,
+}
+
+/// The field at the corners a block has asked for: `χ − iso`, and the gradient once needed.
+#[derive(Default)]
+pub(super) struct CornerCache {
+    index: FxHashMap<u64, u32>,
+    at: Vec<[u32; 3]>,
+    pub(super) d: Vec<f64>,
+    g: Vec<Option<[f64; 3]>>,
+}
+
+impl CornerCache {
+    fn clear(&mut self) {
+        self.index.clear();
+        self.at.clear();
+        self.d.clear();
+        self.g.clear();
+    }
+
+    /// Index of the corner at `c`, evaluating the field there the first time.
+    #[inline]
+    pub(super) fn get<C: Cells>(&mut self, ctx: &Ctx<C>, c: [u32; 3]) -> u32 {
+        let next = self.d.len() as u32;
+        let i = *self.index.entry(pack(c)).or_insert(next);
+        if i == next {
+            self.at.push(c);
+            self.d.push(ctx.field.value(c) - ctx.iso);
+            self.g.push(None);
+        }
+        i
+    }
+
+    /// Gradient at corner `i`, evaluated the first time it is needed.
+    #[inline]
+    pub(super) fn grad<C: Cells>(&mut self, ctx: &Ctx<C>, i: u32) -> [f64; 3] {
+        let i = i as usize;
+        match self.g[i] {
+            Some(g) => g,
+            None => {
+                let g = ctx.field.corner(self.at[i]).1;
+                self.g[i] = Some(g);
+                g
+            }
+        }
+    }
+}
+
+/// Reusable per-thread buffers.
+pub(super) struct Scratch<H> {
+    leaves: Vec<(H, u32, [u32; 3])>,
+    pub(super) corners: CornerCache,
+    pub(super) bv: Vec<([u32; 3], u32)>,
+    pub(super) cr: Vec<(u64, bool)>,
+    pub(super) cross: Vec<Crossing>,
+    pub(super) pos: Vec<[f64; 3]>,
+    pub(super) nrm: Vec<[f64; 3]>,
+    pub(super) segs: Vec<(u64, u64)>,
+    pub(super) used: Vec<bool>,
+    pub(super) poly: Vec<u32>,
+    pub(super) bad: bool,
+}
+
+impl<H> Default for Scratch<H> {
+    fn default() -> Self {
+        Self {
+            leaves: Vec::new(),
+            corners: CornerCache::default(),
+            bv: Vec::new(),
+            cr: Vec::new(),
+            cross: Vec::new(),
+            pos: Vec::new(),
+            nrm: Vec::new(),
+            segs: Vec::new(),
+            used: Vec::new(),
+            poly: Vec::new(),
+            bad: false,
+        }
+    }
+}
+
+/// Output of one block of leaves.
+#[derive(Default)]
+pub(super) struct ChunkOut {
+    pub(super) owned_keys: Vec<u64>,
+    pub(super) owned_pos: Vec<[f64; 3]>,
+    pub(super) owned_nrm: Vec<[f32; 3]>,
+    pub(super) bary: Vec<[f64; 3]>,
+    pub(super) bary_nrm: Vec<[f32; 3]>,
+    pub(super) tris: Vec<[u64; 3]>,
+    bad: bool,
+}
+
+/// The per-block output of [`extract_blocks`], before vertices are numbered globally.
+pub struct Blocks {
+    chunks: Vec<ChunkOut>,
+}
+
+/// The extraction proper on a leaf list; also returns the number of edge iso-vertices
+/// (without barycentres) and, in test builds only, which output vertices are edge
+/// iso-vertices.
+pub(super) fn extract_impl(
+    leaves: &[Leaf],
+    max_depth: u32,
+    field: &dyn Field,
+    iso: f64,
+    opts: &ExtractOptions,
+) -> crate::Result<(Mesh, usize, Vec<bool>)> {
+    let cells = LeafSet::new(leaves, max_depth)?;
+    extract_blocks(&cells, field, iso, opts)?.assemble_impl()
+}
+
+/// Polygonises every block of `cells` (in parallel); [`Blocks::assemble`] then numbers the
+/// vertices and builds the mesh. The two steps are separate so that a caller can release the
+/// octree and the solution, which the first step reads, before the second.
+pub fn extract_blocks<C: Cells>(
+    cells: &C,
+    field: &dyn Field,
+    iso: f64,
+    opts: &ExtractOptions,
+) -> crate::Result<Blocks> {
+    let max_depth = cells.max_depth();
+    check_depth(max_depth)?;
+    let ctx = Ctx {
+        cells,
+        field,
+        iso,
+        max_depth,
+        full: 1u32 << max_depth,
+        inv: 1.0 / (1u64 << max_depth) as f64,
+        linear: opts.linear_fit,
+        normals: opts.normals,
+    };
+    let chunks: Vec<ChunkOut> = (0..cells.block_count())
+        .into_par_iter()
+        .map_init(Scratch::<C::Handle>::default, |sc, b| {
+            let mut out = ChunkOut::default();
+            sc.corners.clear();
+            let mut leaves = std::mem::take(&mut sc.leaves);
+            leaves.clear();
+            cells.for_each_leaf(b, &mut |h, d, o| leaves.push((h, d, o)));
+            for &(h, depth, offset) in &leaves {
+                process_leaf(&ctx, sc, h, depth, offset, &mut out);
+                if sc.bad {
+                    sc.bad = false;
+                    out.bad = true;
+                }
+            }
+            sc.leaves = leaves;
+            out
+        })
+        .collect();
+    if chunks.iter().any(|c| c.bad) {
+        return Err(bad_leaves(
+            "the leaves do not tile the unit cube (inconsistent boundaries)",
+        ));
+    }
+    Ok(Blocks { chunks })
+}
+
+impl Blocks {
+    /// Numbers the vertices (each edge vertex is emitted by exactly one owner leaf; block `b`
+    /// contributes its owned vertices, then its barycentres) and builds the mesh.
+    pub fn assemble(self) -> crate::Result<Mesh> {
+        self.assemble_impl().map(|(mesh, _, _)| mesh)
+    }
+
+    fn assemble_impl(self) -> crate::Result<(Mesh, usize, Vec<bool>)> {
+        let chunks = self.chunks;
+        let mut bases = Vec::with_capacity(chunks.len());
+        let mut total = 0usize;
+        let mut n_edge_vertices = 0usize;
+        for c in &chunks {
+            bases.push(total);
+            total += c.owned_keys.len() + c.bary.len();
+            n_edge_vertices += c.owned_keys.len();
+        }
+        if total >= u32::MAX as usize {
+            return Err(bad_leaves("too many vertices for 32-bit indices"));
+        }
+        let vt = Table::with_capacity(n_edge_vertices);
+        chunks.par_iter().zip(&bases).for_each(|(c, &base)| {
+            for (i, &k) in c.owned_keys.iter().enumerate() {
+                if let Some(slot) = vt.insert(k) {
+                    vt.set(slot, (base + i) as u32);
+                }
+            }
+        });
+        let mut triangles: Vec<[u32; 3]> =
+            Vec::with_capacity(chunks.iter().map(|c| c.tris.len()).sum());
+        let with_normals = chunks
+            .iter()
+            .any(|c| !c.owned_nrm.is_empty() || !c.bary_nrm.is_empty());
+        let mut normals: Vec<[f32; 3]> = Vec::with_capacity(if with_normals { total } else { 0 });
+        let mut vertices = Vec::with_capacity(total);
+        let mut is_edge = Vec::with_capacity(if cfg!(test) { total } else { 0 });
+        for (c, &base) in chunks.into_iter().zip(&bases) {
+            let bary_base = (base + c.owned_keys.len()) as u64;
+            triangles.par_extend(c.tris.par_iter().map(|t| {
+                t.map(|r| {
+                    if r & BARY != 0 {
+                        (bary_base + (r & !BARY)) as u32
+                    } else {
+                        vt.get(r).unwrap_or(u32::MAX)
+                    }
+                })
+            }));
+            vertices.extend_from_slice(&c.owned_pos);
+            vertices.extend_from_slice(&c.bary);
+            if with_normals {
+                normals.extend_from_slice(&c.owned_nrm);
+                normals.extend_from_slice(&c.bary_nrm);
+            }
+            if cfg!(test) {
+                is_edge.extend(std::iter::repeat_n(true, c.owned_pos.len()));
+                is_edge.extend(std::iter::repeat_n(false, c.bary.len()));
+            }
+        }
+        drop(vt);
+        let unowned = triangles.par_iter().flatten().any(|&i| i == u32::MAX);
+        if unowned {
+            return Err(bad_leaves(
+                "the leaves do not tile the unit cube (unowned iso-vertex)",
+            ));
+        }
+        drop_unused(
+            &mut vertices,
+            &mut normals,
+            with_normals,
+            &mut is_edge,
+            &mut triangles,
+        );
+        Ok((
+            Mesh {
+                vertices,
+                triangles,
+                normals: with_normals.then_some(normals),
+                ..Default::default()
+            },
+            n_edge_vertices,
+            is_edge,
+        ))
+    }
+}
+
+/// Drops the vertices no triangle uses (possible only next to dropped two-vertex loops), with
+/// their normals and (in test builds) edge flags, and renumbers the triangles.
+fn drop_unused(
+    vertices: &mut Vec<[f64; 3]>,
+    normals: &mut Vec<[f32; 3]>,
+    with_normals: bool,
+    is_edge: &mut Vec<bool>,
+    triangles: &mut [[u32; 3]],
+) {
+    let mut used = vec![false; vertices.len()];
+    for &i in triangles.iter().flatten() {
+        used[i as usize] = true;
+    }
+    if used.iter().all(|&u| u) {
+        return;
+    }
+    let mut remap = vec![u32::MAX; vertices.len()];
+    let mut kept = Vec::with_capacity(vertices.len());
+    let mut kept_nrm = Vec::with_capacity(normals.len());
+    for (i, v) in vertices.iter().enumerate() {
+        if used[i] {
+            remap[i] = kept.len() as u32;
+            kept.push(*v);
+            if with_normals {
+                kept_nrm.push(normals[i]);
+            }
+        }
+    }
+    *vertices = kept;
+    *normals = kept_nrm;
+    if cfg!(test) {
+        *is_edge = is_edge
+            .iter()
+            .zip(&used)
+            .filter(|(_, &u)| u)
+            .map(|(&e, _)| e)
+            .collect();
+    }
+    triangles
+        .par_iter_mut()
+        .for_each(|t| *t = t.map(|i| remap[i as usize]));
+}
+
+/// Builds and triangulates the iso-polygons of one leaf.
+fn process_leaf<C: Cells>(
+    ctx: &Ctx<C>,
+    sc: &mut Scratch<C::Handle>,
+    h: C::Handle,
+    depth: u32,
+    offset: [u32; 3],
+    out: &mut ChunkOut,
+) {
+    let s = 1u32 << (ctx.max_depth - depth);
+    let lo = offset.map(|o| o * s);
+    let mut cidx = [0u32; 8];
+    let mut inside = 0u32;
+    for (c, ci) in cidx.iter_mut().enumerate() {
+        let p = [
+            lo[0] + s * (c as u32 & 1),
+            lo[1] + s * ((c as u32 >> 1) & 1),
+            lo[2] + s * ((c as u32 >> 2) & 1),
+        ];
+        *ci = sc.corners.get(ctx, p);
+        if sc.corners.d[*ci as usize] > 0.0 {
+            inside |= 1 << c;
+        }
+    }
+    if s == 1 && (inside == 0 || inside == 0xff) {
+        return; // finest leaf: nothing can cross its boundary
+    }
+    let around = ctx.cells.refined_around(h, depth, offset);
+    if around == 0 && (inside == 0 || inside == 0xff) {
+        return; // no finer neighbour: the leaf's boundary has only its own corners
+    }
+    let here = Here {
+        h,
+        depth,
+        offset,
+        around,
+    };
+    sc.cross.clear();
+    sc.segs.clear();
+    leaf_faces(ctx, sc, here, lo, s, &cidx);
+    if sc.segs.is_empty() || sc.bad {
+        return;
+    }
+    place_vertices(ctx, sc, lo, s, out);
+    triangulate_loops(sc, lo, s, out);
+}
