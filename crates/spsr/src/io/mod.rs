@@ -54,6 +54,7 @@ mod ply;
 mod read_ply;
 mod stl;
 mod text;
+mod unfinished;
 mod write;
 mod write_ply;
 
@@ -323,7 +324,7 @@ pub fn write_mesh_to(
     write::write_mesh_to(out, name, format, mesh, opts)
 }
 
-pub use write::remove_unfinished_files;
+pub use unfinished::remove_unfinished_files;
 
 /// Copies `input` into a temporary file (deleted afterwards, and by
 /// [`remove_unfinished_files`]) and reads it with `read`; errors name `name` instead of the
@@ -338,7 +339,7 @@ fn read_spooled<T>(
         .prefix(".spsr-stdin-")
         .tempfile()
         .map_err(|e| io_err(name, e))?;
-    let _unfinished = write::Unfinished::register(tmp.path());
+    let _unfinished = unfinished::Unfinished::register(tmp.path());
     {
         let mut w = std::io::BufWriter::with_capacity(READ_BUFFER, tmp.as_file());
         std::io::copy(&mut input, &mut w).map_err(|e| io_err(name, e))?;

@@ -9,6 +9,7 @@ use crate::mesh::Mesh;
 use crate::points::PointCloud;
 use crate::Result;
 
+use super::unfinished::Unfinished;
 use super::{glb, obj, stl, write_ply, MeshFormat, WriteOptions};
 
 /// Encoded bytes collected before each `write_all`.
@@ -177,39 +178,6 @@ fn temp_file_in(dir: &Path) -> std::io::Result<tempfile::NamedTempFile> {
         b.permissions(std::fs::Permissions::from_mode(0o666));
     }
     b.tempfile_in(dir)
-}
-
-/// Temporary files being written (or spooled from standard input) right now.
-static UNFINISHED: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
-
-/// Registration of a temporary file in [`UNFINISHED`] for as long as the guard lives.
-pub(crate) struct Unfinished(PathBuf);
-
-impl Unfinished {
-    pub(crate) fn register(path: &Path) -> Self {
-        let mut list = UNFINISHED.lock().unwrap_or_else(|e| e.into_inner());
-        list.push(path.to_path_buf());
-        Unfinished(path.to_path_buf())
-    }
-}
-
-impl Drop for Unfinished {
-    fn drop(&mut self) {
-        let mut list = UNFINISHED.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(i) = list.iter().position(|p| *p == self.0) {
-            list.swap_remove(i);
-        }
-    }
-}
-
-/// Deletes every temporary file spsr is writing at this moment and returns how many it
-/// deleted. For an interrupt handler that then ends the process: the outputs being written
-/// never appear (a finished output has already been renamed into place and is not touched).
-pub fn remove_unfinished_files() -> usize {
-    let list = UNFINISHED.lock().unwrap_or_else(|e| e.into_inner());
-    list.iter()
-        .filter(|p| std::fs::remove_file(p).is_ok())
-        .count()
 }
 
 /// Writes a mesh in `format` to any writer (standard output, say); `name` is what errors
