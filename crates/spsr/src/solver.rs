@@ -884,3 +884,6 @@ pub fn coarse_value(
     }
     s
 }
+
+#[cfg(test)]
+mod tests;
