@@ -4,6 +4,11 @@
 
 use spsr::{Mesh, PointCloud};
 
+/// The fuzz targets' bodies and the invariants they check (`fuzz/src/harness.rs`, shared
+/// with the fuzz crate).
+#[path = "../../../../fuzz/src/harness.rs"]
+pub mod harness;
+
 /// Deterministic xorshift generator in [0, 1).
 pub struct Rng(pub u64);
 

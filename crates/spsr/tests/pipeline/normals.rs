@@ -1,8 +1,6 @@
 //! Normal estimation and orientation on generated clouds whose true normals are known.
 
-mod common;
-
-use common::{sphere, torus, Rng};
+use crate::common::{sphere, torus, Rng};
 use spsr::normals::{compare, estimate, orient, Comparison, NormalParams, Orientation};
 use spsr::{Error, PointCloud};
 

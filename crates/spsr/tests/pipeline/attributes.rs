@@ -1,9 +1,7 @@
 //! Attributes carried onto the mesh, normals from the implicit function, and per-point
 //! confidence from a named property.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use spsr::attributes::{Attribute, AttributeData};
 use spsr::{reconstruct, Error, Params, PointCloud, PointWeights};
 

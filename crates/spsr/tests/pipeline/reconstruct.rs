@@ -1,8 +1,6 @@
 //! End-to-end geometric truths of `spsr::reconstruct` (ALGORITHM.md §13.3).
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use spsr::{reconstruct, Boundary, Degree, Error, MemoryLimit, Params, PointCloud};
 
 fn radial_errors(mesh: &spsr::Mesh, c: [f64; 3], r: f64) -> Vec<f64> {

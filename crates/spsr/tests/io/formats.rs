@@ -1,5 +1,5 @@
 //! Round trips through every reader and writer of `spsr::io` beyond the basic PLY/text tests
-//! of `io_roundtrip.rs`: clouds with attributes and without normals, LAS/LAZ, E57 and PCD
+//! of `io_roundtrip`: clouds with attributes and without normals, LAS/LAZ, E57 and PCD
 //! (written with those formats' own crates), and meshes as PLY, OBJ, STL and GLB; plus a
 //! malformed file of each format.
 
@@ -1156,7 +1156,7 @@ fn damaged_files_of_every_format_never_panic() {
 
 /// Writes small valid files of every cloud format into `fuzz/seeds/<target>/`, the starting
 /// corpus of the fuzz targets (see `fuzz/README.md`). Run by hand:
-/// `cargo test -p spsr --test formats -- --ignored write_fuzz_seeds`.
+/// `cargo test -p spsr --test io -- --ignored write_fuzz_seeds`.
 #[test]
 #[ignore = "writes the fuzzing seed corpus into the source tree"]
 fn write_fuzz_seeds() {

@@ -1,13 +1,7 @@
 //! Degenerate and hostile inputs (issue 7): each gets a sensible result or a clear error,
 //! never a panic or non-finite output.
 
-mod common;
-
-#[allow(dead_code)]
-#[path = "../../../fuzz/src/harness.rs"]
-mod harness;
-
-use common::{assert_closed_manifold, sphere};
+use crate::common::{assert_closed_manifold, harness, sphere};
 use spsr::{reconstruct, Error, Params, PointCloud, Warning};
 
 fn params(depth: u32) -> Params {

@@ -2,9 +2,7 @@
 //! islands go, small holes close, open scans open where the ground truth is open, and bad
 //! meshes give errors.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use spsr::attributes::{Attribute, AttributeData};
 use spsr::metrics::sample_surface;
 use spsr::trim::{auto_threshold, trim, Threshold, TrimParams};
@@ -496,7 +494,7 @@ fn a_filled_scanning_gap_survives_a_conservative_value() {
 
 #[test]
 fn reconstruct_and_trim_equals_reconstructing_with_density_then_trimming() {
-    let cloud = spsr::io::read_points(&common::repo_file("examples/bunny.ply")).unwrap();
+    let cloud = spsr::io::read_points(&crate::common::repo_file("examples/bunny.ply")).unwrap();
     let params = Params {
         depth: 6,
         ..Params::default()

@@ -4,12 +4,10 @@
 //! it (extraction stops at the cube, as PoissonRecon's does), or a clear error; never panic.
 //! Few cases and small depths keep this to seconds.
 
-#[allow(dead_code)]
-#[path = "../../../fuzz/src/harness.rs"]
-mod harness;
-
 use proptest::prelude::*;
 use spsr::{Boundary, Error, Params, PointCloud};
+
+use crate::common::harness;
 
 /// Deterministic xorshift in [0, 1): the cloud is a function of the drawn seed, so a
 /// failing case is reproduced from its parameters alone.

@@ -900,7 +900,7 @@ fn bunny_example_and_ground_truth() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Speed (run with `cargo test --release -p spsr --test io_roundtrip -- --ignored --nocapture`).
+// Speed (run with `cargo test --release -p spsr --test io -- --ignored --nocapture speed_read`).
 
 #[test]
 #[ignore = "timing; run by hand"]
