@@ -1,6 +1,6 @@
-//! The fuzz targets' bodies. Also compiled into spsr's test suite
-//! (`crates/spsr/tests/fuzz_regressions.rs` includes this file), which replays the inputs in
-//! `fuzz/regressions/<target>/`, so keep it to `spsr`, `tempfile` and `std`.
+//! The fuzz targets' bodies. Also compiled into spsr's test suite (included by
+//! `crates/spsr/tests/common/mod.rs`; `tests/io/fuzz_regressions.rs` replays the inputs in
+//! `fuzz/regressions/<target>/`), so keep it to `spsr`, `tempfile` and `std`.
 //!
 //! A target returns normally for every input: readers may fail with an error (that is what
 //! hostile input should get), but a panic, an abort, a hang or an invariant violation

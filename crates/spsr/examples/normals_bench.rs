@@ -22,6 +22,12 @@ use spsr::metrics::{evaluate, EvalOptions, Reference};
 use spsr::normals::{compare, estimate, orient, NormalParams, Orientation};
 use spsr::{Mesh, Params, PointCloud};
 
+/// The test suite's synthetic clouds (the same generator and box sampling).
+#[path = "../tests/common/clouds.rs"]
+mod clouds;
+
+use clouds::{boxed, Rng};
+
 fn parse3(s: &str) -> Result<Vec<f64>, Box<dyn std::error::Error>> {
     Ok(s.split(',').map(str::parse).collect::<Result<_, _>>()?)
 }
@@ -52,18 +58,6 @@ fn box_mesh(lo: [f64; 3], hi: [f64; 3]) -> Mesh {
     }
 }
 
-/// Deterministic xorshift generator in [0, 1).
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
-
 /// Synthetic inputs with exact outward normals: `shell:N:GAP` (a hollow ball: spheres of
 /// radius 1 and 1 − GAP, the inner one's normals pointing to the centre) and `plate:N:T`
 /// (a 1 × 1 × T box).
@@ -71,49 +65,30 @@ fn synthetic(spec: &str) -> Result<PointCloud, Box<dyn std::error::Error>> {
     let parts: Vec<&str> = spec.split(':').collect();
     let n: usize = parts.get(1).ok_or("N missing")?.parse()?;
     let t: f64 = parts.get(2).ok_or("size missing")?.parse()?;
-    let mut rng = Rng(0x9e3779b97f4a7c15);
+    let seed = 0x9e3779b97f4a7c15;
+    match parts[0] {
+        "shell" => shell(n, t, seed),
+        "plate" => Ok(boxed(n, [0.5, 0.5, 0.5 * t], seed)),
+        _ => Err(format!("unknown synthetic input {spec}").into()),
+    }
+}
+
+/// `n` points on a hollow ball, spheres of radius 1 and `1 − gap` in proportion to their
+/// areas, with normals pointing out of the solid wall.
+fn shell(n: usize, gap: f64, seed: u64) -> Result<PointCloud, Box<dyn std::error::Error>> {
+    let mut rng = Rng(seed);
+    let r2 = (1.0 - gap) * (1.0 - gap);
     let mut pos = Vec::with_capacity(n);
     let mut nor = Vec::with_capacity(n);
-    match parts[0] {
-        "shell" => {
-            let r2 = (1.0 - t) * (1.0 - t);
-            while pos.len() < n {
-                let v: [f64; 3] = std::array::from_fn(|_| 2.0 * rng.next() - 1.0);
-                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                if !(l > 0.1 && l <= 1.0) {
-                    continue;
-                }
-                let u = v.map(|c| c / l);
-                if rng.next() * (1.0 + r2) < 1.0 {
-                    pos.push(u);
-                    nor.push(u);
-                } else {
-                    pos.push(u.map(|c| c * (1.0 - t)));
-                    nor.push(u.map(|c| -c));
-                }
-            }
+    while pos.len() < n {
+        let u = rng.unit();
+        if rng.next() * (1.0 + r2) < 1.0 {
+            pos.push(u);
+            nor.push(u);
+        } else {
+            pos.push(u.map(|c| c * (1.0 - gap)));
+            nor.push(u.map(|c| -c));
         }
-        "plate" => {
-            let ext = [1.0, 1.0, t];
-            let areas = [ext[1] * ext[2], ext[0] * ext[2], ext[0] * ext[1]];
-            let total: f64 = areas.iter().sum();
-            while pos.len() < n {
-                let mut r = rng.next() * total;
-                let mut a = 0;
-                while a < 2 && r >= areas[a] {
-                    r -= areas[a];
-                    a += 1;
-                }
-                let side = if rng.next() < 0.5 { -1.0 } else { 1.0 };
-                let mut p: [f64; 3] = std::array::from_fn(|b| (rng.next() - 0.5) * ext[b]);
-                p[a] = 0.5 * side * ext[a];
-                let mut nn = [0.0; 3];
-                nn[a] = side;
-                pos.push(p);
-                nor.push(nn);
-            }
-        }
-        _ => return Err(format!("unknown synthetic input {spec}").into()),
     }
     Ok(PointCloud::new(pos, nor)?)
 }

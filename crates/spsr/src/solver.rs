@@ -147,6 +147,98 @@ impl<'a> Op<'a> {
         }
     }
 
+    /// Adds to `s` the coupling of function `i` (node `n`, above the base) with the coarser
+    /// levels: `− Σ_q A_iq pc_q + ∫∇B_i·V_q` over the parent-window functions `q`, from the
+    /// cumulative coarser solution `pc` and the cumulative coarser V `vc` on the parent level.
+    #[inline]
+    fn add_coarse_coupling(&self, s: f64, n: u32, i: [i64; 3], pc: &[f64], vc: &[[f32; 3]]) -> f64 {
+        let par = self.level.brood_parent[(n >> 3) as usize];
+        if self.tab.is_interior(i) {
+            self.add_interior_coupling(s, i, par, pc, vc)
+        } else {
+            self.add_boundary_coupling(s, i, par, pc, vc)
+        }
+    }
+
+    /// [`Op::add_coarse_coupling`] for an interior function: the precomputed parent stencils
+    /// of its child position, over their nonzero entries.
+    #[inline]
+    fn add_interior_coupling(
+        &self,
+        mut s: f64,
+        i: [i64; 3],
+        par: u32,
+        pc: &[f64],
+        vc: &[[f32; 3]],
+    ) -> f64 {
+        let tab = self.tab;
+        let parent_level = &self.tree.levels[self.t as usize - 1];
+        let c = ((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2)) as usize;
+        let ps = &tab.pstencil[c];
+        let pv = &tab.pvstencil[c];
+        for &w in &tab.pnonzero[c] {
+            let w = usize::from(w);
+            let q = neighbor_in(parent_level, par, w);
+            if q == NONE {
+                continue;
+            }
+            s -= ps[w] * pc[q as usize];
+            let v = vc[q as usize];
+            s += f64::from(v[0]) * pv[0][w]
+                + f64::from(v[1]) * pv[1][w]
+                + f64::from(v[2]) * pv[2][w];
+        }
+        s
+    }
+
+    /// [`Op::add_coarse_coupling`] for a function near the boundary: the parent window's
+    /// entries from the 1-D mass, stiffness and V tables.
+    fn add_boundary_coupling(
+        &self,
+        mut s: f64,
+        i: [i64; 3],
+        par: u32,
+        pc: &[f64],
+        vc: &[[f32; 3]],
+    ) -> f64 {
+        let tab = self.tab;
+        let parent_level = &self.tree.levels[self.t as usize - 1];
+        let mut pm = [[0.0; 5]; 3];
+        let mut ps = [[0.0; 5]; 3];
+        let mut vm = [[0.0; 5]; 3];
+        let mut vd = [[0.0; 5]; 3];
+        for a in 0..3 {
+            for o in 0..5 {
+                pm[a][o] = tab.pmass.get(i[a], o as i64 - 2);
+                ps[a][o] = tab.pstiff.get(i[a], o as i64 - 2);
+                vm[a][o] = tab.pvmass.get(i[a], o as i64 - 2);
+                vd[a][o] = tab.pvderiv.get(i[a], o as i64 - 2);
+            }
+        }
+        for w in 0..125usize {
+            let (ox, oy, oz) = (w % 5, (w / 5) % 5, w / 25);
+            let q = neighbor_in(parent_level, par, w);
+            if q == NONE {
+                continue;
+            }
+            let xq = pc[q as usize];
+            if xq != 0.0 {
+                let k = ps[0][ox] * pm[1][oy] * pm[2][oz]
+                    + pm[0][ox] * ps[1][oy] * pm[2][oz]
+                    + pm[0][ox] * pm[1][oy] * ps[2][oz];
+                s -= k * xq;
+            }
+            let v = vc[q as usize];
+            if v != [0.0; 3] {
+                let v = v.map(f64::from);
+                s += v[0] * vd[0][ox] * vm[1][oy] * vm[2][oz]
+                    + v[1] * vm[0][ox] * vd[1][oy] * vm[2][oz]
+                    + v[2] * vm[0][ox] * vm[1][oy] * vd[2][oz];
+            }
+        }
+        s
+    }
+
     fn diagonal(&self) -> Vec<f32> {
         (0..self.level.len() as u32)
             .into_par_iter()
@@ -274,32 +366,7 @@ impl<'a> Op<'a> {
     /// rather than once per node colour. The order depends only on the tree, so the result
     /// does not depend on the thread count.
     fn gauss_seidel(&self, r: &[f32], x: &mut [f32], iters: u32) {
-        let up = 4.min(self.t);
-        let nb = self.level.len() / 8;
-        let mut blocks: [Vec<(u32, u32)>; 8] = Default::default();
-        let mut start = 0usize;
-        let mut current = NONE;
-        let mut colour = 0usize;
-        for b in 0..=nb {
-            let anc = (b < nb).then(|| {
-                let mut a = self.level.brood_parent[b];
-                for k in 1..up {
-                    a = self.tree.parent(self.t - k, a);
-                }
-                a
-            });
-            if anc != Some(current) {
-                if current != NONE {
-                    blocks[colour].push((start as u32, b as u32));
-                }
-                if let Some(a) = anc {
-                    current = a;
-                    start = b;
-                    let k = self.tree.levels[(self.t - up) as usize].key(a);
-                    colour = ((k[0] & 1) | (k[1] & 1) << 1 | (k[2] & 1) << 2) as usize;
-                }
-            }
-        }
+        let blocks = self.colour_blocks();
         let m = i64::from(self.degree) + 1;
         let node_colours = (m * m * m) as u32;
         let mut chi = self.cluster_values(|n| f64::from(x[n]));
@@ -332,6 +399,38 @@ impl<'a> Op<'a> {
                 });
             }
         }
+    }
+
+    /// The level's blocks `(first, end)` of broods, grouped by colour (the parity of the
+    /// common ancestor four levels up, or fewer near the root): see [`Op::gauss_seidel`].
+    fn colour_blocks(&self) -> [Vec<(u32, u32)>; 8] {
+        let up = 4.min(self.t);
+        let nb = self.level.len() / 8;
+        let mut blocks: [Vec<(u32, u32)>; 8] = Default::default();
+        let mut start = 0usize;
+        let mut current = NONE;
+        let mut colour = 0usize;
+        for b in 0..=nb {
+            let anc = (b < nb).then(|| {
+                let mut a = self.level.brood_parent[b];
+                for k in 1..up {
+                    a = self.tree.parent(self.t - k, a);
+                }
+                a
+            });
+            if anc != Some(current) {
+                if current != NONE {
+                    blocks[colour].push((start as u32, b as u32));
+                }
+                if let Some(a) = anc {
+                    current = a;
+                    start = b;
+                    let k = self.tree.levels[(self.t - up) as usize].key(a);
+                    colour = ((k[0] & 1) | (k[1] & 1) << 1 | (k[2] & 1) << 2) as usize;
+                }
+            }
+        }
+        blocks
     }
 
     /// One Gauss–Seidel update of node `n` (nothing for a node without a function). The
@@ -530,39 +629,44 @@ fn add_screening_targets(op: &Op, r: &mut [f64]) {
     });
 }
 
-/// Solves the whole hierarchy. `v` is the splatted vector field per level (may be empty);
-/// each level's V is released as soon as the cascade no longer needs it.
+/// Wall times of the parts of the solve, with the peak memory after each.
+struct Laps {
+    clock: std::time::Instant,
+    timings: Vec<(String, std::time::Duration, Option<u64>)>,
+}
+
+impl Laps {
+    fn new() -> Self {
+        Laps {
+            clock: std::time::Instant::now(),
+            timings: Vec::new(),
+        }
+    }
+
+    /// Records the time since the previous lap under `name`.
+    fn lap(&mut self, name: String) {
+        let peak = crate::resources::peak_rss();
+        self.timings.push((name, self.clock.elapsed(), peak));
+        self.clock = std::time::Instant::now();
+    }
+}
+
+/// Solves the whole hierarchy (ALGORITHM.md §7): the divergence constraints of every level,
+/// the base level by conjugate gradients, then level by level the right-hand side from the
+/// coarser solution, Gauss–Seidel sweeps and the prolongation of the cumulative solution.
+/// `v` is the splatted vector field per level (may be empty); each level's V is released as
+/// soon as the cascade no longer needs it.
 pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
-    let tree = p.tree;
-    let nlev = tree.levels.len();
+    let nlev = p.tree.levels.len();
     let tb = p.base_level as usize;
     let max_level = nlev - 1;
-
-    // Divergence constraints, fine to coarse.
     (p.progress)("constraints");
-    let mut clock = std::time::Instant::now();
-    let mut timings: Vec<(String, std::time::Duration, Option<u64>)> = Vec::new();
-    let mut lap = |name: String, clock: &mut std::time::Instant| {
-        timings.push((name, clock.elapsed(), crate::resources::peak_rss()));
-        *clock = std::time::Instant::now();
-    };
-    // Constraints are stored in single precision (summed in double precision).
-    let mut tcons: Vec<Vec<f32>> = vec![Vec::new(); nlev];
-    let mut g_finer: Vec<f64> = Vec::new();
-    let empty: Vec<[f32; 3]> = Vec::new();
+    let mut laps = Laps::new();
     v.resize_with(nlev, Vec::new);
-    for t in (tb..=max_level).rev() {
-        let tab = p.tables[t].as_ref().expect("tables");
-        let v_finer = v.get(t + 1).unwrap_or(&empty);
-        let gf = (t < max_level).then_some(g_finer.as_slice());
-        let (g, b) = divergence_constraints(tree, t as u32, tab, p.fem, &v[t], v_finer, gf);
-        g_finer = g;
-        tcons[t] = b;
-    }
-    drop(g_finer);
+    let mut tcons = constraints(p, &v);
     // The finest level's V has entered the constraints; the cascade only prolongs coarser V.
     v[max_level] = Vec::new();
-    lap("divergence constraints".into(), &mut clock);
+    laps.lap("divergence constraints".into());
     let mut sol = Solution {
         x: vec![Vec::new(); nlev],
         p: vec![Vec::new(); nlev],
@@ -570,194 +674,175 @@ pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
         timings: Vec::new(),
     };
 
+    (p.progress)("solving base depth");
     // The cumulative solution of the previous level, kept in full precision for the cascade;
     // the stored copies (for evaluation) are single precision.
-    let mut p_prev: Vec<f64>;
-    // Base solve.
-    (p.progress)("solving base depth");
-    {
-        let op = Op::new(p, tb as u32);
-        let valid: Vec<bool> = (0..op.level.len() as u32)
-            .map(|n| op.tab.range.contains(op.index(n)))
-            .collect();
-        let mut b: Vec<f64> = tcons[tb].iter().map(|&x| f64::from(x)).collect();
-        tcons[tb] = Vec::new();
-        add_screening_targets(&op, &mut b);
-        if p.singular {
-            // Project out the constant null vector so the system is consistent.
-            let cnt = valid.iter().filter(|&&v| v).count().max(1) as f64;
-            let mean = b
-                .iter()
-                .zip(&valid)
-                .filter(|(_, &v)| v)
-                .map(|(x, _)| *x)
-                .sum::<f64>()
-                / cnt;
-            for (bi, &v) in b.iter_mut().zip(&valid) {
-                if v {
-                    *bi -= mean;
-                }
-            }
-        }
-        // A base level of up to 2^18 nodes (depth 5: 46,656) is assembled once; larger ones
-        // (a deep --full-depth) are applied matrix-free to bound memory.
-        let diag = op.diagonal();
-        let x = if op.level.len() <= 1 << 18 {
-            let a = op.assemble(&valid);
-            conjugate_gradients(|x| a.apply(x), &diag, &b, &valid, 3000, 1e-7)
-        } else {
-            conjugate_gradients(|x| op.apply(x, &valid), &diag, &b, &valid, 3000, 1e-7)
-        };
-        sol.x[tb] = to_f32(&x);
-        sol.p[tb] = to_f32(&x);
-        p_prev = x;
-    }
-    lap(
-        format!("depth {}: conjugate gradients", tb as u32 - DEPTH_OFFSET),
-        &mut clock,
-    );
+    let mut p_prev = solve_base(p, std::mem::take(&mut tcons[tb]));
+    sol.x[tb] = to_f32(&p_prev);
+    sol.p[tb] = to_f32(&p_prev);
+    laps.lap(format!(
+        "depth {}: conjugate gradients",
+        tb as u32 - DEPTH_OFFSET
+    ));
 
     // Cumulative V, prolonged level by level (stored in single precision).
     let mut vc: Vec<[f32; 3]> = std::mem::take(&mut v[tb]);
     if vc.is_empty() {
-        vc = vec![[0.0; 3]; tree.levels[tb].len()];
+        vc = vec![[0.0; 3]; p.tree.levels[tb].len()];
     }
-
     for t in tb + 1..=max_level {
-        (p.progress)(&format!("solving depth {}", t as u32 - DEPTH_OFFSET));
+        let dd = t as u32 - DEPTH_OFFSET;
+        (p.progress)(&format!("solving depth {dd}"));
         let op = Op::new(p, t as u32);
-        let tab = op.tab;
-        let level = op.level;
-        let parent_level = &tree.levels[t - 1];
-        let pc = &p_prev;
-        // Screening: the coarser solution at the clusters of this level.
-        let coarse_chi: Vec<f64> = (0..op.cl.pos.len())
-            .into_par_iter()
-            .map(|c| {
-                let node = op.cl.node[c];
-                let par = tree.parent(t as u32, node);
-                coarse_value(tree, p.fem, t as u32 - 1, par, op.cl.pos[c], pc)
-            })
-            .collect();
-        // Right-hand side: own constraints + coarser V − coarser solution coupling.
-        let rhs = |n: u32| -> f64 {
-            let i = op.index(n);
-            if !tab.range.contains(i) {
-                return 0.0;
-            }
-            let mut s = f64::from(tcons[t][n as usize]);
-            let par = level.brood_parent[(n >> 3) as usize];
-            if tab.is_interior(i) {
-                let c = ((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2)) as usize;
-                let ps = &tab.pstencil[c];
-                let pv = &tab.pvstencil[c];
-                for &w in &tab.pnonzero[c] {
-                    let w = usize::from(w);
-                    let q = neighbor_in(parent_level, par, w);
-                    if q == NONE {
-                        continue;
-                    }
-                    s -= ps[w] * pc[q as usize];
-                    let v = vc[q as usize];
-                    s += f64::from(v[0]) * pv[0][w]
-                        + f64::from(v[1]) * pv[1][w]
-                        + f64::from(v[2]) * pv[2][w];
-                }
-                return s;
-            }
-            let mut pm = [[0.0; 5]; 3];
-            let mut ps = [[0.0; 5]; 3];
-            let mut vm = [[0.0; 5]; 3];
-            let mut vd = [[0.0; 5]; 3];
-            for a in 0..3 {
-                for o in 0..5 {
-                    pm[a][o] = tab.pmass.get(i[a], o as i64 - 2);
-                    ps[a][o] = tab.pstiff.get(i[a], o as i64 - 2);
-                    vm[a][o] = tab.pvmass.get(i[a], o as i64 - 2);
-                    vd[a][o] = tab.pvderiv.get(i[a], o as i64 - 2);
-                }
-            }
-            for w in 0..125usize {
-                let (ox, oy, oz) = (w % 5, (w / 5) % 5, w / 25);
-                let q = neighbor_in(parent_level, par, w);
-                if q == NONE {
-                    continue;
-                }
-                let xq = pc[q as usize];
-                if xq != 0.0 {
-                    let k = ps[0][ox] * pm[1][oy] * pm[2][oz]
-                        + pm[0][ox] * ps[1][oy] * pm[2][oz]
-                        + pm[0][ox] * pm[1][oy] * ps[2][oz];
-                    s -= k * xq;
-                }
-                let v = vc[q as usize];
-                if v != [0.0; 3] {
-                    let v = v.map(f64::from);
-                    s += v[0] * vd[0][ox] * vm[1][oy] * vm[2][oz]
-                        + v[1] * vm[0][ox] * vd[1][oy] * vm[2][oz]
-                        + v[2] * vm[0][ox] * vm[1][oy] * vd[2][oz];
-                }
-            }
-            s
-        };
-        // Screening targets: Σ_c ω_c B_i(p_c) (τ − χ_{<d}(p_c)). Stored in single precision.
-        let r: Vec<f32> = (0..level.len() as u32)
-            .into_par_iter()
-            .map(|n| {
-                let mut s = rhs(n);
-                let i = op.index(n);
-                if tab.range.contains(i) {
-                    op.for_each_cluster(n, i, |c, bv| {
-                        s += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
-                    });
-                }
-                s as f32
-            })
-            .collect();
+        let r = right_hand_side(&op, p.fem, &tcons[t], &p_prev, &vc);
         tcons[t] = Vec::new();
         if t == max_level {
             // The coarser V has entered the right-hand side for the last time.
             vc = Vec::new();
         }
-        let dd = t as u32 - DEPTH_OFFSET;
-        lap(format!("depth {dd}: right-hand side"), &mut clock);
-        let mut x = vec![0.0f32; level.len()];
+        laps.lap(format!("depth {dd}: right-hand side"));
+        let mut x = vec![0.0f32; op.level.len()];
         op.gauss_seidel(&r, &mut x, p.iters);
         drop(r);
-        lap(format!("depth {dd}: Gauss-Seidel"), &mut clock);
-        // Cumulative solution and V at this level, for the next level. The cascade carries
-        // the cumulative solution in double precision; the stored copy is single precision.
-        // The deepest level needs neither (evaluation reads a leaf's parent's cumulative
-        // solution).
+        laps.lap(format!("depth {dd}: Gauss-Seidel"));
+        // Cumulative solution and V at this level, for the next level. The deepest level
+        // needs neither (evaluation reads a leaf's parent's cumulative solution).
         if t < max_level {
-            let cum = prolong::<1, f64>(
-                tree,
-                t as u32,
-                &tab.prolong,
-                tab.range,
-                |q| [pc[q as usize]],
-                |n| [f64::from(x[n])],
-                |c| c[0],
-            );
+            let cum = prolong_solution(&op, &p_prev, &x);
             sol.p[t] = to_f32(&cum);
             p_prev = cum;
-            let vt = std::mem::take(&mut v[t]);
-            let prev = std::mem::take(&mut vc);
-            vc = prolong::<3, [f32; 3]>(
-                tree,
-                t as u32,
-                &tab.vprolong,
-                tab.vrange,
-                |q| prev[q as usize].map(f64::from),
-                |n| vt.get(n).map_or([0.0; 3], |v| v.map(f64::from)),
-                |c| c.map(|x| x as f32),
-            );
+            vc = prolong_field(&op, &vc, std::mem::take(&mut v[t]));
         }
         sol.x[t] = x;
-        lap(format!("depth {dd}: prolongation"), &mut clock);
+        laps.lap(format!("depth {dd}: prolongation"));
     }
-    sol.timings = timings;
+    sol.timings = laps.timings;
     sol
+}
+
+/// The divergence constraints of every level from the base up, computed fine to coarse and
+/// stored in single precision (summed in double precision); empty below the base.
+fn constraints(p: &Problem, v: &[Vec<[f32; 3]>]) -> Vec<Vec<f32>> {
+    let nlev = p.tree.levels.len();
+    let max_level = nlev - 1;
+    let mut tcons: Vec<Vec<f32>> = vec![Vec::new(); nlev];
+    let mut g_finer: Vec<f64> = Vec::new();
+    let empty: Vec<[f32; 3]> = Vec::new();
+    for t in (p.base_level as usize..=max_level).rev() {
+        let tab = p.tables[t].as_ref().expect("tables");
+        let v_finer = v.get(t + 1).unwrap_or(&empty);
+        let gf = (t < max_level).then_some(g_finer.as_slice());
+        let (g, b) = divergence_constraints(p.tree, t as u32, tab, p.fem, &v[t], v_finer, gf);
+        g_finer = g;
+        tcons[t] = b;
+    }
+    tcons
+}
+
+/// The base level's coefficients: its system, assembled (or applied matrix-free when large),
+/// solved by Jacobi-preconditioned conjugate gradients. `tcons` are the level's divergence
+/// constraints.
+fn solve_base(p: &Problem, tcons: Vec<f32>) -> Vec<f64> {
+    let op = Op::new(p, p.base_level);
+    let valid: Vec<bool> = (0..op.level.len() as u32)
+        .map(|n| op.tab.range.contains(op.index(n)))
+        .collect();
+    let mut b: Vec<f64> = tcons.iter().map(|&x| f64::from(x)).collect();
+    drop(tcons);
+    add_screening_targets(&op, &mut b);
+    if p.singular {
+        remove_mean(&mut b, &valid);
+    }
+    // A base level of up to 2^18 nodes (depth 5: 46,656) is assembled once; larger ones
+    // (a deep --full-depth) are applied matrix-free to bound memory.
+    let diag = op.diagonal();
+    if op.level.len() <= 1 << 18 {
+        let a = op.assemble(&valid);
+        conjugate_gradients(|x| a.apply(x), &diag, &b, &valid, 3000, 1e-7)
+    } else {
+        conjugate_gradients(|x| op.apply(x, &valid), &diag, &b, &valid, 3000, 1e-7)
+    }
+}
+
+/// Projects the constant null vector out of `b` (over the valid entries), so that a system
+/// with constants in its kernel is consistent.
+fn remove_mean(b: &mut [f64], valid: &[bool]) {
+    let cnt = valid.iter().filter(|&&v| v).count().max(1) as f64;
+    let mean = b
+        .iter()
+        .zip(valid)
+        .filter(|(_, &v)| v)
+        .map(|(x, _)| *x)
+        .sum::<f64>()
+        / cnt;
+    for (bi, &v) in b.iter_mut().zip(valid) {
+        if v {
+            *bi -= mean;
+        }
+    }
+}
+
+/// The right-hand side of a level above the base, stored in single precision: its own
+/// constraints `tcons`, plus the coarser V (`vc`, cumulative, on the parent level), minus
+/// what the coarser solution (`pc`, cumulative, on the parent level) already meets, plus the
+/// screening targets `Σ_c ω_c B_i(p_c) (τ − χ_{<d}(p_c))`.
+fn right_hand_side(op: &Op, fem: Basis, tcons: &[f32], pc: &[f64], vc: &[[f32; 3]]) -> Vec<f32> {
+    let coarse_chi = coarse_cluster_values(op, fem, pc);
+    (0..op.level.len() as u32)
+        .into_par_iter()
+        .map(|n| {
+            let i = op.index(n);
+            if !op.tab.range.contains(i) {
+                return 0.0;
+            }
+            let mut s = op.add_coarse_coupling(f64::from(tcons[n as usize]), n, i, pc, vc);
+            op.for_each_cluster(n, i, |c, bv| {
+                s += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
+            });
+            s as f32
+        })
+        .collect()
+}
+
+/// The coarser solution `χ_{<d}` at each cluster of the level, from the cumulative
+/// coefficients `pc` of the parent level.
+fn coarse_cluster_values(op: &Op, fem: Basis, pc: &[f64]) -> Vec<f64> {
+    (0..op.cl.pos.len())
+        .into_par_iter()
+        .map(|c| {
+            let node = op.cl.node[c];
+            let par = op.tree.parent(op.t, node);
+            coarse_value(op.tree, fem, op.t - 1, par, op.cl.pos[c], pc)
+        })
+        .collect()
+}
+
+/// The cumulative solution of level `op.t`: the coarser cumulative solution `pc` prolonged,
+/// plus the level's own coefficients `x`. Carried in double precision.
+fn prolong_solution(op: &Op, pc: &[f64], x: &[f32]) -> Vec<f64> {
+    prolong::<1, f64>(
+        op.tree,
+        op.t,
+        &op.tab.prolong,
+        op.tab.range,
+        |q| [pc[q as usize]],
+        |n| [f64::from(x[n])],
+        |c| c[0],
+    )
+}
+
+/// The cumulative V of level `op.t`: the coarser cumulative V `vc` prolonged, plus the
+/// level's own V `vt` (may be empty).
+fn prolong_field(op: &Op, vc: &[[f32; 3]], vt: Vec<[f32; 3]>) -> Vec<[f32; 3]> {
+    prolong::<3, [f32; 3]>(
+        op.tree,
+        op.t,
+        &op.tab.vprolong,
+        op.tab.vrange,
+        |q| vc[q as usize].map(f64::from),
+        |n| vt.get(n).map_or([0.0; 3], |v| v.map(f64::from)),
+        |c| c.map(|x| x as f32),
+    )
 }
 
 /// `Σ_J coeff_J B_{d,J}(pos)` over the functions of level `t` around node `node` (which
@@ -799,3 +884,6 @@ pub fn coarse_value(
     }
     s
 }
+
+#[cfg(test)]
+mod tests;

@@ -9,7 +9,7 @@
 
 mod common;
 
-use common::{repo_file, sphere, torus, Rng};
+use common::{at_depth, bunny, sphere, torus, Rng};
 use spsr::attributes::{Attribute, AttributeData, ScalarType};
 use spsr::{Boundary, Degree, Mesh, Params, PointCloud, PointWeights};
 
@@ -86,10 +86,6 @@ fn check(what: &str, mesh: &Mesh, expected: u64) {
     );
 }
 
-fn bunny() -> PointCloud {
-    spsr::io::read_points(&repo_file("examples/bunny.ply")).unwrap()
-}
-
 /// A torus whose points carry a colour (by half) and a confidence value.
 fn coloured_torus() -> PointCloud {
     let mut cloud = torus(15_000, 1.0, 0.35, 11);
@@ -115,10 +111,7 @@ fn coloured_torus() -> PointCloud {
 #[test]
 fn sphere_degree_1_defaults() {
     let cloud = sphere(20_000, [0.3, -0.1, 0.2], 1.5, 1);
-    let params = Params {
-        depth: 7,
-        ..Params::default()
-    };
+    let params = at_depth(7);
     let out = spsr::reconstruct(&cloud, &params).unwrap();
     check("sphere d7 degree 1", &out.mesh, 0xccfbe8fb8e47fe4f);
 }

@@ -1,61 +1,20 @@
-//! Shared helpers of the integration tests: analytic point clouds with exact normals and
-//! exact point-to-mesh distances.
+//! Shared helpers of the integration tests (`golden.rs`, `pipeline/`, `io/`): analytic point
+//! clouds with exact normals, the example bunny, mesh and error checks, and the fuzz targets'
+//! harness.
 #![allow(dead_code)]
 
-use spsr::{Mesh, PointCloud};
+use std::path::{Path, PathBuf};
 
-/// Deterministic xorshift generator in [0, 1).
-pub struct Rng(pub u64);
+use spsr::{Error, Mesh, Params, PointCloud};
 
-impl Rng {
-    pub fn next(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
+mod clouds;
+#[allow(unused_imports)]
+pub use clouds::*;
 
-/// `n` points uniform on a sphere, exact outward normals.
-pub fn sphere(n: usize, c: [f64; 3], r: f64, seed: u64) -> PointCloud {
-    let mut rng = Rng(seed);
-    let mut pos = Vec::with_capacity(n);
-    let mut nor = Vec::with_capacity(n);
-    while pos.len() < n {
-        let v = [
-            2.0 * rng.next() - 1.0,
-            2.0 * rng.next() - 1.0,
-            2.0 * rng.next() - 1.0,
-        ];
-        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        if l > 0.1 && l <= 1.0 {
-            let u = [v[0] / l, v[1] / l, v[2] / l];
-            pos.push([c[0] + r * u[0], c[1] + r * u[1], c[2] + r * u[2]]);
-            nor.push(u);
-        }
-    }
-    PointCloud::new(pos, nor).unwrap()
-}
-
-/// `n` points area-uniform on a torus about the z axis (major radius `big`, minor `small`).
-pub fn torus(n: usize, big: f64, small: f64, seed: u64) -> PointCloud {
-    let mut rng = Rng(seed);
-    let mut pos = Vec::with_capacity(n);
-    let mut nor = Vec::with_capacity(n);
-    while pos.len() < n {
-        let u = 2.0 * std::f64::consts::PI * rng.next();
-        let v = 2.0 * std::f64::consts::PI * rng.next();
-        // Area element ∝ big + small·cos v: rejection sampling.
-        if rng.next() * (big + small) > big + small * v.cos() {
-            continue;
-        }
-        let nrm = [v.cos() * u.cos(), v.cos() * u.sin(), v.sin()];
-        let ring = big + small * v.cos();
-        pos.push([ring * u.cos(), ring * u.sin(), small * v.sin()]);
-        nor.push(nrm);
-    }
-    PointCloud::new(pos, nor).unwrap()
-}
+/// The fuzz targets' bodies and the invariants they check (`fuzz/src/harness.rs`, shared
+/// with the fuzz crate).
+#[path = "../../../../fuzz/src/harness.rs"]
+pub mod harness;
 
 #[allow(unused_imports)]
 pub use spsr::metrics::MeshDistance;
@@ -83,8 +42,60 @@ pub fn assert_closed_manifold(mesh: &Mesh, what: &str) -> spsr::mesh::Topology {
     topo
 }
 
-pub fn repo_file(rel: &str) -> std::path::PathBuf {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+/// A file of the repository, by its path from the repository's root.
+pub fn repo_file(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../..")
         .join(rel)
 }
+
+/// The example bunny (`examples/bunny.ply`).
+pub fn bunny() -> PointCloud {
+    spsr::io::read_points(&repo_file("examples/bunny.ply")).unwrap()
+}
+
+/// The example bunny and its ground-truth mesh (open at the bottom).
+pub fn bunny_and_truth() -> (PointCloud, Mesh) {
+    let gt = spsr::io::read_mesh(&repo_file("crates/spsr/tests/data/bunny_gt.ply")).unwrap();
+    (bunny(), gt)
+}
+
+/// The default parameters at `depth`.
+pub fn at_depth(depth: u32) -> Params {
+    Params {
+        depth,
+        ..Params::default()
+    }
+}
+
+/// Writes `bytes` to `dir/name`, returns the path.
+pub fn write_file(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, bytes).unwrap();
+    p
+}
+
+/// Asserts `e` is a parse error with a one-line message that contains every needle.
+pub fn assert_parse(e: Error, needles: &[&str]) {
+    let msg = e.to_string();
+    assert!(
+        matches!(e, Error::Parse { .. }),
+        "expected a parse error, got {e:?}"
+    );
+    assert!(!msg.contains('\n'), "message is not one line: {msg}");
+    for n in needles {
+        assert!(msg.contains(n), "message {msg:?} lacks {n:?}");
+    }
+}
+
+/// The faces of an octahedron whose vertices are +x, −x, +y, −y, +z, −z, oriented outward.
+pub const OCTAHEDRON_TRIANGLES: [[u32; 3]; 8] = [
+    [0, 2, 4],
+    [2, 1, 4],
+    [1, 3, 4],
+    [3, 0, 4],
+    [2, 0, 5],
+    [1, 2, 5],
+    [3, 1, 5],
+    [0, 3, 5],
+];

@@ -1,21 +1,8 @@
 //! Degenerate and hostile inputs (issue 7): each gets a sensible result or a clear error,
 //! never a panic or non-finite output.
 
-mod common;
-
-#[allow(dead_code)]
-#[path = "../../../fuzz/src/harness.rs"]
-mod harness;
-
-use common::{assert_closed_manifold, sphere};
-use spsr::{reconstruct, Error, Params, PointCloud, Warning};
-
-fn params(depth: u32) -> Params {
-    Params {
-        depth,
-        ..Params::default()
-    }
-}
+use crate::common::{assert_closed_manifold, at_depth, harness, sphere};
+use spsr::{reconstruct, Error, PointCloud, Warning};
 
 fn assert_finite(mesh: &spsr::Mesh) {
     assert!(mesh.vertices.iter().flatten().all(|c| c.is_finite()));
@@ -43,7 +30,7 @@ fn points_on_a_plane_give_a_finite_manifold_surface_through_them() {
     }
     let n = pos.len();
     let cloud = PointCloud::new(pos, vec![[0.0, 0.0, 1.0]; n]).unwrap();
-    let out = reconstruct(&cloud, &params(6)).unwrap();
+    let out = reconstruct(&cloud, &at_depth(6)).unwrap();
     assert!(!out.mesh.triangles.is_empty());
     assert_finite(&out.mesh);
     assert!(out.mesh.topology().edge_manifold);
@@ -75,7 +62,7 @@ fn points_on_a_line_give_a_finite_result_or_a_clear_error() {
                 .collect(),
         )
         .unwrap();
-        match reconstruct(&cloud, &params(6)) {
+        match reconstruct(&cloud, &at_depth(6)) {
             Ok(out) => {
                 assert_finite(&out.mesh);
                 assert!(out.mesh.topology().edge_manifold);
@@ -88,7 +75,7 @@ fn points_on_a_line_give_a_finite_result_or_a_clear_error() {
 #[test]
 fn two_points_are_too_few() {
     let cloud = PointCloud::new(vec![[0.0; 3], [1.0; 3]], vec![[1.0, 0.0, 0.0]; 2]).unwrap();
-    let e = reconstruct(&cloud, &params(8)).unwrap_err();
+    let e = reconstruct(&cloud, &at_depth(8)).unwrap_err();
     assert!(matches!(e, Error::TooFewPoints { usable: 2, .. }), "{e}");
     assert!(e.to_string().contains("at least 4"), "{e}");
 }
@@ -97,7 +84,7 @@ fn two_points_are_too_few() {
 fn a_million_duplicates_of_one_point_are_identical_points() {
     let n = 1_000_000;
     let cloud = PointCloud::new(vec![[0.5, -2.0, 7.0]; n], vec![[0.0, 0.0, 1.0]; n]).unwrap();
-    let e = reconstruct(&cloud, &params(10)).unwrap_err();
+    let e = reconstruct(&cloud, &at_depth(10)).unwrap_err();
     assert!(matches!(e, Error::Degenerate(_)), "{e}");
     assert!(e.to_string().contains("identical"), "{e}");
 }
@@ -112,7 +99,7 @@ fn a_million_duplicates_beside_a_sphere_reconstruct_the_sphere() {
     cloud
         .normals
         .extend(std::iter::repeat_n([0.0, 0.0, 1.0], n));
-    let out = reconstruct(&cloud, &params(6)).unwrap();
+    let out = reconstruct(&cloud, &at_depth(6)).unwrap();
     assert_closed_manifold(&out.mesh, "sphere with duplicates");
     // Merged into one sample: the sphere keeps its size.
     let (lo, hi) = bbox(&out.mesh);
@@ -123,7 +110,7 @@ fn a_million_duplicates_beside_a_sphere_reconstruct_the_sphere() {
 
 #[test]
 fn huge_and_tiny_coordinates_scale_with_the_input() {
-    let unit = reconstruct(&sphere(1000, [0.0; 3], 1.0, 5), &params(5)).unwrap();
+    let unit = reconstruct(&sphere(1000, [0.0; 3], 1.0, 5), &at_depth(5)).unwrap();
     let (ulo, uhi) = bbox(&unit.mesh);
     for (scale, offset) in [(1e30, 0.0), (1e-30, 0.0), (1e300, 0.0), (1e-300, 0.0)] {
         let mut cloud = sphere(1000, [0.0; 3], 1.0, 5);
@@ -132,7 +119,7 @@ fn huge_and_tiny_coordinates_scale_with_the_input() {
                 *c = *c * scale + offset;
             }
         }
-        let out = reconstruct(&cloud, &params(5)).unwrap();
+        let out = reconstruct(&cloud, &at_depth(5)).unwrap();
         assert_finite(&out.mesh);
         assert_eq!(out.mesh.vertices.len(), unit.mesh.vertices.len(), "{scale}");
         let (lo, hi) = bbox(&out.mesh);
@@ -152,7 +139,7 @@ fn a_small_object_far_from_the_origin_is_a_clear_error_or_a_mesh() {
         p[1] += 1e30;
         p[2] += 1e30;
     }
-    let e = reconstruct(&cloud, &params(6)).unwrap_err();
+    let e = reconstruct(&cloud, &at_depth(6)).unwrap_err();
     assert!(matches!(e, Error::Degenerate(_)), "{e}");
     // Coordinates whose spread overflows f64.
     let cloud = PointCloud::new(
@@ -165,7 +152,7 @@ fn a_small_object_far_from_the_origin_is_a_clear_error_or_a_mesh() {
         vec![[1.0, 0.0, 0.0]; 4],
     )
     .unwrap();
-    let e = reconstruct(&cloud, &params(6)).unwrap_err();
+    let e = reconstruct(&cloud, &at_depth(6)).unwrap_err();
     assert!(e.to_string().contains("not finite"), "{e}");
 }
 
@@ -180,8 +167,8 @@ fn normal_lengths_do_not_matter_without_confidence() {
             *c *= s;
         }
     }
-    let a = reconstruct(&unit, &params(5)).unwrap();
-    let b = reconstruct(&wild, &params(5)).unwrap();
+    let a = reconstruct(&unit, &at_depth(5)).unwrap();
+    let b = reconstruct(&wild, &at_depth(5)).unwrap();
     assert_eq!(b.stats.dropped, 0);
     assert_eq!(a.mesh.vertices.len(), b.mesh.vertices.len());
     let max = a
@@ -199,7 +186,7 @@ fn one_outlier_a_million_units_away_is_reported_with_the_fix() {
     let mut cloud = sphere(500, [0.0; 3], 1.0, 3);
     cloud.positions.push([1.0e6, 0.0, 0.0]);
     cloud.normals.push([1.0, 0.0, 0.0]);
-    let out = reconstruct(&cloud, &params(8)).unwrap();
+    let out = reconstruct(&cloud, &at_depth(8)).unwrap();
     assert_finite(&out.mesh);
     assert_eq!(out.stats.warnings.len(), 1, "{:?}", out.stats.warnings);
     let Warning::FarOutliers(o) = &out.stats.warnings[0] else {
@@ -220,7 +207,7 @@ fn one_outlier_a_million_units_away_is_reported_with_the_fix() {
     assert!(!text.contains("raise the depth"), "{text}");
     // A nearer outlier costs fewer depths, and a deeper run is a fix too.
     cloud.positions.last_mut().unwrap()[0] = 100.0;
-    let out = reconstruct(&cloud, &params(8)).unwrap();
+    let out = reconstruct(&cloud, &at_depth(8)).unwrap();
     let Warning::FarOutliers(o) = &out.stats.warnings[0] else {
         panic!("{:?}", out.stats.warnings)
     };
@@ -233,14 +220,14 @@ fn one_outlier_a_million_units_away_is_reported_with_the_fix() {
 fn depths_up_to_the_maximum_work_on_a_small_cloud() {
     let cloud = sphere(300, [0.0; 3], 1.0, 17);
     for depth in [16, spsr::MAX_DEPTH] {
-        let p = params(depth);
+        let p = at_depth(depth);
         let out = reconstruct(&cloud, &p).unwrap();
         assert_finite(&out.mesh);
         assert!(out.mesh.topology().edge_manifold);
         // 300 points are too few for the cube's margin: the surface may reach its faces.
         assert_eq!(harness::open_edges_inside_cube(&out.mesh, &cloud, &p), 0);
     }
-    let e = reconstruct(&cloud, &params(spsr::MAX_DEPTH + 1)).unwrap_err();
+    let e = reconstruct(&cloud, &at_depth(spsr::MAX_DEPTH + 1)).unwrap_err();
     assert!(
         matches!(&e, Error::InvalidParameter { field: "depth", value, .. } if value == "19"),
         "{e}"

@@ -1,9 +1,7 @@
 //! Attributes carried onto the mesh, normals from the implicit function, and per-point
 //! confidence from a named property.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use spsr::attributes::{Attribute, AttributeData};
 use spsr::{reconstruct, Error, Params, PointCloud, PointWeights};
 
@@ -41,14 +39,7 @@ fn column<'a>(mesh: &'a spsr::Mesh, name: &str) -> &'a AttributeData {
 fn two_colours_stay_on_their_halves_with_a_sharp_edge() {
     let cloud = painted_sphere(100_000);
     let depth = 7;
-    let out = reconstruct(
-        &cloud,
-        &Params {
-            depth,
-            ..Params::default()
-        },
-    )
-    .unwrap();
+    let out = reconstruct(&cloud, &at_depth(depth)).unwrap();
     let mesh = &out.mesh;
     let (red, blue) = (column(mesh, "red"), column(mesh, "blue"));
     assert!(matches!(red, AttributeData::U8(_)), "types are kept");

@@ -1,8 +1,6 @@
 //! Normal estimation and orientation on generated clouds whose true normals are known.
 
-mod common;
-
-use common::{sphere, torus, Rng};
+use crate::common::{boxed, sphere, torus, Rng};
 use spsr::normals::{compare, estimate, orient, Comparison, NormalParams, Orientation};
 use spsr::{Error, PointCloud};
 
@@ -13,31 +11,6 @@ fn run(cloud: &PointCloud, how: &Orientation) -> Comparison {
         .normals;
     orient(&cloud.positions, &mut n, how).unwrap();
     compare(&n, &cloud.normals).unwrap()
-}
-
-/// `n` points area-uniform on the faces of the box `[-h, h]`, exact outward face normals.
-fn boxed(n: usize, h: [f64; 3], seed: u64) -> PointCloud {
-    let mut rng = Rng(seed);
-    let areas = [h[1] * h[2], h[0] * h[2], h[0] * h[1]];
-    let total: f64 = areas.iter().sum();
-    let mut pos = Vec::with_capacity(n);
-    let mut nor = Vec::with_capacity(n);
-    while pos.len() < n {
-        let mut r = rng.next() * total;
-        let mut a = 0;
-        while a < 2 && r >= areas[a] {
-            r -= areas[a];
-            a += 1;
-        }
-        let side = if rng.next() < 0.5 { -1.0 } else { 1.0 };
-        let mut p: [f64; 3] = std::array::from_fn(|b| (2.0 * rng.next() - 1.0) * h[b]);
-        p[a] = side * h[a];
-        let mut nn = [0.0; 3];
-        nn[a] = side;
-        pos.push(p);
-        nor.push(nn);
-    }
-    PointCloud::new(pos, nor).unwrap()
 }
 
 /// A hollow ball: the sphere of radius 1 with outward normals and, `gap` inside it, the

@@ -2,9 +2,7 @@
 //! islands go, small holes close, open scans open where the ground truth is open, and bad
 //! meshes give errors.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use spsr::attributes::{Attribute, AttributeData};
 use spsr::metrics::sample_surface;
 use spsr::trim::{auto_threshold, trim, Threshold, TrimParams};
@@ -376,12 +374,6 @@ fn a_closed_sphere_loses_nothing_to_auto_trimming() {
     assert_closed_manifold(&out, "auto-trimmed sphere");
 }
 
-fn bunny() -> (spsr::PointCloud, Mesh) {
-    let cloud = spsr::io::read_points(&repo_file("examples/bunny.ply")).unwrap();
-    let gt = spsr::io::read_mesh(&repo_file("crates/spsr/tests/data/bunny_gt.ply")).unwrap();
-    (cloud, gt)
-}
-
 /// Points along the boundary edges of `m`.
 fn points_on_boundary(m: &Mesh) -> Vec<[f64; 3]> {
     boundary_edges(m)
@@ -398,7 +390,7 @@ fn points_on_boundary(m: &Mesh) -> Vec<[f64; 3]> {
 
 #[test]
 fn the_open_bottomed_bunny_opens_where_the_ground_truth_is_open() {
-    let (cloud, gt) = bunny();
+    let (cloud, gt) = bunny_and_truth();
     let mesh = reconstruct_with_density(&cloud, 8);
     let (out, stats) = trim(&mesh, &TrimParams::default()).unwrap();
     let topo = out.topology();
@@ -467,7 +459,7 @@ fn area_in_ball(m: &Mesh) -> f64 {
 
 #[test]
 fn a_filled_scanning_gap_survives_a_conservative_value() {
-    let (cloud, _) = bunny();
+    let cloud = bunny();
     let keep: Vec<usize> = (0..cloud.positions.len())
         .filter(|&i| !in_ball(cloud.positions[i], HOLE_RADIUS))
         .collect();
@@ -496,11 +488,8 @@ fn a_filled_scanning_gap_survives_a_conservative_value() {
 
 #[test]
 fn reconstruct_and_trim_equals_reconstructing_with_density_then_trimming() {
-    let cloud = spsr::io::read_points(&common::repo_file("examples/bunny.ply")).unwrap();
-    let params = Params {
-        depth: 6,
-        ..Params::default()
-    };
+    let cloud = bunny();
+    let params = at_depth(6);
     let trim_params = TrimParams::default();
     let (out, stats) =
         spsr::reconstruct_and_trim(cloud.clone(), &params, &trim_params, &|_| {}).unwrap();

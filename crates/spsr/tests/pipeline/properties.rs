@@ -4,38 +4,10 @@
 //! it (extraction stops at the cube, as PoissonRecon's does), or a clear error; never panic.
 //! Few cases and small depths keep this to seconds.
 
-#[allow(dead_code)]
-#[path = "../../../fuzz/src/harness.rs"]
-mod harness;
-
 use proptest::prelude::*;
 use spsr::{Boundary, Error, Params, PointCloud};
 
-/// Deterministic xorshift in [0, 1): the cloud is a function of the drawn seed, so a
-/// failing case is reproduced from its parameters alone.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn unit(&mut self) -> [f64; 3] {
-        loop {
-            let v = [
-                2.0 * self.next() - 1.0,
-                2.0 * self.next() - 1.0,
-                2.0 * self.next() - 1.0,
-            ];
-            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            if l > 0.1 && l <= 1.0 {
-                return [v[0] / l, v[1] / l, v[2] / l];
-            }
-        }
-    }
-}
+use crate::common::{harness, Rng};
 
 #[derive(Debug, Clone)]
 struct Case {

@@ -3,11 +3,9 @@
 //! is included from `fuzz/src/harness.rs`: every one must now run without a panic and keep
 //! the targets' invariants.
 
-#[allow(dead_code)]
-#[path = "../../../fuzz/src/harness.rs"]
-mod harness;
-
 use std::path::Path;
+
+use crate::common::harness;
 
 fn replay(target: &str, f: fn(&[u8])) -> usize {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fuzz");

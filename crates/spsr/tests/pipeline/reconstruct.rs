@@ -1,8 +1,6 @@
 //! End-to-end geometric truths of `spsr::reconstruct` (ALGORITHM.md §13.3).
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use spsr::{reconstruct, Boundary, Degree, Error, MemoryLimit, Params, PointCloud};
 
 fn radial_errors(mesh: &spsr::Mesh, c: [f64; 3], r: f64) -> Vec<f64> {
@@ -100,25 +98,12 @@ fn sphere_with_degree_2_and_dirichlet_or_free_boundaries() {
     }
 }
 
-fn bunny() -> (PointCloud, spsr::Mesh) {
-    let cloud = spsr::io::read_points(&repo_file("examples/bunny.ply")).unwrap();
-    let gt = spsr::io::read_mesh(&repo_file("crates/spsr/tests/data/bunny_gt.ply")).unwrap();
-    (cloud, gt)
-}
-
 #[test]
 fn bunny_is_closed_and_its_distance_to_the_ground_truth_falls_with_depth() {
-    let (cloud, gt) = bunny();
+    let (cloud, gt) = bunny_and_truth();
     let mut last = f64::INFINITY;
     for depth in [6, 7, 8] {
-        let out = reconstruct(
-            &cloud,
-            &Params {
-                depth,
-                ..Params::default()
-            },
-        )
-        .unwrap();
+        let out = reconstruct(&cloud, &at_depth(depth)).unwrap();
         assert_closed_manifold(&out.mesh, &format!("bunny depth {depth}"));
         // The ground truth is open at the bottom, so measure from it to the mesh.
         let dist = MeshDistance::new(&out.mesh).mean_distance(&gt.vertices);
@@ -134,11 +119,8 @@ fn bunny_is_closed_and_its_distance_to_the_ground_truth_falls_with_depth() {
 
 #[test]
 fn translating_and_scaling_the_input_transforms_the_mesh() {
-    let (cloud, _) = bunny();
-    let params = Params {
-        depth: 6,
-        ..Params::default()
-    };
+    let cloud = bunny();
+    let params = at_depth(6);
     let a = reconstruct(&cloud, &params).unwrap().mesh;
     let (s, t) = (3.0, [10.0, -5.0, 3.0]);
     let map = |p: [f64; 3]| [s * p[0] + t[0], s * p[1] + t[1], s * p[2] + t[2]];
@@ -180,7 +162,7 @@ fn screening_lands_closer_to_the_truth_than_unscreened_poisson() {
         "screened {screened} vs unscreened {unscreened}"
     );
     // The same on the real bunny, measured from the ground truth.
-    let (cloud, gt) = bunny();
+    let (cloud, gt) = bunny_and_truth();
     let dist = |alpha: f64| {
         let params = Params {
             depth: 7,
@@ -199,7 +181,7 @@ fn screening_lands_closer_to_the_truth_than_unscreened_poisson() {
 
 #[test]
 fn the_mesh_does_not_depend_on_the_thread_count() {
-    let (cloud, _) = bunny();
+    let cloud = bunny();
     let params = Params {
         depth: 7,
         density: true,
@@ -219,7 +201,7 @@ fn the_mesh_does_not_depend_on_the_thread_count() {
 
 #[test]
 fn density_is_reported_per_vertex() {
-    let (cloud, _) = bunny();
+    let cloud = bunny();
     let params = Params {
         depth: 6,
         density: true,
@@ -243,14 +225,7 @@ fn invalid_points_are_dropped_and_counted() {
     cloud.normals.push([0.0, 0.0, 0.0]);
     cloud.positions.push([f64::INFINITY, 0.0, 0.0]);
     cloud.normals.push([0.0, 1.0, 0.0]);
-    let out = reconstruct(
-        &cloud,
-        &Params {
-            depth: 5,
-            ..Params::default()
-        },
-    )
-    .unwrap();
+    let out = reconstruct(&cloud, &at_depth(5)).unwrap();
     assert_eq!(out.stats.dropped, 3);
     assert_closed_manifold(&out.mesh, "sphere with bad points");
 }
@@ -348,14 +323,7 @@ fn two_points_far_apart_and_a_flat_patch_do_not_panic() {
     }
     let n = pos.len();
     let flat = PointCloud::new(pos, vec![[0.0, 0.0, 1.0]; n]).unwrap();
-    let out = reconstruct(
-        &flat,
-        &Params {
-            depth: 6,
-            ..Params::default()
-        },
-    )
-    .unwrap();
+    let out = reconstruct(&flat, &at_depth(6)).unwrap();
     assert!(out.mesh.topology().edge_manifold);
     // Points on a line, with opposite normals cancelling.
     let line = PointCloud::new(
@@ -371,13 +339,7 @@ fn two_points_far_apart_and_a_flat_patch_do_not_panic() {
             .collect(),
     )
     .unwrap();
-    match reconstruct(
-        &line,
-        &Params {
-            depth: 6,
-            ..Params::default()
-        },
-    ) {
+    match reconstruct(&line, &at_depth(6)) {
         Ok(out) => assert!(out
             .mesh
             .vertices
@@ -425,14 +387,7 @@ fn a_far_outlier_is_reported_with_the_fix() {
     let mut cloud = sphere(20_000, [0.0; 3], 1.0, 8);
     cloud.positions.push([1.0e6, 0.0, 0.0]);
     cloud.normals.push([1.0, 0.0, 0.0]);
-    let out = reconstruct(
-        &cloud,
-        &Params {
-            depth: 6,
-            ..Params::default()
-        },
-    )
-    .unwrap();
+    let out = reconstruct(&cloud, &at_depth(6)).unwrap();
     assert_eq!(out.stats.warnings.len(), 1, "{:?}", out.stats.warnings);
     let w = out.stats.warnings[0].to_string();
     assert!(
@@ -443,14 +398,7 @@ fn a_far_outlier_is_reported_with_the_fix() {
     );
     // Without the outlier there is nothing to say.
     let clean = sphere(20_000, [0.0; 3], 1.0, 8);
-    let out = reconstruct(
-        &clean,
-        &Params {
-            depth: 6,
-            ..Params::default()
-        },
-    )
-    .unwrap();
+    let out = reconstruct(&clean, &at_depth(6)).unwrap();
     assert!(out.stats.warnings.is_empty(), "{:?}", out.stats.warnings);
 }
 

@@ -446,7 +446,7 @@ fn json_has_every_key() {
 }
 
 /// Speed on about two million faces with one million samples per surface:
-/// `cargo test --test eval -- --ignored --nocapture`.
+/// `cargo test -p spsr --test io -- --ignored --nocapture speed_two_million_faces`.
 #[test]
 #[ignore]
 fn speed_two_million_faces() {

@@ -3,10 +3,12 @@
 
 use std::fmt::Write as _;
 use std::fs;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use spsr::io::{check_output_path, read_mesh, read_points, write_mesh, WriteOptions};
 use spsr::{Error, Mesh};
+
+use crate::common::{assert_parse, write_file, OCTAHEDRON_TRIANGLES};
 
 // ---------------------------------------------------------------------------------------------
 // A small PLY writer for tests: any encoding, either type-name family.
@@ -177,25 +179,6 @@ fn sample_points(n: usize) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
         })
         .collect();
     (p, nn)
-}
-
-fn write_file(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
-    let p = dir.join(name);
-    fs::write(&p, bytes).unwrap();
-    p
-}
-
-/// Asserts `e` is a Parse error whose message contains every needle.
-fn assert_parse(e: Error, needles: &[&str]) {
-    let msg = e.to_string();
-    assert!(
-        matches!(e, Error::Parse { .. }),
-        "expected Parse, got {e:?}"
-    );
-    assert!(!msg.contains('\n'), "message is not one line: {msg}");
-    for n in needles {
-        assert!(msg.contains(n), "message {msg:?} lacks {n:?}");
-    }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -551,16 +534,7 @@ fn test_mesh(with_density: bool) -> Mesh {
         [0.0, 0.0, 123456.789],
         [0.0, 0.0, -1e-7],
     ];
-    let triangles = vec![
-        [0, 2, 4],
-        [2, 1, 4],
-        [1, 3, 4],
-        [3, 0, 4],
-        [2, 0, 5],
-        [1, 2, 5],
-        [3, 1, 5],
-        [0, 3, 5],
-    ];
+    let triangles = OCTAHEDRON_TRIANGLES.to_vec();
     let density = with_density.then(|| vec![0.5, 1.5, 2.25, 3.0, 4.125, -1.0]);
     Mesh {
         vertices,
@@ -900,7 +874,7 @@ fn bunny_example_and_ground_truth() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Speed (run with `cargo test --release -p spsr --test io_roundtrip -- --ignored --nocapture`).
+// Speed (run with `cargo test --release -p spsr --test io -- --ignored --nocapture speed_read`).
 
 #[test]
 #[ignore = "timing; run by hand"]

@@ -1,5 +1,5 @@
 //! Round trips through every reader and writer of `spsr::io` beyond the basic PLY/text tests
-//! of `io_roundtrip.rs`: clouds with attributes and without normals, LAS/LAZ, E57 and PCD
+//! of `io_roundtrip`: clouds with attributes and without normals, LAS/LAZ, E57 and PCD
 //! (written with those formats' own crates), and meshes as PLY, OBJ, STL and GLB; plus a
 //! malformed file of each format.
 
@@ -13,20 +13,7 @@ use spsr::io::{
 };
 use spsr::{Error, Mesh, PointCloud, ScanOrigin};
 
-fn write_file(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
-    let p = dir.join(name);
-    fs::write(&p, bytes).unwrap();
-    p
-}
-
-/// Asserts `e` is a parse error whose message contains every needle.
-fn assert_parse(e: Error, needles: &[&str]) {
-    let msg = e.to_string();
-    assert!(matches!(e, Error::Parse { .. }), "not a parse error: {msg}");
-    for n in needles {
-        assert!(msg.contains(n), "'{n}' not in: {msg}");
-    }
-}
+use crate::common::{assert_parse, write_file, OCTAHEDRON_TRIANGLES};
 
 /// A small deterministic cloud: positions that need `f64`, unit-ish normals, one NaN point,
 /// and attributes of several types.
@@ -817,16 +804,7 @@ fn octahedron(center: [f64; 3]) -> Mesh {
     let normals = dirs.iter().map(|d| d.map(|c| c as f32)).collect();
     Mesh {
         vertices,
-        triangles: vec![
-            [0, 2, 4],
-            [2, 1, 4],
-            [1, 3, 4],
-            [3, 0, 4],
-            [2, 0, 5],
-            [1, 2, 5],
-            [3, 1, 5],
-            [0, 3, 5],
-        ],
+        triangles: OCTAHEDRON_TRIANGLES.to_vec(),
         density: Some(vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.5]),
         normals: Some(normals),
         attributes: vec![
@@ -1156,7 +1134,7 @@ fn damaged_files_of_every_format_never_panic() {
 
 /// Writes small valid files of every cloud format into `fuzz/seeds/<target>/`, the starting
 /// corpus of the fuzz targets (see `fuzz/README.md`). Run by hand:
-/// `cargo test -p spsr --test formats -- --ignored write_fuzz_seeds`.
+/// `cargo test -p spsr --test io -- --ignored write_fuzz_seeds`.
 #[test]
 #[ignore = "writes the fuzzing seed corpus into the source tree"]
 fn write_fuzz_seeds() {

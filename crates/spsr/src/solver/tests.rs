@@ -1,0 +1,433 @@
+//! Unit tests of the solver: conjugate gradients on systems with a known solution, and the
+//! solver's own operators and sweeps on the system of a small reconstruction.
+
+use super::*;
+use crate::bspline::{Boundary, Degree};
+use crate::pipeline::{density, prepare, splat, system, tree};
+use crate::{Params, PointCloud};
+
+/// `f` run on a pool of `threads` threads.
+fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+        .install(f)
+}
+
+/// A fixed pseudo-random vector in [−1, 1).
+fn pseudo_random(n: usize, seed: u64) -> Vec<f64> {
+    let mut s = seed;
+    (0..n)
+        .map(|_| {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            2.0 * ((s >> 11) as f64 / (1u64 << 53) as f64) - 1.0
+        })
+        .collect()
+}
+
+fn norm(a: &[f64]) -> f64 {
+    a.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+fn sub(a: &[f64], b: &[f64]) -> Vec<f64> {
+    a.iter().zip(b).map(|(x, y)| x - y).collect()
+}
+
+/// The 7-point Laplacian on an `m³` grid: with `dirichlet`, zero values outside the grid
+/// (positive definite); otherwise zero flux across its faces (constants in the kernel).
+/// Rows outside `valid` are zero, columns outside it are skipped. Returns `(A x, diagonal)`.
+fn laplacian(m: usize, dirichlet: bool, valid: &[bool], x: &[f64]) -> (Vec<f64>, Vec<f32>) {
+    let idx = |p: [usize; 3]| p[0] + m * (p[1] + m * p[2]);
+    let mut y = vec![0.0; m * m * m];
+    let mut diag = vec![0.0f32; m * m * m];
+    for z in 0..m {
+        for yy in 0..m {
+            for xx in 0..m {
+                let p = [xx, yy, z];
+                let n = idx(p);
+                if !valid[n] {
+                    continue;
+                }
+                let mut s = 0.0;
+                let mut dg = 0.0;
+                for a in 0..3 {
+                    for up in [false, true] {
+                        let mut q = p;
+                        let inside = if up { p[a] + 1 < m } else { p[a] > 0 };
+                        if inside {
+                            q[a] = if up { p[a] + 1 } else { p[a] - 1 };
+                            dg += 1.0;
+                            if valid[idx(q)] {
+                                s -= x[idx(q)];
+                            }
+                        } else if dirichlet {
+                            dg += 1.0;
+                        }
+                    }
+                }
+                y[n] = s + dg * x[n];
+                diag[n] = dg as f32;
+            }
+        }
+    }
+    (y, diag)
+}
+
+#[test]
+fn conjugate_gradients_solve_a_dirichlet_laplacian() {
+    let m = 9;
+    let valid = vec![true; m * m * m];
+    let exact = pseudo_random(m * m * m, 7);
+    let (b, diag) = laplacian(m, true, &valid, &exact);
+    let apply = |x: &[f64]| laplacian(m, true, &valid, x).0;
+    let x = conjugate_gradients(apply, &diag, &b, &valid, 1000, 1e-12);
+    let err = norm(&sub(&x, &exact)) / norm(&exact);
+    assert!(err < 1e-9, "relative error {err}");
+}
+
+#[test]
+fn conjugate_gradients_solve_a_singular_neumann_laplacian_up_to_a_constant() {
+    // Zero flux: constants are in the kernel, and the diagonal varies (faces, edges, corners),
+    // so the Jacobi preconditioner is not a multiple of the identity.
+    let m = 8;
+    let valid = vec![true; m * m * m];
+    let exact = pseudo_random(m * m * m, 11);
+    let (mut b, diag) = laplacian(m, false, &valid, &exact);
+    // b is in the range already; removing its (rounding-size) mean is what the solver does.
+    remove_mean(&mut b, &valid);
+    let apply = |x: &[f64]| laplacian(m, false, &valid, x).0;
+    let x = conjugate_gradients(apply, &diag, &b, &valid, 1000, 1e-12);
+    let centred = |v: &[f64]| {
+        let mean = v.iter().sum::<f64>() / v.len() as f64;
+        v.iter().map(|x| x - mean).collect::<Vec<_>>()
+    };
+    let err = norm(&sub(&centred(&x), &centred(&exact))) / norm(&centred(&exact));
+    assert!(err < 1e-9, "relative error up to a constant {err}");
+    let res = norm(&sub(&laplacian(m, false, &valid, &x).0, &b)) / norm(&b);
+    assert!(res < 1e-11, "relative residual {res}");
+}
+
+#[test]
+fn conjugate_gradients_leave_entries_outside_the_mask_at_zero() {
+    let m = 6;
+    let valid: Vec<bool> = (0..m * m * m).map(|n| n % 7 != 3).collect();
+    let mut exact = pseudo_random(m * m * m, 5);
+    for (e, &v) in exact.iter_mut().zip(&valid) {
+        if !v {
+            *e = 0.0;
+        }
+    }
+    let (b, diag) = laplacian(m, true, &valid, &exact);
+    let apply = |x: &[f64]| laplacian(m, true, &valid, x).0;
+    let x = conjugate_gradients(apply, &diag, &b, &valid, 1000, 1e-12);
+    assert!(x.iter().zip(&valid).all(|(&x, &v)| v || x == 0.0));
+    let err = norm(&sub(&x, &exact)) / norm(&exact);
+    assert!(err < 1e-9, "relative error {err}");
+    // A zero right-hand side is solved by zero, at once.
+    let zero = vec![0.0; m * m * m];
+    let apply = |_: &[f64]| -> Vec<f64> { panic!("no iteration for a zero right-hand side") };
+    assert_eq!(
+        conjugate_gradients(apply, &diag, &zero, &valid, 1000, 1e-12),
+        zero
+    );
+}
+
+#[test]
+fn remove_mean_leaves_a_zero_sum_over_the_valid_entries_only() {
+    let mut b = vec![1.0, 2.0, 100.0, 6.0];
+    let valid = [true, true, false, true];
+    remove_mean(&mut b, &valid);
+    assert_eq!(b, vec![-2.0, -1.0, 100.0, 3.0]);
+}
+
+/// The system of a small reconstruction: a sphere at depth 6, levels above a base at depth 3.
+struct Fixture {
+    tree: Octree,
+    fem: Basis,
+    tables: Vec<Option<DepthTables>>,
+    clusters: Vec<Clusters>,
+    v: Vec<Vec<[f32; 3]>>,
+    base_level: u32,
+    singular: bool,
+}
+
+impl Fixture {
+    fn new(degree: Degree, boundary: Boundary, point_weight: Option<f64>) -> Self {
+        let params = Params {
+            depth: 7,
+            full_depth: 3,
+            degree,
+            boundary,
+            point_weight,
+            ..Params::default()
+        };
+        let cloud = sphere(20_000);
+        let prepared = prepare::prepare(&cloud, &params).unwrap();
+        let sampled = density::sample(prepared.points, prepared.carried, &params);
+        let refined = tree::build(&sampled, &params, cloud.positions.len()).unwrap();
+        let field = splat::splat(&refined, &sampled, &params).unwrap();
+        let tree = refined.tree;
+        let fem = Basis::new(degree, boundary);
+        let points = system::SamplePoints {
+            positions: sampled.samples.iter().map(|s| s.pos).collect(),
+            weights: sampled.samples.iter().map(|s| s.weight).collect(),
+        };
+        let screening =
+            system::screening(&tree, fem, &points, Vec::new(), 0, field.mean_area, &params);
+        let base_level = params.base_depth() + DEPTH_OFFSET;
+        let vb = Basis::new(Degree::Quadratic, boundary.derivative());
+        let tables = (0..tree.levels.len() as u32)
+            .map(|t| (t >= base_level).then(|| DepthTables::new(fem, vb, t - DEPTH_OFFSET)))
+            .collect();
+        Fixture {
+            tree,
+            fem,
+            tables,
+            clusters: screening.clusters,
+            v: field.v,
+            base_level,
+            singular: params.alpha() == 0.0 && boundary != Boundary::Dirichlet,
+        }
+    }
+
+    fn problem(&self) -> Problem<'_> {
+        Problem {
+            tree: &self.tree,
+            fem: self.fem,
+            tables: &self.tables,
+            clusters: &self.clusters,
+            base_level: self.base_level,
+            iters: 8,
+            singular: self.singular,
+            progress: &|_| {},
+        }
+    }
+
+    fn max_level(&self) -> u32 {
+        self.tree.levels.len() as u32 - 1
+    }
+}
+
+/// Points on a sphere (golden-angle spiral) of radius 0.3 about (0.5, 0.5, 0.5), with exact
+/// outward normals.
+fn sphere(n: usize) -> PointCloud {
+    let ga = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let (pos, nor) = (0..n)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let rho = (1.0 - z * z).sqrt();
+            let th = ga * i as f64;
+            let u = [rho * th.cos(), rho * th.sin(), z];
+            (u.map(|c| 0.5 + 0.3 * c), u)
+        })
+        .unzip();
+    PointCloud::new(pos, nor).unwrap()
+}
+
+/// The fixtures the operator tests run on: both degrees, screened and unscreened (built
+/// once, shared by the tests).
+fn fixtures() -> &'static [(&'static str, Fixture)] {
+    static FIXTURES: std::sync::OnceLock<Vec<(&'static str, Fixture)>> = std::sync::OnceLock::new();
+    FIXTURES.get_or_init(|| {
+        vec![
+            (
+                "degree 1 Neumann",
+                Fixture::new(Degree::Linear, Boundary::Neumann, None),
+            ),
+            (
+                "degree 2 Dirichlet",
+                Fixture::new(Degree::Quadratic, Boundary::Dirichlet, None),
+            ),
+            (
+                "degree 2 free, unscreened",
+                Fixture::new(Degree::Quadratic, Boundary::Free, Some(0.0)),
+            ),
+        ]
+    })
+}
+
+/// The level's nodes that carry a function.
+fn valid_nodes(op: &Op) -> Vec<bool> {
+    (0..op.level.len() as u32)
+        .map(|n| op.tab.range.contains(op.index(n)))
+        .collect()
+}
+
+/// A pseudo-random vector on the valid nodes, zero elsewhere.
+fn masked_random(valid: &[bool], seed: u64) -> Vec<f64> {
+    pseudo_random(valid.len(), seed)
+        .into_iter()
+        .zip(valid)
+        .map(|(x, &v)| if v { x } else { 0.0 })
+        .collect()
+}
+
+#[test]
+fn the_assembled_matrix_is_the_matrix_free_operator_and_symmetric() {
+    for (what, f) in fixtures() {
+        let p = f.problem();
+        for t in [f.base_level, f.max_level()] {
+            let op = Op::new(&p, t);
+            let valid = valid_nodes(&op);
+            let a = op.assemble(&valid);
+            let x = masked_random(&valid, 3);
+            let (y_free, y_rows) = (op.apply(&x, &valid), a.apply(&x));
+            let err = norm(&sub(&y_free, &y_rows)) / norm(&y_free);
+            assert!(err < 1e-12, "{what}, level {t}: relative difference {err}");
+            // Symmetric, with the diagonal of `Op::diagonal`.
+            let diag = op.diagonal();
+            let entry = |n: usize, m: u32| {
+                let row = n * a.width..(n + 1) * a.width;
+                a.cols[row.clone()]
+                    .iter()
+                    .zip(&a.vals[row])
+                    .find(|(&c, _)| c == m)
+                    .map(|(_, &v)| v)
+            };
+            for n in (0..valid.len()).filter(|&n| valid[n]) {
+                let dg = entry(n, n as u32).expect("a diagonal entry");
+                assert!(
+                    (dg as f32 - diag[n]).abs() <= 1e-6 * diag[n].abs(),
+                    "{what}, level {t}, node {n}: diagonal {dg} against {}",
+                    diag[n]
+                );
+                for k in 0..a.width {
+                    let m = a.cols[n * a.width + k];
+                    if m == NONE {
+                        continue;
+                    }
+                    let (v, w) = (a.vals[n * a.width + k], entry(m as usize, n as u32));
+                    let w = w.expect("a symmetric pattern");
+                    assert!(
+                        (v - w).abs() <= 1e-12 * dg.abs(),
+                        "{what}, level {t}: A[{n}][{m}] = {v}, A[{m}][{n}] = {w}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn the_base_solve_meets_its_tolerance() {
+    for (what, f) in fixtures() {
+        let p = f.problem();
+        let mut v = f.v.clone();
+        v.resize_with(f.tree.levels.len(), Vec::new);
+        let tcons = constraints(&p, &v);
+        let tb = f.base_level as usize;
+        let x = solve_base(&p, tcons[tb].clone());
+        // The right-hand side as `solve_base` builds it.
+        let op = Op::new(&p, f.base_level);
+        let valid = valid_nodes(&op);
+        let mut b: Vec<f64> = tcons[tb].iter().map(|&c| f64::from(c)).collect();
+        add_screening_targets(&op, &mut b);
+        if f.singular {
+            remove_mean(&mut b, &valid);
+        }
+        let res = norm(&sub(&op.apply(&x, &valid), &b)) / norm(&b);
+        assert!(res <= 1.01e-7, "{what}: relative residual {res}");
+        assert!(x.iter().zip(&valid).all(|(&x, &v)| v || x == 0.0));
+    }
+}
+
+/// The right-hand side of the finest level for a zero coarser solution and V: its own
+/// constraints and the screening targets.
+fn finest_right_hand_side(f: &Fixture, op: &Op) -> Vec<f32> {
+    let p = f.problem();
+    let mut v = f.v.clone();
+    v.resize_with(f.tree.levels.len(), Vec::new);
+    let tcons = constraints(&p, &v);
+    let parent_len = f.tree.levels[op.t as usize - 1].len();
+    right_hand_side(
+        op,
+        f.fem,
+        &tcons[op.t as usize],
+        &vec![0.0; parent_len],
+        &vec![[0.0; 3]; parent_len],
+    )
+}
+
+#[test]
+fn gauss_seidel_gives_the_same_bits_on_one_and_four_threads() {
+    for (what, f) in fixtures() {
+        let p = f.problem();
+        let op = Op::new(&p, f.max_level());
+        let blocks = op.colour_blocks();
+        assert!(
+            blocks.iter().any(|list| list.len() > 1),
+            "{what}: the sweep should run blocks in parallel"
+        );
+        // The blocks cover every brood once.
+        let mut all: Vec<(u32, u32)> = blocks.concat();
+        all.sort_unstable();
+        assert_eq!(all[0].0, 0, "{what}");
+        assert!(all.windows(2).all(|w| w[0].1 == w[1].0), "{what}");
+        assert_eq!(all.last().unwrap().1 as usize, op.level.len() / 8, "{what}");
+        let r = finest_right_hand_side(f, &op);
+        let sweep = |threads| {
+            with_threads(threads, || {
+                let mut x = vec![0.0f32; op.level.len()];
+                op.gauss_seidel(&r, &mut x, 3);
+                x.iter().map(|x| x.to_bits()).collect::<Vec<u32>>()
+            })
+        };
+        let one = sweep(1);
+        assert!(one.iter().any(|&b| b != 0), "{what}: nothing solved");
+        assert_eq!(one, sweep(4), "{what}");
+    }
+}
+
+#[test]
+fn the_cascade_gives_the_same_bits_on_one_and_four_threads() {
+    let f = &fixtures()[1].1;
+    let run = |threads| {
+        with_threads(threads, || {
+            let s = solve(&f.problem(), f.v.clone());
+            let bits = |v: &[Vec<f32>]| -> Vec<Vec<u32>> {
+                v.iter()
+                    .map(|l| l.iter().map(|x| x.to_bits()).collect())
+                    .collect()
+            };
+            (bits(&s.x), bits(&s.p))
+        })
+    };
+    assert_eq!(run(1), run(4));
+}
+
+#[test]
+fn gauss_seidel_lowers_the_energy_with_every_sweep() {
+    for (what, f) in fixtures() {
+        let p = f.problem();
+        let op = Op::new(&p, f.max_level());
+        let valid = valid_nodes(&op);
+        let r = finest_right_hand_side(f, &op);
+        let r64: Vec<f64> = r.iter().map(|&v| f64::from(v)).collect();
+        // E(x) = ½ xᵀAx − rᵀx, which each relaxation minimises along its coordinate.
+        let energy = |x: &[f64]| {
+            let ax = op.apply(x, &valid);
+            (0..x.len())
+                .map(|n| x[n] * (0.5 * ax[n] - r64[n]))
+                .sum::<f64>()
+        };
+        let residual = |x: &[f64]| norm(&sub(&r64, &op.apply(x, &valid)));
+        let mut x = vec![0.0f32; op.level.len()];
+        let to64 = |x: &[f32]| x.iter().map(|&v| f64::from(v)).collect::<Vec<f64>>();
+        let mut e = energy(&to64(&x));
+        let r0 = residual(&to64(&x));
+        for sweep in 1..=6 {
+            op.gauss_seidel(&r, &mut x, 1);
+            let e_new = energy(&to64(&x));
+            assert!(
+                e_new < e,
+                "{what}: sweep {sweep} raised the energy {e} to {e_new}"
+            );
+            e = e_new;
+        }
+        let r6 = residual(&to64(&x));
+        assert!(r6 < 0.5 * r0, "{what}: residual {r0} to {r6} in six sweeps");
+    }
+}
