@@ -1,4 +1,4 @@
-# Type stubs of the native module `spsr._spsr` (src/lib.rs). Private: use the functions of
+# Type stubs of the native module `spsr._spsr` (src/). Private: use the functions of
 # the `spsr` package, which check and convert their arguments before calling these.
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
