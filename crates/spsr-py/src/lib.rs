@@ -10,7 +10,7 @@
 //! |---|---|
 //! | [`arrays`] | NumPy arrays ↔ the library's points, meshes and attributes |
 //! | [`errors`] | library errors and warnings → Python exceptions and text |
-//! | [`params`] | keywords → `Params` / `TrimParams` |
+//! | [`params`] | keywords → `Params` / `TrimParams`; the library's defaults (`_defaults`) |
 //! | [`detach`] | running library code without the GIL, interruptibly |
 //! | [`reconstruct`] | `spsr.reconstruct` |
 //! | [`mesh_ops`] | `spsr.trim`, `spsr.eval` |
@@ -42,6 +42,7 @@ fn _spsr(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(files::write_points, m)?)?;
     m.add_function(wrap_pyfunction!(normals::estimate_normals, m)?)?;
     m.add_function(wrap_pyfunction!(cli::cli_main, m)?)?;
+    m.add_function(wrap_pyfunction!(params::defaults, m)?)?;
     m.add("MAX_DEPTH", spsr::MAX_DEPTH)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

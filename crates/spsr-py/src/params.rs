@@ -1,4 +1,4 @@
-//! Python keywords as the library's parameters.
+//! Python keywords as the library's parameters, and the library's defaults as Python values.
 //!
 //! The library checks every value it has a field for (`Params::validate`,
 //! `TrimParams::validate`), so that its rules and wording are the only ones; this module only
@@ -6,9 +6,11 @@
 //! boundary name, a trimming threshold that is not a number or `"auto"`).
 
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
+use spsr::normals::NormalParams;
 use spsr::trim::{Threshold, TrimParams};
-use spsr::{Boundary, Degree, Error, PointWeights};
+use spsr::{Boundary, Degree, Error, Params, PointWeights};
 
 use crate::errors::{invalid, py_err, Call};
 
@@ -33,6 +35,13 @@ pub fn boundary_arg(s: &str) -> PyResult<Boundary> {
                 "one of 'neumann', 'dirichlet', 'free'",
             )
         })
+}
+
+fn boundary_name(b: Boundary) -> &'static str {
+    BOUNDARIES
+        .iter()
+        .find(|&&(_, v)| v == b)
+        .map_or("neumann", |&(name, _)| name)
 }
 
 /// `degree=`: 1 or 2.
@@ -121,4 +130,68 @@ pub fn trim_params(
     };
     params.validate().map_err(py_err(py, call))?;
     Ok(params)
+}
+
+fn threshold_value(py: Python<'_>, t: Threshold) -> PyResult<Bound<'_, PyAny>> {
+    Ok(match t {
+        Threshold::Auto => "auto".into_pyobject(py)?.into_any(),
+        Threshold::Value(v) => f64::from(v).into_pyobject(py)?.into_any(),
+    })
+}
+
+/// `spsr._spsr._defaults()`: the library's defaults (`Params`, `TrimParams`,
+/// `NormalParams`, `EvalOptions`) by function and keyword, as the Python values that mean
+/// them. The keyword defaults of `spsr.reconstruct`, `spsr.trim`, `spsr.estimate_normals`
+/// and `spsr.eval` are tested against it.
+#[pyfunction]
+#[pyo3(name = "_defaults")]
+pub fn defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let trim = TrimParams::default();
+    let out = PyDict::new(py);
+    out.set_item("reconstruct", reconstruct_defaults(py, &trim)?)?;
+    let d = PyDict::new(py);
+    d.set_item("threshold", threshold_value(py, trim.threshold)?)?;
+    d.set_item("min_island_area", trim.min_island_area)?;
+    d.set_item("hole_area", trim.hole_area)?;
+    out.set_item("trim", d)?;
+    let d = PyDict::new(py);
+    d.set_item("neighbours", NormalParams::default().neighbours)?;
+    out.set_item("estimate_normals", d)?;
+    let eval = spsr::metrics::EvalOptions::default();
+    let d = PyDict::new(py);
+    d.set_item("samples", eval.samples)?;
+    d.set_item("seed", eval.seed)?;
+    out.set_item("eval", d)?;
+    Ok(out)
+}
+
+fn reconstruct_defaults<'py>(py: Python<'py>, trim: &TrimParams) -> PyResult<Bound<'py, PyDict>> {
+    let p = Params::default();
+    let d = PyDict::new(py);
+    d.set_item("depth", p.depth)?;
+    d.set_item("full_depth", p.full_depth)?;
+    d.set_item("samples_per_node", p.samples_per_node)?;
+    d.set_item("point_weight", p.point_weight)?;
+    d.set_item("degree", p.degree.get())?;
+    d.set_item("boundary", boundary_name(p.boundary))?;
+    d.set_item("scale", p.scale)?;
+    d.set_item("iters", p.iters)?;
+    d.set_item("confidence", p.weights == PointWeights::NormalLength)?;
+    let property = match &p.weights {
+        PointWeights::Property(name) => Some(name.as_str()),
+        _ => None,
+    };
+    d.set_item("confidence_property", property)?;
+    d.set_item("density", p.density)?;
+    d.set_item("linear_fit", p.linear_fit)?;
+    d.set_item("max_memory", p.max_memory)?;
+    d.set_item("two_level_splat", p.two_level_splat)?;
+    d.set_item("attributes", p.attributes)?;
+    d.set_item("data_pull", p.data_pull)?;
+    d.set_item("vertex_normals", p.normals)?;
+    // No trimming unless asked (`spsr::reconstruct`; `reconstruct_and_trim` is the opt-in).
+    d.set_item("trim", py.None())?;
+    d.set_item("min_island_area", trim.min_island_area)?;
+    d.set_item("hole_area", trim.hole_area)?;
+    Ok(d)
 }
