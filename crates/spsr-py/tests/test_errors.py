@@ -1,6 +1,7 @@
 """Every bad argument gets a Python exception with a clear message (the CLI's, where it has one)."""
 
 import errno
+import re
 
 import numpy as np
 import pytest
@@ -15,41 +16,68 @@ def rec(**kw):
     return spsr.reconstruct(POINTS, NORMALS, **{"depth": 4, **kw})
 
 
+AREA = "a fraction of the total area in [0, 1), such as 0.001"
+THRESHOLD = "a density value (a finite number such as 6.5) or 'auto'"
+MAX_MEMORY = "a positive number of bytes or a size such as '512M' or '8G'"
+
+
+# The whole message: the keyword as the user typed it, the value given and what is allowed.
 @pytest.mark.parametrize(
     "kw, message",
     [
-        ({"depth": 0}, "invalid parameter --depth: 0 is outside 1..=18"),
-        ({"depth": 19}, "invalid parameter --depth: 19 is outside 1..=18"),
-        ({"depth": -1}, "invalid parameter --depth: -1 is outside 1..=18"),
-        ({"full_depth": 5}, "invalid parameter --full-depth: 5 is deeper than --depth 4"),
-        ({"full_depth": -2}, "invalid parameter --full-depth"),
-        ({"samples_per_node": 0.0}, "invalid parameter --samples-per-node: 0 must be a positive number"),
-        ({"samples_per_node": float("nan")}, "invalid parameter --samples-per-node"),
-        ({"point_weight": -1.0}, "invalid parameter --point-weight: -1 must be zero or a positive number"),
-        ({"degree": 3}, "invalid parameter --degree: 3 is not supported; use 1 or 2"),
-        ({"degree": -1}, "invalid parameter --degree: -1 is not supported"),
-        ({"boundary": "periodic"}, "invalid parameter --boundary: 'periodic' is not one of neumann, dirichlet, free"),
-        ({"scale": 0.5}, "invalid parameter --scale: 0.5 must be at least 1"),
-        ({"iters": 0}, "invalid parameter --iters: 0 is outside 1..=10000"),
-        ({"iters": -3}, "invalid parameter --iters: -3 is outside 1..=10000"),
-        ({"max_memory": 0}, "invalid parameter --max-memory: 0 bytes cannot hold any reconstruction"),
-        ({"max_memory": -5}, "invalid parameter --max-memory: must be a positive size"),
-        ({"max_memory": "lots"}, "invalid parameter --max-memory: 'lots' is not a size such as 512M or 8G"),
-        ({"max_memory": "-1G"}, "invalid parameter --max-memory: must be a positive size"),
-        ({"data_pull": 0.0}, "invalid parameter --data-pull: 0 must be a positive number"),
-        ({"confidence_property": ""}, "invalid parameter --confidence-property: the property name is empty"),
-        ({"confidence_property": "quality"}, "the points have no property 'quality'"),
-        ({"trim": "sometimes"}, "invalid parameter --trim: 'sometimes' is neither a density value"),
-        ({"trim": float("inf")}, "invalid parameter --trim: must be a finite density value"),
-        ({"trim": "auto", "min_island_area": 1.5}, "invalid parameter --min-island-area"),
-        ({"trim": "auto", "hole_area": -0.1}, "invalid parameter --hole-area"),
-        ({"threads": 0}, "invalid parameter threads: must be at least 1, got 0"),
+        ({"depth": 0}, "depth=0: expected an integer from 1 to 18"),
+        ({"depth": 19}, "depth=19: expected an integer from 1 to 18"),
+        ({"depth": -1}, "depth=-1: expected an integer from 1 to 18"),
+        ({"full_depth": 5}, "full_depth=5: expected at most the depth, 4"),
+        ({"full_depth": -2}, "full_depth=-2: expected at most the depth, 4"),
+        ({"samples_per_node": 0.0}, "samples_per_node=0: expected a positive number"),
+        ({"samples_per_node": float("nan")}, "samples_per_node=NaN: expected a positive number"),
+        ({"point_weight": -1.0}, "point_weight=-1: expected zero or a positive number"),
+        ({"degree": 3}, "degree=3: expected 1 or 2"),
+        ({"degree": -1}, "degree=-1: expected 1 or 2"),
+        ({"boundary": "periodic"}, "boundary='periodic': expected one of 'neumann', 'dirichlet', 'free'"),
+        ({"scale": 0.5}, "scale=0.5: expected a number from 1 to 1000 (the points must lie inside the cube)"),
+        ({"iters": 0}, "iters=0: expected an integer from 1 to 10000"),
+        ({"iters": -3}, "iters=-3: expected an integer from 1 to 10000"),
+        ({"max_memory": 0}, "max_memory=0: expected a positive number of bytes"),
+        ({"max_memory": -5}, "max_memory=-5: expected a positive number of bytes"),
+        ({"max_memory": "lots"}, f"max_memory='lots': expected {MAX_MEMORY}"),
+        ({"max_memory": "-1G"}, f"max_memory='-1G': expected {MAX_MEMORY}"),
+        ({"data_pull": 0.0}, "data_pull=0: expected a positive number"),
+        (
+            {"confidence_property": ""},
+            "confidence_property (an empty property name): expected the name of a per-point property",
+        ),
+        (
+            {"confidence_property": "quality"},
+            "confidence_property (the property 'quality'): expected a property the points have (they have: none)",
+        ),
+        ({"trim": "sometimes"}, f"trim='sometimes': expected {THRESHOLD}"),
+        ({"trim": float("inf")}, "trim=inf: expected a finite density value, or auto"),
+        ({"trim": "auto", "min_island_area": 1.5}, f"min_island_area=1.5: expected {AREA}"),
+        ({"trim": "auto", "hole_area": -0.1}, f"hole_area=-0.1: expected {AREA}"),
+        ({"threads": 0}, "threads=0: expected an integer of at least 1"),
     ],
 )
 def test_bad_parameters(kw, message):
     with pytest.raises(ValueError) as info:
         rec(**kw)
-    assert message in str(info.value)
+    assert str(info.value) == f"invalid parameter {message}"
+
+
+def test_messages_name_keywords_not_flags(sphere_mesh):
+    """The library's field `weights` is `confidence_property=` here; a property the points
+    have is named in the message, and no command-line flag appears."""
+    with pytest.raises(ValueError) as info:
+        rec(point_attributes={"quality": np.ones(2000)}, confidence_property="confidence")
+    assert str(info.value).startswith("invalid parameter confidence_property (the property 'confidence')")
+    assert "(they have: quality)" in str(info.value)
+    # The trimming's threshold is `threshold=` in spsr.trim (`trim=` in reconstruct).
+    with pytest.raises(ValueError) as info:
+        spsr.trim(sphere_mesh, float("nan"))
+    assert str(info.value) == "invalid parameter threshold=NaN: expected a finite density value, or auto"
+    with pytest.raises(ValueError, match=r"^invalid parameter threshold \(1000, which removes the whole mesh\)"):
+        spsr.trim(sphere_mesh, 1000.0)
 
 
 @pytest.mark.parametrize(
@@ -62,8 +90,15 @@ def test_wrong_types(kw):
 
 
 def test_memory_limit():
-    with pytest.raises(MemoryError, match="--depth"):
+    with pytest.raises(MemoryError) as info:
         spsr.reconstruct(POINTS, NORMALS, depth=12, max_memory="1M")
+    message = str(info.value)
+    assert message.startswith("this reconstruction needs about ")
+    assert "octree nodes at depth=12), more than the max_memory limit (0.00 GiB); " in message
+    assert "--" not in message
+    assert re.search(r"use depth=\d+ or less, a larger samples_per_node, or raise max_memory$", message) or message.endswith(
+        "even the coarsest depth does not fit: raise max_memory or use fewer points"
+    )
 
 
 @pytest.mark.parametrize(
@@ -124,12 +159,18 @@ def test_bad_meshes(sphere_mesh):
     with pytest.raises(ValueError, match="normals has 2 rows but there are 4 vertices"):
         spsr.Mesh(np.zeros((4, 3)), [[0, 1, 2]], normals=np.zeros((2, 3)))
     no_density = spsr.Mesh(sphere_mesh.vertices, sphere_mesh.faces)
-    with pytest.raises(ValueError, match="density"):
+    with pytest.raises(ValueError) as info:
         spsr.trim(no_density)
-    with pytest.raises(ValueError, match="invalid parameter --trim"):
+    assert str(info.value) == "the mesh has no per-vertex density; reconstruct it with density=True to get one"
+    with pytest.raises(ValueError) as info:
         spsr.trim(sphere_mesh, "half")
-    with pytest.raises(ValueError, match="invalid parameter --min-island-area"):
+    assert str(info.value) == f"invalid parameter threshold='half': expected {THRESHOLD}"
+    with pytest.raises(ValueError) as info:
+        spsr.trim(sphere_mesh, None)
+    assert str(info.value) == f"invalid parameter threshold=None: expected {THRESHOLD}"
+    with pytest.raises(ValueError) as info:
         spsr.trim(sphere_mesh, min_island_area=1.0)
+    assert str(info.value) == f"invalid parameter min_island_area=1: expected {AREA}"
     with pytest.raises(TypeError, match="spsr.Mesh or the path"):
         spsr.trim(42)
     with pytest.raises(TypeError, match="mesh must be an spsr.Mesh"):
@@ -143,11 +184,13 @@ def test_bad_eval(sphere_mesh):
         spsr.eval(sphere_mesh, sphere_mesh, sphere=(0, 0, 0, 1))
     with pytest.raises(ValueError, match="instead of 4"):
         spsr.eval(sphere_mesh, sphere=(0, 0, 1))
-    with pytest.raises(ValueError, match="positive radius"):
+    with pytest.raises(ValueError, match=r"^invalid parameter sphere \(centre .*radius -1\): expected a finite centre and a positive radius$"):
         spsr.eval(sphere_mesh, sphere=(0, 0, 0, -1))
-    with pytest.raises(ValueError, match="invalid parameter --samples: must be at least 1, got 0"):
+    with pytest.raises(ValueError, match="^invalid parameter samples=0: expected at least 1$"):
         spsr.eval(sphere_mesh, sphere=(0, 0, 0, 1), samples=0)
-    with pytest.raises(ValueError, match="the mesh has no faces"):
+    with pytest.raises(ValueError, match="^invalid parameter samples=-4: expected at least 1$"):
+        spsr.eval(sphere_mesh, sphere=(0, 0, 0, 1), samples=-4)
+    with pytest.raises(ValueError, match="the mesh has no triangles"):
         spsr.eval(spsr.Mesh(np.zeros((3, 3)), np.zeros((0, 3), dtype=int)), sphere=(0, 0, 0, 1))
     with pytest.raises(ValueError, match="seed"):
         spsr.eval(sphere_mesh, sphere=(0, 0, 0, 1), seed=-1)

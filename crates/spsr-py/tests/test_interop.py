@@ -78,7 +78,7 @@ def test_command_line(tmp_path, sphere):
     # Errors: the CLI's message and exit codes.
     out = subprocess.run([exe, "reconstruct", str(cloud), "-o", str(mesh), "--depth", "0"], capture_output=True, text=True)
     assert out.returncode == 2
-    assert "spsr: error: invalid parameter --depth: 0 is outside 1..=18" in out.stderr
+    assert "spsr: error: invalid parameter --depth 0: expected an integer from 1 to 18" in out.stderr
     out = subprocess.run([exe, "reconstruct", "--no-such-flag"], capture_output=True, text=True)
     assert out.returncode == 2 and "--no-such-flag" in out.stderr
     out = subprocess.run([exe, "reconstruct", str(tmp_path / "missing.ply"), "-o", str(mesh)], capture_output=True, text=True)

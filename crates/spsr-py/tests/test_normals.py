@@ -54,13 +54,18 @@ def test_deterministic_across_threads():
 @pytest.mark.parametrize(
     "args, kw, message",
     [
-        ((POINTS,), {"neighbours": 2}, "invalid parameter --neighbours: must be at least 3"),
-        ((POINTS,), {"orient": "outward"}, "invalid parameter --orient: 'outward' is not one of"),
+        ((POINTS,), {"neighbours": 2}, r"^invalid parameter neighbours=2: expected at least 3 \(a plane needs"),
+        (
+            (POINTS,),
+            {"orient": "outward"},
+            "^invalid parameter orient='outward': expected one of 'mst', 'viewpoint', 'global', 'none'$",
+        ),
         ((POINTS,), {"orient": "mst", "viewpoint": (0, 0, 0)}, "viewpoint= is only used by"),
         ((POINTS,), {"orient": "viewpoint"}, "needs viewpoint="),
         ((POINTS,), {"viewpoint": (0, 0)}, r"viewpoint must be \(x, y, z\)"),
         ((POINTS,), {"viewpoint": (0, 0, np.nan)}, "finite"),
-        ((POINTS,), {"threads": 0}, "invalid parameter threads"),
+        ((POINTS,), {"threads": 0}, "^invalid parameter threads=0: expected an integer of at least 1$"),
+        ((POINTS,), {"scan_origins": [(0, (0, 0, 0)), (0, (1, 1, 1))]}, r"^invalid parameter scan_origins \(a scan"),
         ((POINTS[:2],), {}, "too few usable points"),
         ((np.outer(np.arange(10.0), [1.0, 2.0, 3.0]),), {}, "degenerate input"),
         ((POINTS[:, :2],), {}, r"points must be an array of shape \(N, 3\)"),

@@ -132,9 +132,24 @@ def test_dropped_points_warn(sphere):
     points, normals = sphere
     p = points.copy()
     p[:3] = np.nan
-    with pytest.warns(RuntimeWarning, match="3 of 20000 points dropped"):
+    with pytest.warns(RuntimeWarning, match="3 of 20000 points dropped") as caught:
         m = spsr.reconstruct(p, normals, depth=5)
     assert m.stats["dropped"] == 3
+    assert len(caught) == 1 and m.stats["warnings"] == [str(caught[0].message)]
+
+
+def test_far_outliers_warn_in_python_words():
+    points, normals = fibonacci_sphere(2_000)
+    points = np.concatenate([points, [[100.0, 0.0, 0.0]]])
+    normals = np.concatenate([normals, [[1.0, 0.0, 0.0]]])
+    with pytest.warns(RuntimeWarning, match="lie far outside the box") as caught:
+        m = spsr.reconstruct(points, normals, depth=4)
+    (message,) = [str(w.message) for w in caught]
+    assert m.stats["warnings"] == [message]
+    assert message.startswith("1 of 2001 points")
+    assert "(depth=4 resolves the surface like depth=0)" in message
+    assert message.endswith("; remove those points (crop the input to that box), or use depth=9")
+    assert "--" not in message
 
 
 def test_trim_and_density():

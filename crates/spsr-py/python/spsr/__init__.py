@@ -30,7 +30,8 @@ read_points, read_mesh, write_mesh, write_points
 
 Errors are raised as ``ValueError`` (bad arrays or parameters), ``OSError`` (files),
 ``FileFormatError`` (malformed files; both of those) and ``MemoryError`` (a run that would
-exceed ``max_memory``), with the messages of the ``spsr`` command line. The GIL is released
+exceed ``max_memory``). Their messages name the keyword at fault, its value and what is
+allowed (``invalid parameter depth=0: expected an integer from 1 to 18``). The GIL is released
 while the library works, and Ctrl-C stops a reconstruction (``KeyboardInterrupt``).
 """
 
@@ -450,9 +451,12 @@ def _parse_size(size: Union[int, str, None]) -> Optional[int]:
         try:
             v = float(body.strip())
         except ValueError:
-            raise ValueError(f"invalid parameter --max-memory: '{t}' is not a size such as 512M or 8G") from None
+            v = float("nan")
         if not (np.isfinite(v) and v > 0):
-            raise ValueError("invalid parameter --max-memory: must be a positive size")
+            raise ValueError(
+                f"invalid parameter max_memory={size!r}: expected a positive number of bytes or a "
+                "size such as '512M' or '8G'"
+            )
         return int(v * mul)
     try:
         return int(size.__index__())  # type: ignore[union-attr]
@@ -491,8 +495,11 @@ def reconstruct(
 ) -> Mesh:
     """Reconstruct a watertight triangle mesh from oriented points.
 
-    Every keyword mirrors a field of the Rust ``spsr::Params`` (and a flag of
-    ``spsr reconstruct``) with the same default.
+    The keywords mirror the fields of the Rust ``spsr::Params`` (and the flags of
+    ``spsr reconstruct``), with the same defaults: ``degree`` is ``Params::degree``,
+    ``confidence`` and ``confidence_property`` together are ``Params::weights``,
+    ``vertex_normals`` is ``Params::normals``; ``trim``, ``min_island_area`` and
+    ``hole_area`` are ``spsr::trim::TrimParams``. An error names the keyword at fault.
 
     Parameters
     ----------
@@ -547,7 +554,8 @@ def reconstruct(
         ``Mesh.normals`` (``spsr::Params::normals``, the command line's ``--normals``).
     confidence_property : str, optional
         Use this per-point attribute (from ``point_attributes`` or the cloud) as each
-        point's weight. Points whose value is not a positive finite number are dropped.
+        point's weight, instead of ``confidence``. Points whose value is not a positive
+        finite number are dropped.
     colors : array_like, shape (N, 3) or (N, 4), optional
         Per-point colours: uint8 (0-255), uint16 (0-65535) or floats in [0, 1]; the mesh's
         colours come back in the same type.
@@ -648,13 +656,7 @@ def reconstruct(
         out["attributes"] = [(k, v) for k, v in out["attributes"] if k != weight_name]
     mesh = Mesh._from_native(out)
     stats = mesh.stats or {}
-    if stats.get("dropped"):
-        warnings.warn(
-            f"{stats['dropped']} of {stats['points']} points dropped "
-            "(non-finite coordinates or zero-length normals)",
-            RuntimeWarning,
-            stacklevel=2,
-        )
+    # Dropped points and far outliers, in Python's words (depth=, not --depth).
     for w in stats.get("warnings", []):
         warnings.warn(w, RuntimeWarning, stacklevel=2)
     return mesh

@@ -1,4 +1,4 @@
-# Type stubs of the native module `spsr._spsr` (src/lib.rs). Private: use the functions of
+# Type stubs of the native module `spsr._spsr` (src/). Private: use the functions of
 # the `spsr` package, which check and convert their arguments before calling these.
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
@@ -73,3 +73,7 @@ def estimate_normals(
     threads: Optional[int],
 ) -> Dict[str, Any]: ...
 def cli_main(argv: List[str]) -> int: ...
+
+# The library's defaults by function and keyword (tests/test_defaults.py checks the
+# signatures of the `spsr` functions against them).
+def _defaults() -> Dict[str, Dict[str, Any]]: ...

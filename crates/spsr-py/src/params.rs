@@ -1,0 +1,197 @@
+//! Python keywords as the library's parameters, and the library's defaults as Python values.
+//!
+//! The library checks every value it has a field for (`Params::validate`,
+//! `TrimParams::validate`), so that its rules and wording are the only ones; this module only
+//! converts, and checks what has no library field (a degree that is not 1 or 2, an unknown
+//! boundary name, a trimming threshold that is not a number or `"auto"`).
+
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use spsr::normals::NormalParams;
+use spsr::trim::{Threshold, TrimParams};
+use spsr::{Boundary, Degree, Error, Params, PointWeights};
+
+use crate::errors::{invalid, py_err, Call};
+
+/// The boundary conditions by their Python names.
+const BOUNDARIES: [(&str, Boundary); 3] = [
+    ("neumann", Boundary::Neumann),
+    ("dirichlet", Boundary::Dirichlet),
+    ("free", Boundary::Free),
+];
+
+/// `boundary=`: a name of [`BOUNDARIES`], in any case.
+pub fn boundary_arg(s: &str) -> PyResult<Boundary> {
+    let lower = s.to_ascii_lowercase();
+    BOUNDARIES
+        .iter()
+        .find(|(name, _)| *name == lower)
+        .map(|&(_, b)| b)
+        .ok_or_else(|| {
+            invalid(
+                "boundary",
+                format!("'{s}'"),
+                "one of 'neumann', 'dirichlet', 'free'",
+            )
+        })
+}
+
+fn boundary_name(b: Boundary) -> &'static str {
+    BOUNDARIES
+        .iter()
+        .find(|&&(_, v)| v == b)
+        .map_or("neumann", |&(name, _)| name)
+}
+
+/// `degree=`: 1 or 2.
+pub fn degree_arg(d: i64) -> PyResult<Degree> {
+    u8::try_from(d)
+        .ok()
+        .and_then(Degree::from_number)
+        .ok_or_else(|| invalid("degree", d, "1 or 2"))
+}
+
+/// `confidence=` and `confidence_property=` as the points' weights; a property wins, as on
+/// the command line.
+pub fn weights_arg(confidence: bool, property: Option<String>) -> PointWeights {
+    match (property, confidence) {
+        (Some(name), _) => PointWeights::Property(name),
+        (None, true) => PointWeights::NormalLength,
+        (None, false) => PointWeights::Uniform,
+    }
+}
+
+/// An integer keyword as the library's `u32`. A value that type cannot hold (a negative
+/// one) becomes `u32::MAX`, which every such field rejects; [`shown_as_given`] then puts the
+/// value given back into the message.
+pub fn int_arg(v: i64) -> u32 {
+    u32::try_from(v).unwrap_or(u32::MAX)
+}
+
+/// `e` showing the values the caller gave, for the integer fields in `given` that
+/// [`int_arg`] (or a similar conversion) had to replace.
+pub fn shown_as_given(e: Error, given: &[(&str, Option<i64>)]) -> Error {
+    match e {
+        Error::InvalidParameter {
+            field,
+            value,
+            expected,
+        } => {
+            let value = given
+                .iter()
+                .find(|(f, _)| *f == field)
+                .and_then(|(_, v)| v.map(|v| v.to_string()))
+                .unwrap_or(value);
+            Error::InvalidParameter {
+                field,
+                value,
+                expected,
+            }
+        }
+        e => e,
+    }
+}
+
+/// The trimming threshold: `None`, `"auto"` or a number (`keyword` is `trim` or
+/// `threshold`, for the message).
+pub fn threshold_arg(t: &Bound<'_, PyAny>, keyword: &str) -> PyResult<Option<Threshold>> {
+    if t.is_none() {
+        return Ok(None);
+    }
+    if let Ok(s) = t.extract::<String>() {
+        if s.trim().eq_ignore_ascii_case("auto") {
+            return Ok(Some(Threshold::Auto));
+        }
+    } else if let Ok(v) = t.extract::<f64>() {
+        return Ok(Some(Threshold::Value(v as f32)));
+    }
+    let shown = t.repr().map_or_else(|_| "?".into(), |r| r.to_string());
+    Err(invalid(
+        keyword,
+        shown,
+        "a density value (a finite number such as 6.5) or 'auto'",
+    ))
+}
+
+/// The trimming's parameters, checked by the library (`call` says which keyword the
+/// threshold has).
+pub fn trim_params(
+    py: Python<'_>,
+    threshold: Threshold,
+    min_island_area: f64,
+    hole_area: f64,
+    call: Call,
+) -> PyResult<TrimParams> {
+    let params = TrimParams {
+        threshold,
+        min_island_area,
+        hole_area,
+    };
+    params.validate().map_err(py_err(py, call))?;
+    Ok(params)
+}
+
+fn threshold_value(py: Python<'_>, t: Threshold) -> PyResult<Bound<'_, PyAny>> {
+    Ok(match t {
+        Threshold::Auto => "auto".into_pyobject(py)?.into_any(),
+        Threshold::Value(v) => f64::from(v).into_pyobject(py)?.into_any(),
+    })
+}
+
+/// `spsr._spsr._defaults()`: the library's defaults (`Params`, `TrimParams`,
+/// `NormalParams`, `EvalOptions`) by function and keyword, as the Python values that mean
+/// them. The keyword defaults of `spsr.reconstruct`, `spsr.trim`, `spsr.estimate_normals`
+/// and `spsr.eval` are tested against it.
+#[pyfunction]
+#[pyo3(name = "_defaults")]
+pub fn defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let trim = TrimParams::default();
+    let out = PyDict::new(py);
+    out.set_item("reconstruct", reconstruct_defaults(py, &trim)?)?;
+    let d = PyDict::new(py);
+    d.set_item("threshold", threshold_value(py, trim.threshold)?)?;
+    d.set_item("min_island_area", trim.min_island_area)?;
+    d.set_item("hole_area", trim.hole_area)?;
+    out.set_item("trim", d)?;
+    let d = PyDict::new(py);
+    d.set_item("neighbours", NormalParams::default().neighbours)?;
+    out.set_item("estimate_normals", d)?;
+    let eval = spsr::metrics::EvalOptions::default();
+    let d = PyDict::new(py);
+    d.set_item("samples", eval.samples)?;
+    d.set_item("seed", eval.seed)?;
+    out.set_item("eval", d)?;
+    Ok(out)
+}
+
+fn reconstruct_defaults<'py>(py: Python<'py>, trim: &TrimParams) -> PyResult<Bound<'py, PyDict>> {
+    let p = Params::default();
+    let d = PyDict::new(py);
+    d.set_item("depth", p.depth)?;
+    d.set_item("full_depth", p.full_depth)?;
+    d.set_item("samples_per_node", p.samples_per_node)?;
+    d.set_item("point_weight", p.point_weight)?;
+    d.set_item("degree", p.degree.get())?;
+    d.set_item("boundary", boundary_name(p.boundary))?;
+    d.set_item("scale", p.scale)?;
+    d.set_item("iters", p.iters)?;
+    d.set_item("confidence", p.weights == PointWeights::NormalLength)?;
+    let property = match &p.weights {
+        PointWeights::Property(name) => Some(name.as_str()),
+        _ => None,
+    };
+    d.set_item("confidence_property", property)?;
+    d.set_item("density", p.density)?;
+    d.set_item("linear_fit", p.linear_fit)?;
+    d.set_item("max_memory", p.max_memory)?;
+    d.set_item("two_level_splat", p.two_level_splat)?;
+    d.set_item("attributes", p.attributes)?;
+    d.set_item("data_pull", p.data_pull)?;
+    d.set_item("vertex_normals", p.normals)?;
+    // No trimming unless asked (`spsr::reconstruct`; `reconstruct_and_trim` is the opt-in).
+    d.set_item("trim", py.None())?;
+    d.set_item("min_island_area", trim.min_island_area)?;
+    d.set_item("hole_area", trim.hole_area)?;
+    Ok(d)
+}
