@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
 
-use crate::{exit, parse_threads, usage, Failure};
+use crate::{exit, usage, Failure};
 
 /// How the signs of estimated normals are chosen, as spelled on the command line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -263,19 +263,8 @@ pub struct NormalsArgs {
     #[arg(long, value_name = "REFERENCE")]
     pub compare: Option<PathBuf>,
 
-    /// Number of worker threads, at least 1; the result does not depend on it [default: all
-    /// cores]
-    #[arg(long, value_name = "N", value_parser = parse_threads)]
-    pub threads: Option<usize>,
-
-    /// Write ASCII PLY instead of binary [default: off]
-    #[arg(long)]
-    pub ascii: bool,
-
-    /// Print the neighbourhood size, the orientation's statistics and the timings to stderr
-    /// [default: off]
-    #[arg(short, long)]
-    pub verbose: bool,
+    #[command(flatten)]
+    pub common: crate::args::CommonArgs,
 }
 
 /// Runs `spsr normals`.
@@ -283,7 +272,7 @@ pub fn run_normals(args: &NormalsArgs) -> Result<(), Failure> {
     let start = Instant::now();
     let input = args.input.as_path();
     let fail = |e: spsr::Error| Failure::from_spsr(e, input);
-    crate::start_threads(args.threads)?;
+    crate::start_threads(args.common.threads.threads)?;
     if let Some(output) = &args.output {
         spsr::io::check_output_path(output, input).map_err(fail)?;
     }
@@ -305,11 +294,13 @@ pub fn run_normals(args: &NormalsArgs) -> Result<(), Failure> {
     let mut writing = Duration::ZERO;
     if let Some(output) = &args.output {
         let t = Instant::now();
-        let opts = spsr::io::WriteOptions { ascii: args.ascii };
+        let opts = spsr::io::WriteOptions {
+            ascii: args.common.ascii,
+        };
         spsr::io::write_cloud(output, &cloud, &opts).map_err(fail)?;
         writing = t.elapsed();
     }
-    if args.verbose {
+    if args.common.verbose {
         let mut err = std::io::stderr().lock();
         let _ = writeln!(err, "input       {}", input.display());
         let _ = writeln!(err, "points      {}", cloud.len());

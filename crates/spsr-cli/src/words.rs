@@ -78,3 +78,79 @@ pub fn warning(w: &Warning) -> String {
         other => other.to_string(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every field the library names in an `InvalidParameter` error, with the flag that sets
+    /// it. Each flag is checked to exist on some subcommand.
+    const FIELDS: [(&str, &str); 19] = [
+        ("depth", "--depth"),
+        ("full_depth", "--full-depth"),
+        ("samples_per_node", "--samples-per-node"),
+        ("point_weight", "--point-weight"),
+        ("scale", "--scale"),
+        ("max_memory", "--max-memory"),
+        ("data_pull", "--data-pull"),
+        ("iters", "--iters"),
+        ("weights", "--confidence-property"),
+        ("threshold", "--trim"),
+        ("min_island_area", "--min-island-area"),
+        ("hole_area", "--hole-area"),
+        ("samples", "--samples"),
+        ("reference_sphere", "--reference-sphere"),
+        ("neighbours", "--neighbours"),
+        ("orient_neighbours", "--neighbours"),
+        ("viewpoint", "--viewpoint"),
+        ("target_error", "--target-error"),
+        ("scan_origins", "the scan origins in the file"),
+    ];
+
+    #[test]
+    fn every_library_field_maps_to_its_flag() {
+        use clap::CommandFactory;
+        let cli = crate::Cli::command();
+        let flags: Vec<String> = cli
+            .get_subcommands()
+            .flat_map(|c| c.get_arguments().filter_map(|a| a.get_long()))
+            .map(|l| format!("--{l}"))
+            .collect();
+        for (field, flag) in FIELDS {
+            assert_eq!(super::flag(field), flag, "{field}");
+            // --target-error is a library parameter with no flag (it keeps its default).
+            if flag.starts_with("--") && field != "target_error" {
+                assert!(flags.iter().any(|f| f == flag), "{flag} is no flag of spsr");
+            }
+        }
+    }
+
+    #[test]
+    fn messages_name_the_flag_the_value_and_the_range() {
+        let e = Error::invalid("samples_per_node", 0, "a positive number");
+        assert_eq!(
+            error(&e).unwrap(),
+            "invalid parameter --samples-per-node 0: expected a positive number"
+        );
+        let m = MemoryShortfall {
+            estimate: 3 << 30,
+            limit: 1 << 30,
+            source: MemoryLimit::Requested,
+            nodes: 1000,
+            depth: 11,
+            suggested_depth: Some(9),
+        };
+        let text = error(&Error::ResourceLimit(m)).unwrap();
+        assert!(
+            text.contains("--depth 11")
+                && text.contains("use --depth 9 or less")
+                && text.contains("the --max-memory limit (1.00 GiB)"),
+            "{text}"
+        );
+        let w = Warning::DroppedPoints {
+            dropped: 3,
+            total: 10,
+        };
+        assert!(warning(&w).starts_with("3 of 10 points dropped"));
+    }
+}

@@ -3,43 +3,11 @@
 
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use tempfile::TempDir;
 
-const DATA: i32 = 1;
-const USAGE: i32 = 2;
-
-fn spsr(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_spsr"))
-        .args(args)
-        .output()
-        .expect("the spsr binary runs")
-}
-
-fn stderr(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().expect("temporary paths are UTF-8")
-}
-
-/// Points on a sphere of radius 0.8 centred at (1, 2, 3), with exact outward normals
-/// (Fibonacci lattice, so the sampling is even).
-fn sphere(n: usize) -> Vec<([f64; 3], [f64; 3])> {
-    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-    (0..n)
-        .map(|i| {
-            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
-            let r = (1.0 - z * z).sqrt();
-            let phi = golden * i as f64;
-            let nrm = [r * phi.cos(), r * phi.sin(), z];
-            let pos = [1.0 + 0.8 * nrm[0], 2.0 + 0.8 * nrm[1], 3.0 + 0.8 * nrm[2]];
-            (pos, nrm)
-        })
-        .collect()
-}
+use crate::common::*;
 
 fn write_ascii_ply(path: &Path, points: &[([f64; 3], [f64; 3])]) {
     let mut text = format!(
@@ -70,26 +38,6 @@ fn entries(dir: &Path) -> Vec<String> {
         .collect();
     names.sort();
     names
-}
-
-/// Asserts a clean failure: the exit code, one `spsr: error:` line naming the problem, no
-/// panic, and no output file.
-fn assert_fails(out: &Output, code: i32, fragments: &[&str], output: &Path) {
-    let err = stderr(out);
-    assert_eq!(out.status.code(), Some(code), "exit code; stderr:\n{err}");
-    assert!(!err.contains("panicked"), "panic:\n{err}");
-    for f in fragments {
-        assert!(err.contains(f), "stderr lacks {f:?}:\n{err}");
-    }
-    assert!(!output.exists(), "{} was left behind", output.display());
-}
-
-/// As [`assert_fails`], for errors reported by spsr itself (not clap): exactly one line.
-fn assert_fails_one_line(out: &Output, code: i32, fragments: &[&str], output: &Path) {
-    assert_fails(out, code, fragments, output);
-    let err = stderr(out);
-    assert!(err.starts_with("spsr: error: "), "stderr:\n{err}");
-    assert_eq!(err.lines().count(), 1, "more than one line:\n{err}");
 }
 
 /// Runs `spsr reconstruct <input> -o <dir>/out.ply <extra>` on a file with the given content.

@@ -3,46 +3,11 @@
 
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use tempfile::TempDir;
 
-const DATA: i32 = 1;
-const USAGE: i32 = 2;
-
-fn spsr(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_spsr"))
-        .args(args)
-        .output()
-        .expect("the spsr binary runs")
-}
-
-fn stderr(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().expect("temporary paths are UTF-8")
-}
-
-/// Asserts a clean failure: the exit code, the fragments in stderr, no panic, no output file.
-fn assert_fails(out: &Output, code: i32, fragments: &[&str], output: &Path) {
-    let err = stderr(out);
-    assert_eq!(out.status.code(), Some(code), "exit code; stderr:\n{err}");
-    assert!(!err.contains("panicked"), "panic:\n{err}");
-    for f in fragments {
-        assert!(err.contains(f), "stderr lacks {f:?}:\n{err}");
-    }
-    assert!(!output.exists(), "{} was left behind", output.display());
-}
-
-/// As [`assert_fails`], for errors reported by spsr itself: exactly one `spsr: error:` line.
-fn assert_fails_one_line(out: &Output, code: i32, fragments: &[&str], output: &Path) {
-    assert_fails(out, code, fragments, output);
-    let err = stderr(out);
-    assert!(err.starts_with("spsr: error: "), "stderr:\n{err}");
-    assert_eq!(err.lines().count(), 1, "more than one line:\n{err}");
-}
+use crate::common::*;
 
 /// Centre and radius of the dome below.
 const CENTER: [f64; 3] = [1.0, 2.0, 3.0];

@@ -3,24 +3,12 @@
 
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use spsr::Mesh;
 use tempfile::TempDir;
 
-const DATA: i32 = 1;
-const USAGE: i32 = 2;
-
-fn spsr(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_spsr"))
-        .args(args)
-        .output()
-        .expect("the spsr binary runs")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().expect("temporary paths are UTF-8")
-}
+use crate::common::*;
 
 /// Octahedron-based sphere: each octant face split into `n²` triangles, vertices pushed onto
 /// the sphere of radius `r` centred at `c` (8 n² faces).

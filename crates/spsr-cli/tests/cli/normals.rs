@@ -3,32 +3,11 @@
 
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use tempfile::TempDir;
 
-const DATA: i32 = 1;
-const USAGE: i32 = 2;
-const CENTRE: [f64; 3] = [1.0, 2.0, 3.0];
-
-fn spsr(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_spsr"))
-        .args(args)
-        .output()
-        .expect("the spsr binary runs")
-}
-
-fn stderr(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
-fn stdout(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().expect("temporary paths are UTF-8")
-}
+use crate::common::*;
 
 fn assert_ok(out: &Output) {
     assert_eq!(
@@ -38,33 +17,6 @@ fn assert_ok(out: &Output) {
         stderr(out),
         stdout(out)
     );
-}
-
-/// Asserts a failure with the exit code, the fragments in stderr, no panic and no output.
-fn assert_fails(out: &Output, code: i32, fragments: &[&str], output: &Path) {
-    let err = stderr(out);
-    assert_eq!(out.status.code(), Some(code), "exit code; stderr:\n{err}");
-    assert!(!err.contains("panicked"), "panic:\n{err}");
-    for f in fragments {
-        assert!(err.contains(f), "stderr lacks {f:?}:\n{err}");
-    }
-    assert!(!output.exists(), "{} was left behind", output.display());
-}
-
-/// Points on a sphere of radius 0.8 around [`CENTRE`] (Fibonacci lattice) with their exact
-/// outward normals.
-fn sphere(n: usize) -> Vec<([f64; 3], [f64; 3])> {
-    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-    (0..n)
-        .map(|i| {
-            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
-            let r = (1.0 - z * z).sqrt();
-            let phi = golden * i as f64;
-            let nrm = [r * phi.cos(), r * phi.sin(), z];
-            let pos = std::array::from_fn(|a| CENTRE[a] + 0.8 * nrm[a]);
-            (pos, nrm)
-        })
-        .collect()
 }
 
 /// ASCII PLY with `x y z`, optionally `nx ny nz`, then `uchar red` and `float intensity`

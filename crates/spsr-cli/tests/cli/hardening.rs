@@ -4,18 +4,11 @@
 
 use std::fs;
 use std::io::Write;
-use std::path::Path;
 use std::process::{Command, Output, Stdio};
 
 use tempfile::TempDir;
 
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_spsr"))
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
+use crate::common::*;
 
 /// Runs spsr with `input` on standard input.
 fn with_stdin(args: &[&str], input: &[u8]) -> Output {
@@ -34,10 +27,6 @@ fn with_stdin(args: &[&str], input: &[u8]) -> Output {
     let out = child.wait_with_output().unwrap();
     feeder.join().unwrap();
     out
-}
-
-fn stderr(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
 /// An ASCII PLY cloud of `n` points on the unit sphere (Fibonacci lattice).

@@ -1,0 +1,425 @@
+//! `spsr reconstruct`: read a cloud, estimate normals where missing, reconstruct (and trim),
+//! write the mesh.
+
+use std::io::{IsTerminal, Write};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use clap::{Args, ValueEnum};
+
+use crate::args::{parse_size, CommonArgs};
+use crate::files::{check_output_arg, input_name, read_cloud_arg, report_written, write_mesh_arg};
+use crate::normals::{self, NormalOptions};
+use crate::progress::Progress;
+use crate::trim::{parse_trim, print_trim};
+use crate::{start_threads, usage, words, Failure};
+
+pub(crate) const RECONSTRUCT_LONG_ABOUT: &str = "\
+Reconstruct a watertight triangle mesh from an oriented point cloud (Screened Poisson Surface \
+Reconstruction, Kazhdan & Hoppe 2013).
+
+Input: points with normals (nx ny nz) in one of these formats, recognised by their first bytes or \
+else by extension: PLY (any encoding), LAS or LAZ (.las, .laz; normals as extra bytes such as \
+NormalX/NormalY/NormalZ), E57 (.e57; every scan, moved by its pose; normals from the surface-normals \
+extension), PCD (.pcd; ascii, binary or binary_compressed, fields normal_x normal_y normal_z), or \
+text with one point per line: x y z nx ny nz, optionally followed by r g b. Normals must point \
+outward. Points with non-finite coordinates or zero-length normals are dropped with a warning. A cloud without normals gets normals estimated and oriented first, as by `spsr normals` (with a note saying so); --estimate-normals does that for any cloud, replacing its normals.
+
+Output, chosen by the output name's extension: .ply (binary little-endian, ASCII with --ascii; also \
+used for any other extension), .obj (Wavefront OBJ), .stl (binary STL, ASCII with --ascii), .glb \
+(glTF 2.0 binary). The output file appears only once it is complete; on any error no output file \
+is left behind. The output must not be the input file.";
+
+/// Boundary condition on the bounding cube, as spelled on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum BoundaryArg {
+    /// Zero normal derivative on the cube's faces.
+    Neumann,
+    /// Zero value on the cube's faces.
+    Dirichlet,
+    /// No condition; the basis is cut off at the cube.
+    Free,
+}
+
+impl From<spsr::Boundary> for BoundaryArg {
+    fn from(b: spsr::Boundary) -> Self {
+        match b {
+            spsr::Boundary::Neumann => BoundaryArg::Neumann,
+            spsr::Boundary::Dirichlet => BoundaryArg::Dirichlet,
+            spsr::Boundary::Free => BoundaryArg::Free,
+        }
+    }
+}
+
+impl From<BoundaryArg> for spsr::Boundary {
+    fn from(b: BoundaryArg) -> Self {
+        match b {
+            BoundaryArg::Neumann => spsr::Boundary::Neumann,
+            BoundaryArg::Dirichlet => spsr::Boundary::Dirichlet,
+            BoundaryArg::Free => spsr::Boundary::Free,
+        }
+    }
+}
+
+/// Arguments of `spsr reconstruct`. Defaults mirror [`spsr::Params::default`].
+#[derive(Debug, Args)]
+pub struct ReconstructArgs {
+    /// Oriented point cloud: PLY, LAS/LAZ, E57, PCD, or text with `x y z nx ny nz` per line;
+    /// `-` reads standard input.
+    #[arg(value_name = "INPUT")]
+    pub input: PathBuf,
+
+    /// Output mesh, by extension: .ply (also any other name), .obj, .stl or .glb; `-` writes
+    /// PLY to standard output.
+    #[arg(short, long, value_name = "OUTPUT")]
+    pub output: PathBuf,
+
+    /// Maximum octree depth; the finest cells are 1/2^depth of the bounding cube. Default as
+    /// PoissonRecon 6 and 18.
+    #[arg(
+        long,
+        value_name = "D",
+        default_value_t = spsr::Params::default().depth,
+        allow_negative_numbers = true
+    )]
+    pub depth: u32,
+
+    /// Depth down to which the octree is complete; the coarse solve happens there. Default as
+    /// PoissonRecon 6 and 18 [default: 5, or --depth when that is smaller]
+    #[arg(long, value_name = "D")]
+    pub full_depth: Option<u32>,
+
+    /// Target number of samples per octree node (sets each sample's splat depth). Default as
+    /// PoissonRecon 18 (version 6 used 1.0).
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = spsr::Params::default().samples_per_node,
+        allow_negative_numbers = true
+    )]
+    pub samples_per_node: f64,
+
+    /// Screening weight alpha; 0 gives the unscreened 2006 method. Default as PoissonRecon 18
+    /// (4 for degree 2, the 2013 paper's value) [default: 2 × degree]
+    #[arg(long, value_name = "ALPHA", allow_negative_numbers = true)]
+    pub point_weight: Option<f64>,
+
+    /// B-spline degree of the finite elements, 1 or 2. Default as PoissonRecon 18 (the 2013 paper
+    /// and PoissonRecon 6 use 2).
+    #[arg(long, value_name = "K", default_value_t = spsr::Params::default().degree, value_parser = parse_degree)]
+    pub degree: spsr::Degree,
+
+    /// Boundary condition on the bounding cube. Default as PoissonRecon 6 and 18.
+    #[arg(long, value_enum, default_value_t = spsr::Params::default().boundary.into())]
+    pub boundary: BoundaryArg,
+
+    /// The bounding cube's side is the points' bounding box's largest side times this factor.
+    /// Default as PoissonRecon 6 and 18.
+    #[arg(
+        long,
+        value_name = "S",
+        default_value_t = spsr::Params::default().scale,
+        allow_negative_numbers = true
+    )]
+    pub scale: f64,
+
+    /// Gauss-Seidel sweeps per depth. Default as PoissonRecon 6 and 18 and the 2013 paper.
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = spsr::Params::default().iters,
+        allow_negative_numbers = true
+    )]
+    pub iters: u32,
+
+    /// Use each normal's length as the point's confidence weight. Off by default, as PoissonRecon
+    /// 18 [default: off]
+    #[arg(long)]
+    pub confidence: bool,
+
+    /// Use this per-point property (e.g. confidence or quality) as each point's weight
+    /// instead; points whose value is not positive are dropped. spsr's own [default: none]
+    #[arg(long, value_name = "NAME")]
+    pub confidence_property: Option<String>,
+
+    /// Write per-vertex normals (nx ny nz) computed from the gradient of the implicit
+    /// function. Off by default, as PoissonRecon 18 (--normals) [default: off]
+    #[arg(long)]
+    pub normals: bool,
+
+    /// Do not carry the points' attributes (colours and any other numeric property) onto the
+    /// mesh. spsr carries them by default; PoissonRecon 18 only with --colors [default: off]
+    #[arg(long)]
+    pub no_attributes: bool,
+
+    /// Pull factor of the attribute interpolation: larger values keep attributes sharper
+    /// and stop them bleeding between nearby surfaces. Default as PoissonRecon 18 (--dataX)
+    #[arg(
+        long,
+        value_name = "X",
+        default_value_t = spsr::Params::default().data_pull,
+        allow_negative_numbers = true
+    )]
+    pub data_pull: f64,
+
+    /// Compute per-vertex density (estimated sampling depth) and write it as the PLY vertex
+    /// property `density`. Off by default, as PoissonRecon 18 [default: off]
+    #[arg(long)]
+    pub density: bool,
+
+    /// Trim the mesh by density before writing it: remove the parts whose density (estimated
+    /// sampling depth) is below V, cutting along the iso-line, or `auto` to derive V from the
+    /// mesh's density distribution (see `spsr trim --help`). Computes the density; the file
+    /// gets the density property only with --density [default: off]
+    #[arg(long, value_name = "V|auto", value_parser = parse_trim, allow_negative_numbers = true)]
+    pub trim: Option<spsr::trim::Threshold>,
+
+    /// With --trim: kept pieces smaller than this fraction of the total area are removed.
+    /// Default as PoissonRecon 18's SurfaceTrimmer (--aRatio).
+    #[arg(
+        long,
+        value_name = "F",
+        default_value_t = spsr::trim::TrimParams::default().min_island_area,
+        requires = "trim",
+        allow_negative_numbers = true
+    )]
+    pub min_island_area: f64,
+
+    /// With --trim: trimmed regions inside kept surface smaller than this fraction of the total
+    /// area are restored (small holes closed again). Default as PoissonRecon 18's
+    /// SurfaceTrimmer (--aRatio).
+    #[arg(
+        long,
+        value_name = "F",
+        default_value_t = spsr::trim::TrimParams::default().hole_area,
+        requires = "trim",
+        allow_negative_numbers = true
+    )]
+    pub hole_area: f64,
+
+    /// Place mesh vertices by linear interpolation along cell edges instead of the quadratic fit
+    /// through the end values and gradients. Off by default, as PoissonRecon 18 (--linearFit)
+    /// [default: off]
+    #[arg(long)]
+    pub linear_fit: bool,
+
+    /// Refuse the run, before the octree is built, when its estimated peak memory exceeds this
+    /// size (bytes, or with a suffix K, M, G, T, powers of 1024; e.g. 8G) [default: the memory
+    /// the machine has available]
+    #[arg(long, value_name = "SIZE", value_parser = parse_size)]
+    pub max_memory: Option<u64>,
+
+    /// Split each sample's normal between the two depths around its estimated depth (2006 paper,
+    /// PoissonRecon 6) instead of splatting it whole at the depth above (PoissonRecon 18):
+    /// smoother, better on smooth surfaces, less detail on scans [default: off]
+    #[arg(long)]
+    pub two_level_splat: bool,
+
+    #[command(flatten)]
+    pub common: CommonArgs,
+
+    /// Estimate and orient normals even when the input has them (they are replaced); inputs
+    /// without normals get estimated normals anyway [default: off]
+    #[arg(long)]
+    pub estimate_normals: bool,
+
+    /// How estimated normals are oriented (see `spsr normals --help`).
+    #[command(flatten)]
+    pub estimation: NormalOptions,
+}
+
+impl ReconstructArgs {
+    /// The library parameters these arguments describe (not yet validated).
+    pub fn params(&self) -> spsr::Params {
+        // An explicit --full-depth deeper than --depth is an error; the default follows --depth.
+        let full_depth = self
+            .full_depth
+            .unwrap_or_else(|| spsr::Params::default().full_depth.min(self.depth));
+        spsr::Params {
+            depth: self.depth,
+            full_depth,
+            samples_per_node: self.samples_per_node,
+            point_weight: self.point_weight,
+            degree: self.degree,
+            boundary: self.boundary.into(),
+            scale: self.scale,
+            iters: self.iters,
+            weights: match (&self.confidence_property, self.confidence) {
+                (Some(name), _) => spsr::PointWeights::Property(name.clone()),
+                (None, true) => spsr::PointWeights::NormalLength,
+                (None, false) => spsr::PointWeights::Uniform,
+            },
+            density: self.density,
+            linear_fit: self.linear_fit,
+            max_memory: self.max_memory,
+            two_level_splat: self.two_level_splat,
+            attributes: !self.no_attributes,
+            data_pull: self.data_pull,
+            normals: self.normals,
+        }
+    }
+}
+
+/// Parses `--degree`: 1 or 2.
+fn parse_degree(s: &str) -> Result<spsr::Degree, String> {
+    s.trim()
+        .parse::<u8>()
+        .ok()
+        .and_then(spsr::Degree::from_number)
+        .ok_or_else(|| format!("'{s}' is not a supported degree; use 1 or 2"))
+}
+
+impl ReconstructArgs {
+    /// The trimming parameters, when --trim was given (not yet validated).
+    pub fn trim_params(&self) -> Option<spsr::trim::TrimParams> {
+        self.trim.map(|threshold| spsr::trim::TrimParams {
+            threshold,
+            min_island_area: self.min_island_area,
+            hole_area: self.hole_area,
+        })
+    }
+}
+
+pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
+    let start = Instant::now();
+    let input = args.input.as_path();
+    let output = args.output.as_path();
+    let fail = |e: spsr::Error| Failure::from_spsr(e, input_name(input));
+
+    // Cheap checks first, so mistakes surface before any reading or computing.
+    let params = args.params();
+    params.validate().map_err(fail)?;
+    let trim_params = args.trim_params();
+    if let Some(p) = &trim_params {
+        p.validate().map_err(fail)?;
+    }
+    start_threads(args.common.threads.threads)?;
+    check_output_arg(output, input).map_err(fail)?;
+
+    let progress = Progress::new(std::io::stderr().is_terminal() && !args.common.verbose);
+    progress.stage("reading");
+    let t = Instant::now();
+    let mut cloud = read_cloud_arg(input).map_err(fail)?;
+    let reading = t.elapsed();
+
+    let mut estimated = None;
+    if args.estimate_normals || !cloud.has_normals() {
+        if !args.estimate_normals {
+            progress.note(&format!(
+                "spsr: note: {} has no normals; estimating and orienting them (see --orient)",
+                input.display()
+            ));
+        }
+        progress.stage("estimating normals");
+        estimated = Some(normals::estimate_normals(
+            &mut cloud,
+            &args.estimation,
+            input,
+        )?);
+    } else if args.estimation.any_given() {
+        return Err(usage(format!(
+            "{} has normals, which --orient, --viewpoint and --neighbours do not change: add \
+             --estimate-normals to replace them",
+            input.display()
+        )));
+    }
+
+    // The cloud is handed over so that it is released once the points are normalised.
+    let (result, trimmed) = match &trim_params {
+        Some(p) => {
+            let (result, stats) =
+                spsr::reconstruct_and_trim(cloud, &params, p, &|s| progress.stage(s))
+                    .map_err(fail)?;
+            let time = result.stats.stages.last().map_or(Duration::ZERO, |s| s.1);
+            (result, Some((stats, time)))
+        }
+        None => (
+            spsr::reconstruct_owned(cloud, &params, &|s| progress.stage(s)).map_err(fail)?,
+            None,
+        ),
+    };
+
+    progress.stage("writing");
+    let t = Instant::now();
+    let opts = spsr::io::WriteOptions {
+        ascii: args.common.ascii,
+    };
+    write_mesh_arg(output, &result.mesh, &opts).map_err(fail)?;
+    let writing = t.elapsed();
+    drop(progress);
+
+    for w in &result.stats.warnings {
+        eprintln!("spsr: warning: {}: {}", input.display(), words::warning(w));
+    }
+    let mesh = &result.mesh;
+    if args.common.verbose {
+        print_details(args, &result, reading, writing, start.elapsed());
+        if let Some(report) = &estimated {
+            report.print();
+        }
+        if let Some((stats, time)) = &trimmed {
+            print_trim(stats, *time);
+        }
+    }
+    report_written(output, mesh, start);
+    Ok(())
+}
+
+fn print_details(
+    args: &ReconstructArgs,
+    result: &spsr::Reconstruction,
+    reading: Duration,
+    writing: Duration,
+    total: Duration,
+) {
+    let stats = &result.stats;
+    let mut err = std::io::stderr().lock();
+    let _ = writeln!(err, "input       {}", args.input.display());
+    let _ = writeln!(
+        err,
+        "points      {} read, {} dropped",
+        stats.points, stats.dropped
+    );
+    let _ = writeln!(err, "samples     {}", stats.samples);
+    let nodes: usize = stats.nodes_per_depth.iter().sum();
+    let _ = writeln!(err, "octree      {nodes} nodes; per depth:");
+    for (depth, n) in stats.nodes_per_depth.iter().enumerate() {
+        let _ = writeln!(err, "  {depth:>2}  {n:>12}");
+    }
+    let _ = writeln!(
+        err,
+        "memory      {:.0} MiB estimated before the octree was built",
+        stats.memory_estimate as f64 / (1024.0 * 1024.0)
+    );
+    let _ = writeln!(err, "iso-value   {}", stats.iso_value);
+    let _ = writeln!(
+        err,
+        "mesh        {} vertices, {} faces",
+        result.mesh.vertices.len(),
+        result.mesh.triangles.len()
+    );
+    let _ = writeln!(err, "output      {}", args.output.display());
+    let _ = writeln!(err, "timings:");
+    let stages = std::iter::once(("reading", reading))
+        .chain(stats.stages.iter().map(|(n, d)| (n.as_str(), *d)))
+        .chain(std::iter::once(("writing", writing)));
+    let memory = std::iter::once(None)
+        .chain(stats.peak_memory.iter().copied())
+        .chain(std::iter::once(None));
+    for ((name, d), mem) in stages.zip(memory) {
+        match mem {
+            Some(bytes) => {
+                let mib = bytes as f64 / (1024.0 * 1024.0);
+                let _ = writeln!(
+                    err,
+                    "  {name:<32} {:>9.3} s   peak {mib:>8.0} MiB",
+                    d.as_secs_f64()
+                );
+            }
+            None => {
+                let _ = writeln!(err, "  {name:<32} {:>9.3} s", d.as_secs_f64());
+            }
+        }
+    }
+    let _ = writeln!(err, "  {:<32} {:>9.3} s", "total", total.as_secs_f64());
+}

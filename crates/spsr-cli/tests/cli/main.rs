@@ -1,0 +1,8 @@
+//! The command-line tests: one test binary, one module per subcommand, sharing `common`.
+
+mod common;
+mod eval;
+mod hardening;
+mod normals;
+mod reconstruct;
+mod trim;
