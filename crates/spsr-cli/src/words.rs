@@ -1,7 +1,7 @@
 //! How the command line words the library's errors and warnings: the library names fields
 //! (`depth`), the command line names flags (`--depth`).
 
-use spsr::{Error, MemoryLimit, MemoryShortfall, Warning};
+use spsr::{Error, MemoryShortfall, Warning};
 
 /// The flag that sets a library field.
 pub fn flag(field: &str) -> String {
@@ -36,26 +36,10 @@ pub fn error(e: &Error) -> Option<String> {
 }
 
 fn shortfall(m: &MemoryShortfall) -> String {
-    let what = match m.source {
-        MemoryLimit::Requested => "the --max-memory limit",
-        MemoryLimit::Available => "the memory this machine has available",
-    };
-    let advice = match m.suggested_depth {
-        Some(d) => {
-            format!("use --depth {d} or less, a larger --samples-per-node, or raise --max-memory")
-        }
-        None => {
-            "even the coarsest depth does not fit: raise --max-memory or use fewer points".into()
-        }
-    };
-    format!(
-        "this reconstruction needs about {} ({} octree nodes at --depth {}), more than {what} \
-         ({}); {advice}",
-        spsr::gib(m.estimate),
-        m.nodes,
-        m.depth,
-        spsr::gib(m.limit)
-    )
+    m.message(&|field, value| match value {
+        Some(v) => format!("{} {v}", flag(field)),
+        None => flag(field),
+    })
 }
 
 /// A warning in the command line's words.
@@ -82,6 +66,7 @@ pub fn warning(w: &Warning) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use spsr::MemoryLimit;
 
     /// Every field the library names in an `InvalidParameter` error, with the flag that sets
     /// it. Each flag is checked to exist on some subcommand.

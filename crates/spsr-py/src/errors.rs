@@ -8,7 +8,7 @@ use pyo3::exceptions::{
 };
 use pyo3::prelude::*;
 
-use spsr::{Error, MemoryLimit, MemoryShortfall, Warning};
+use spsr::{Error, MemoryShortfall, Warning};
 
 /// The Python function an error comes from: a library field can have a different keyword in
 /// each (the trimming's `threshold` is `trim=` in `reconstruct`, `threshold=` in `trim`).
@@ -69,24 +69,10 @@ pub fn message(e: &Error, call: Call) -> String {
 }
 
 fn shortfall(m: &MemoryShortfall) -> String {
-    let what = match m.source {
-        MemoryLimit::Requested => "the max_memory limit",
-        MemoryLimit::Available => "the memory this machine has available",
-    };
-    let advice = match m.suggested_depth {
-        Some(d) => {
-            format!("use depth={d} or less, a larger samples_per_node, or raise max_memory")
-        }
-        None => "even the coarsest depth does not fit: raise max_memory or use fewer points".into(),
-    };
-    format!(
-        "this reconstruction needs about {} ({} octree nodes at depth={}), more than {what} \
-         ({}); {advice}",
-        spsr::gib(m.estimate),
-        m.nodes,
-        m.depth,
-        spsr::gib(m.limit)
-    )
+    m.message(&|field, value| match value {
+        Some(v) => format!("{field}={v}"),
+        None => field.to_string(),
+    })
 }
 
 /// A warning of the reconstruction in Python's words (the text of its `RuntimeWarning`).

@@ -115,31 +115,44 @@ pub fn gib(bytes: u64) -> String {
     format!("{:.2} GiB", bytes as f64 / (1u64 << 30) as f64)
 }
 
-impl std::fmt::Display for MemoryShortfall {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+impl MemoryShortfall {
+    /// The explanation with what to do, naming parameters as a front end spells them:
+    /// `spell(field, Some(value))` for a setting (`--depth 9`, `depth=9`) and
+    /// `spell(field, None)` for the parameter alone (`--max-memory`, `max_memory`).
+    pub fn message(&self, spell: &dyn Fn(&str, Option<u32>) -> String) -> String {
         let what = match self.source {
-            MemoryLimit::Requested => "the max_memory limit",
-            MemoryLimit::Available => "the memory this machine has available",
+            MemoryLimit::Requested => format!("the {} limit", spell("max_memory", None)),
+            MemoryLimit::Available => "the memory this machine has available".into(),
         };
-        write!(
-            f,
-            "this reconstruction needs about {} ({} octree nodes at depth {}), more than {what} \
-             ({}); ",
+        let advice = match self.suggested_depth {
+            Some(d) => format!(
+                "use {} or less, a larger {}, or raise {}",
+                spell("depth", Some(d)),
+                spell("samples_per_node", None),
+                spell("max_memory", None)
+            ),
+            None => format!(
+                "even the coarsest depth does not fit: raise {} or use fewer points",
+                spell("max_memory", None)
+            ),
+        };
+        format!(
+            "this reconstruction needs about {} ({} octree nodes at {}), more than {what} \
+             ({}); {advice}",
             gib(self.estimate),
             self.nodes,
-            self.depth,
+            spell("depth", Some(self.depth)),
             gib(self.limit)
-        )?;
-        match self.suggested_depth {
-            Some(d) => write!(
-                f,
-                "use depth {d} or less, a larger samples_per_node, or raise max_memory"
-            ),
-            None => write!(
-                f,
-                "even the coarsest depth does not fit: raise max_memory or use fewer points"
-            ),
-        }
+        )
+    }
+}
+
+impl std::fmt::Display for MemoryShortfall {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message(&|field, value| match value {
+            Some(v) => format!("{field} {v}"),
+            None => field.to_string(),
+        }))
     }
 }
 
