@@ -8,7 +8,7 @@ pub fn flag(field: &str) -> String {
     match field {
         "weights" => "--confidence-property".into(),
         "threshold" => "--trim".into(),
-        "orient_neighbours" => "--neighbours".into(),
+        "orient_neighbours" => "the orientation's neighbour count".into(),
         "scan_origins" => "the scan origins in the file".into(),
         "points" | "leaves" => field.into(),
         f => format!("--{}", f.replace('_', "-")),
@@ -86,7 +86,7 @@ mod tests {
         ("samples", "--samples"),
         ("reference_sphere", "--reference-sphere"),
         ("neighbours", "--neighbours"),
-        ("orient_neighbours", "--neighbours"),
+        ("orient_neighbours", "the orientation's neighbour count"),
         ("viewpoint", "--viewpoint"),
         ("target_error", "--target-error"),
         ("scan_origins", "the scan origins in the file"),
