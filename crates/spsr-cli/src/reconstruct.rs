@@ -90,19 +90,28 @@ pub struct ReconstructArgs {
     pub full_depth: Option<u32>,
 
     /// Target number of samples per octree node (sets each sample's splat depth). Default as
-    /// PoissonRecon 18 (version 6 used 1.0).
-    #[arg(
-        long,
-        value_name = "N",
-        default_value_t = spsr::Params::default().samples_per_node,
-        allow_negative_numbers = true
-    )]
-    pub samples_per_node: f64,
+    /// PoissonRecon 18 (version 6 used 1.0). Giving it turns the noise adaptation off unless
+    /// --noise adaptive is given too [default: 1.5]
+    #[arg(long, value_name = "N", allow_negative_numbers = true)]
+    pub samples_per_node: Option<f64>,
 
     /// Screening weight alpha; 0 gives the unscreened 2006 method. Default as PoissonRecon 18
-    /// (4 for degree 2, the 2013 paper's value) [default: 2 × degree]
+    /// (4 for degree 2, the 2013 paper's value). Giving it turns the noise adaptation off
+    /// unless --noise adaptive is given too [default: 2 × degree]
     #[arg(long, value_name = "ALPHA", allow_negative_numbers = true)]
     pub point_weight: Option<f64>,
+
+    /// Adapt the reconstruction to the noise measured around each point (adaptive: noisy
+    /// regions are splatted coarser, clean ones keep full detail), or not (off: exactly
+    /// PoissonRecon's behaviour) [default: adaptive, or off when --samples-per-node or
+    /// --point-weight is given]
+    #[arg(long, value_enum, value_name = "MODE")]
+    pub noise: Option<NoiseArg>,
+
+    /// Keep the far outliers (a few points far outside the box that holds the rest, which
+    /// waste depth) instead of leaving them out with a warning [default: off]
+    #[arg(long)]
+    pub keep_outliers: bool,
 
     /// B-spline degree of the finite elements, 1 or 2. Default as PoissonRecon 18 (the 2013 paper
     /// and PoissonRecon 6 use 2).
@@ -238,7 +247,9 @@ impl ReconstructArgs {
         spsr::Params {
             depth: self.depth,
             full_depth,
-            samples_per_node: self.samples_per_node,
+            samples_per_node: self
+                .samples_per_node
+                .unwrap_or(spsr::Params::default().samples_per_node),
             point_weight: self.point_weight,
             degree: self.degree,
             boundary: self.boundary.into(),
@@ -256,8 +267,29 @@ impl ReconstructArgs {
             attributes: !self.no_attributes,
             data_pull: self.data_pull,
             normals: self.normals,
+            noise: self.noise(),
+            keep_outliers: self.keep_outliers,
         }
     }
+
+    /// The noise mode (see [`spsr::Noise::unless_tuned`]).
+    fn noise(&self) -> spsr::Noise {
+        let given = self.noise.map(|n| match n {
+            NoiseArg::Adaptive => spsr::Noise::Adaptive,
+            NoiseArg::Off => spsr::Noise::Off,
+        });
+        let tuned = self.samples_per_node.is_some() || self.point_weight.is_some();
+        spsr::Noise::unless_tuned(given, tuned)
+    }
+}
+
+/// `--noise`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum NoiseArg {
+    /// Adapt the splat depth to the local noise.
+    Adaptive,
+    /// PoissonRecon's behaviour.
+    Off,
 }
 
 /// Parses `--degree`: 1 or 2.

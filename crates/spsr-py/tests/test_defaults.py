@@ -21,6 +21,8 @@ PYTHON_ONLY = {
 # Keywords whose Python default is None, meaning "the library's default, adjusted": the
 # docstring says what it is. full_depth: the library's 5, or the depth when that is smaller.
 NONE_MEANS_LIBRARY = {("reconstruct", "full_depth")}
+# samples_per_node and noise: None means 1.5 and adaptive, unless the other keywords say
+# otherwise (the docstring says how); the library default behind them is None as well.
 
 DEFAULTS = _spsr._defaults()
 

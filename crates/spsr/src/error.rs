@@ -172,6 +172,15 @@ pub enum Warning {
     /// A few far points make the bounding cube much larger than the bulk of the cloud; the
     /// cube sets the finest cell size, so they silently waste depth.
     FarOutliers(FarOutliers),
+    /// The far outliers of [`Warning::FarOutliers`] were left out (the default; keep them
+    /// with `keep_outliers`).
+    OutliersDropped(FarOutliers),
+    /// Pieces of the mesh too small to be anything but bubbles left by noise were removed
+    /// (with the noise adaptation on).
+    FragmentsRemoved {
+        /// Pieces removed.
+        pieces: usize,
+    },
 }
 
 /// The figures of [`Warning::FarOutliers`].
@@ -205,6 +214,24 @@ impl std::fmt::Display for Warning {
                 "{dropped} of {total} points dropped (non-finite coordinates, zero-length \
                  normals or unusable weights)"
             ),
+            Warning::FragmentsRemoved { pieces } => write!(
+                f,
+                "removed {pieces} small piece(s) of the mesh (each under 0.1 % of its area), \
+                 bubbles left by noise far from the surface"
+            ),
+            Warning::OutliersDropped(o) => {
+                let fmt = |v: [f64; 3]| format!("({:.6e}, {:.6e}, {:.6e})", v[0], v[1], v[2]);
+                write!(
+                    f,
+                    "left out {} far outlier(s) of {} points, kept the {} points in and \
+                     near the box {} to {}",
+                    o.far,
+                    o.total,
+                    o.total - o.far,
+                    fmt(o.bulk_min),
+                    fmt(o.bulk_max)
+                )
+            }
             Warning::FarOutliers(o) => {
                 write!(
                     f,
@@ -221,6 +248,15 @@ impl std::fmt::Display for Warning {
 }
 
 impl FarOutliers {
+    /// Whether `p` is far from the bulk: outside its box grown by its own size on every side.
+    pub fn is_far(&self, p: [f64; 3]) -> bool {
+        Self::far_from(self.bulk_min, self.bulk_max, self.bulk_extent, p)
+    }
+
+    pub(crate) fn far_from(lo: [f64; 3], hi: [f64; 3], size: f64, p: [f64; 3]) -> bool {
+        (0..3).any(|a| p[a] < lo[a] - size || p[a] > hi[a] + size)
+    }
+
     /// The finding, with depths spelled `depth_word` followed by the number (a front end
     /// passes `"--depth "` or `"depth="`), without the advice.
     pub fn describe(&self, depth_word: &str) -> String {

@@ -40,9 +40,9 @@ mod vec3;
 pub use bspline::{Boundary, Degree};
 pub use error::{gib, Error, FarOutliers, MemoryLimit, MemoryShortfall, Result, Warning};
 pub use mesh::Mesh;
-pub use params::{Params, PointWeights, MAX_DEPTH};
+pub use params::{Noise, Params, PointWeights, MAX_DEPTH};
 pub use pipeline::{
-    reconstruct, reconstruct_and_trim, reconstruct_owned, reconstruct_with_progress,
+    reconstruct, reconstruct_and_trim, reconstruct_owned, reconstruct_with_progress, NoiseSummary,
     Reconstruction, Stats,
 };
 pub use points::{PointCloud, ScanOrigin};

@@ -470,7 +470,7 @@ def reconstruct(
     *,
     depth: int = 8,
     full_depth: Optional[int] = None,
-    samples_per_node: float = 1.5,
+    samples_per_node: Optional[float] = None,
     point_weight: Optional[float] = None,
     degree: int = 1,
     boundary: str = "neumann",
@@ -491,6 +491,8 @@ def reconstruct(
     trim: Union[float, str, None] = None,
     min_island_area: float = 0.001,
     hole_area: float = 0.001,
+    noise: Optional[str] = None,
+    keep_outliers: bool = False,
     threads: Optional[int] = None,
 ) -> Mesh:
     """Reconstruct a watertight triangle mesh from oriented points.
@@ -517,10 +519,20 @@ def reconstruct(
     full_depth : int, optional
         The octree is complete down to this depth, where the coarse solve happens.
         Default 5, or ``depth`` when that is smaller.
-    samples_per_node : float, default 1.5
-        Target samples per octree node (PoissonRecon 18; version 6 used 1.0).
+    samples_per_node : float, optional
+        Target samples per octree node (PoissonRecon 18; version 6 used 1.0). Default 1.5.
+        Giving it turns the noise adaptation off unless ``noise="adaptive"`` is given too.
     point_weight : float, optional
         Screening weight alpha; 0 gives the unscreened 2006 method. Default 2 * degree.
+        Giving it turns the noise adaptation off unless ``noise="adaptive"`` is given too.
+    noise : {"adaptive", "off"}, optional
+        ``"adaptive"`` measures the noise around every point and splats noisy regions
+        coarser (clean ones keep full detail), and removes pieces under 0.1 % of the mesh's
+        area (bubbles left by noise); ``"off"`` is exactly PoissonRecon's behaviour.
+        Default adaptive, or off when ``samples_per_node`` or ``point_weight`` is given.
+    keep_outliers : bool, default False
+        Keep the far outliers (a few points far outside the box that holds the rest)
+        instead of leaving them out with a warning.
     degree : {1, 2}, default 1
         B-spline degree (PoissonRecon 18; the 2013 paper uses 2).
     boundary : {"neumann", "dirichlet", "free"}, default "neumann"
@@ -634,6 +646,8 @@ def reconstruct(
         full_depth=full_depth,
         samples_per_node=samples_per_node,
         point_weight=point_weight,
+        noise=noise,
+        keep_outliers=keep_outliers,
         degree=degree,
         boundary=boundary,
         scale=scale,

@@ -69,7 +69,7 @@
 //! reconstruction each round, until a round flips at most one normal in 10,000, or for
 //! `rounds` rounds; each normal flips at most once.
 
-mod estimate;
+pub(crate) mod estimate;
 mod graph;
 mod knn;
 mod orient;

@@ -5,12 +5,14 @@
 //! |---|---|---|---|
 //! | 1 preparing points | [`prepare`] | §3.1, §3.2, §3.4 | [`prepare::Prepared`] |
 //! | 2 density | [`density`] | §3.3, §3.5 | [`density::Sampled`] |
+//! | 2b noise | [`noise`] | (issue 16) | the samples' depths, lowered |
 //! | 3 octree | [`tree`] | §3.6, §4.2 | [`tree::Refined`] |
 //! | 4 splatting | [`splat`] | §3.6 | [`splat::VectorField`] |
 //! | 5 clusters | [`system`] | §3.7 | [`system::Screening`] |
 //! | 6 solving | [`solve`] | §6, §7 | [`crate::solver::Solution`] |
 //! | 7 iso-value | [`iso`] | §1.5 | [`Implicit`] |
 //! | 8 extraction | [`extract`] | §9 | [`Mesh`] |
+//! | 9 fragments | [`fragments`] | (issue 16) | the [`Mesh`] without noise bubbles |
 
 use std::time::{Duration, Instant};
 
@@ -25,17 +27,20 @@ use crate::evaluate::Evaluator;
 use crate::octree::{Octree, DEPTH_OFFSET};
 use crate::solver::Solution;
 use crate::trim::{TrimParams, TrimStats};
-use crate::{resources, Error, Mesh, Params, PointCloud, Result};
+use crate::{resources, Error, Mesh, Noise, Params, PointCloud, Result};
 
 pub mod density;
 pub mod extract;
+pub mod fragments;
 pub mod iso;
+pub mod noise;
 pub mod prepare;
 pub mod solve;
 pub mod splat;
 pub mod system;
 pub mod tree;
 
+pub use noise::NoiseSummary;
 pub use prepare::Frame;
 
 /// The output of [`reconstruct`].
@@ -52,7 +57,8 @@ pub struct Reconstruction {
 pub struct Stats {
     /// Points given.
     pub points: usize,
-    /// Points dropped (non-finite values, zero-length normals or unusable weights).
+    /// Points dropped (non-finite values, zero-length normals, unusable weights, or far
+    /// outliers left out).
     pub dropped: usize,
     /// Samples after merging points that share a finest cell.
     pub samples: usize,
@@ -72,6 +78,8 @@ pub struct Stats {
     /// Peak resident memory of the process (bytes) at the end of each stage, where the
     /// platform reports it (Linux); same order as `stages`.
     pub peak_memory: Vec<Option<u64>>,
+    /// What the noise stage measured and changed (`None` with [`Noise::Off`]).
+    pub noise: Option<NoiseSummary>,
 }
 
 /// The solved implicit function χ and what extraction needs besides: the output of stages
@@ -183,7 +191,15 @@ fn reconstruct_input(
 ) -> Result<Reconstruction> {
     let mut run = Run::new(progress);
     let (implicit, mut stats) = solve_implicit(input, params, &mut run)?;
-    let mesh = run.stage("extraction", || extract::extract(implicit, params))?;
+    let mut mesh = run.stage("extraction", || extract::extract(implicit, params))?;
+    if params.noise == Noise::Adaptive {
+        let removed = run.stage("fragments", || fragments::remove_fragments(&mut mesh));
+        if removed > 0 {
+            stats
+                .warnings
+                .push(Warning::FragmentsRemoved { pieces: removed });
+        }
+    }
     (stats.stages, stats.peak_memory) = run.finish();
     Ok(Reconstruction { mesh, stats })
 }
@@ -213,7 +229,12 @@ pub(crate) fn solve_implicit(
         dropped,
         warnings,
     } = prepared;
-    let sampled = run.stage("density", || density::sample(points, carried, params));
+    let mut sampled = run.stage("density", || density::sample(points, carried, params));
+    let noise = (params.noise == Noise::Adaptive).then(|| {
+        run.stage("noise", || {
+            noise::adapt(&sampled.samples, &mut sampled.depths, params.depth)
+        })
+    });
     let refined = run.stage("octree", || tree::build(&sampled, params, input_points))?;
     let field = run.stage("splatting", || splat::splat(&refined, &sampled, params))?;
     let density::Sampled {
@@ -269,6 +290,7 @@ pub(crate) fn solve_implicit(
         mean_sample_depth: field.mean_depth,
         warnings,
         memory_estimate,
+        noise,
         ..Stats::default()
     };
     let implicit = Implicit {

@@ -6,6 +6,7 @@ mod common;
 
 mod attributes;
 mod hostile;
+mod noise;
 mod normals;
 mod properties;
 mod reconstruct;
