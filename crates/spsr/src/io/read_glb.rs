@@ -266,7 +266,7 @@ impl<R: BufRead + Seek> Glb<'_, R> {
         };
         let positions = self.floats(position, 3, false)?;
         let base = cols.mesh.vertices.len();
-        let count = positions.len();
+        let count = positions.len() / 3;
         if u32::try_from(base + count).is_err() {
             return Err(self.err("more than 4294967295 vertices".into()));
         }

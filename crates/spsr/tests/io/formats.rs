@@ -777,11 +777,24 @@ fn formats_are_detected_by_magic_before_extension() {
     assert_eq!(CloudFormat::detect(&t).unwrap(), CloudFormat::Pcd);
     let t = write_file(dir.path(), "pts.dat", b"1 2 3 0 0 1\n");
     assert_eq!(CloudFormat::detect(&t).unwrap(), CloudFormat::Text);
-    assert_eq!(MeshFormat::from_path(Path::new("a.GLB")), MeshFormat::Glb);
-    assert_eq!(MeshFormat::from_path(Path::new("a.Stl")), MeshFormat::Stl);
-    assert_eq!(MeshFormat::from_path(Path::new("a.obj")), MeshFormat::Obj);
-    assert_eq!(MeshFormat::from_path(Path::new("a.mesh")), MeshFormat::Ply);
-    assert_eq!(MeshFormat::from_path(Path::new("mesh")), MeshFormat::Ply);
+    assert_eq!(
+        MeshFormat::from_path(Path::new("a.GLB")).unwrap(),
+        MeshFormat::Glb
+    );
+    assert_eq!(
+        MeshFormat::from_path(Path::new("a.Stl")).unwrap(),
+        MeshFormat::Stl
+    );
+    assert_eq!(
+        MeshFormat::from_path(Path::new("a.obj")).unwrap(),
+        MeshFormat::Obj
+    );
+    assert_eq!(
+        MeshFormat::from_path(Path::new("a.off")).unwrap(),
+        MeshFormat::Off
+    );
+    assert!(MeshFormat::from_path(Path::new("a.mesh")).is_err());
+    assert!(MeshFormat::from_path(Path::new("mesh")).is_err());
 }
 
 // ---------------------------------------------------------------------------------------------
