@@ -236,7 +236,7 @@ impl MeshFormat {
             Some(MeshFormat::Glb)
         } else if off::is_off(head) {
             Some(MeshFormat::Off)
-        } else if head.starts_with(b"solid") {
+        } else if stl::starts_solid(head) {
             Some(MeshFormat::Stl)
         } else {
             None

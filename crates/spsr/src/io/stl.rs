@@ -7,7 +7,7 @@
 //! as STL reads back closed when it was closed, unless two of its vertices round to the same
 //! `f32` position. Facet normals are ignored (the triangles' order of corners gives their
 //! orientation). A file is binary when its size is the 84-byte header plus 50 bytes per
-//! triangle it declares, else ASCII when it starts with `solid`; ASCII facets with more than
+//! triangle it declares, else ASCII when it starts with `solid` (keywords in any case); ASCII facets with more than
 //! three corners are fan-triangulated.
 
 use std::io::{BufRead, Write};
@@ -129,12 +129,18 @@ impl Merger {
     }
 }
 
+/// True when the file starts with `solid` (any case), as ASCII STL does.
+pub(crate) fn starts_solid(head: &[u8]) -> bool {
+    head.get(..5)
+        .is_some_and(|w| w.eq_ignore_ascii_case(b"solid"))
+}
+
 pub(crate) fn read_stl<R: BufRead>(path: &Path, mut reader: R, len: u64) -> Result<Mesh> {
     let head = reader.fill_buf().map_err(|e| io_err(path, e))?;
     let declared = (head.len() >= HEADER_BYTES as usize)
         .then(|| u64::from(u32::from_le_bytes([head[80], head[81], head[82], head[83]])));
     let binary_size = declared.map(|n| HEADER_BYTES + TRIANGLE_BYTES * n);
-    if binary_size != Some(len) && head.starts_with(b"solid") {
+    if binary_size != Some(len) && starts_solid(head) {
         return read_ascii(path, reader);
     }
     let Some(count) = declared else {
@@ -197,7 +203,12 @@ fn read_ascii<R: BufRead>(path: &Path, reader: R) -> Result<Mesh> {
     let mut in_loop = false;
     while lines.advance_to_data(None)? {
         let mut words = lines.text().split_whitespace();
-        match words.next().unwrap_or_default() {
+        match words
+            .next()
+            .unwrap_or_default()
+            .to_ascii_lowercase()
+            .as_str()
+        {
             "solid" | "endsolid" | "facet" | "endfacet" => {}
             "outer" => {
                 corners.clear();

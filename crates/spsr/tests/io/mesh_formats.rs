@@ -459,12 +459,13 @@ fn stl_detection_and_errors() {
         let p = write_file(dir.path(), "bad.stl", text);
         assert_parse(read_mesh(&p).unwrap_err(), needles);
     }
-    // A quad facet is fan-triangulated; STL vertices as a cloud have no normals.
+    // Keywords in capitals; a quad facet is fan-triangulated; STL vertices as a cloud have no
+    // normals.
     let p = write_file(
         dir.path(),
         "quad.stl",
-        b"solid q\nfacet normal 0 0 1\n outer loop\n  vertex 0 0 0\n  vertex 1 0 0\n  \
-          vertex 1 1 0\n  vertex 0 1 0\n endloop\nendfacet\nendsolid q\n",
+        b"SOLID q\nFACET NORMAL 0 0 1\n OUTER LOOP\n  VERTEX 0 0 0\n  VERTEX 1 0 0\n  \
+          VERTEX 1 1 0\n  VERTEX 0 1 0\n ENDLOOP\nENDFACET\nENDSOLID q\n",
     );
     assert_eq!(read_mesh(&p).unwrap().triangles, vec![[0, 1, 2], [0, 2, 3]]);
     assert_eq!(read_cloud(&p).unwrap().len(), 4);
@@ -477,11 +478,11 @@ fn stl_detection_and_errors() {
 /// A GLB file of `json` and `bin` (each padded to 4 bytes).
 fn glb(json: &str, bin: &[u8]) -> Vec<u8> {
     let mut j = json.as_bytes().to_vec();
-    while j.len() % 4 != 0 {
+    while !j.len().is_multiple_of(4) {
         j.push(b' ');
     }
     let mut b = bin.to_vec();
-    while b.len() % 4 != 0 {
+    while !b.len().is_multiple_of(4) {
         b.push(0);
     }
     let mut out = Vec::new();
