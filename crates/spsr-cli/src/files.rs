@@ -40,13 +40,23 @@ pub fn read_mesh_arg(path: &Path) -> spsr::Result<spsr::Mesh> {
     }
 }
 
-/// The up-front output check; standard output (`-`) needs none.
+/// The up-front check of a mesh output, before any reading or computing: its extension names
+/// a mesh format ([`spsr::io::MeshFormat::from_path`]), and the path can be written and is not
+/// the input. Standard output (`-`, written as PLY) needs none.
 pub fn check_output_arg(output: &Path, input: &Path) -> spsr::Result<()> {
     if is_std_stream(output) {
-        Ok(())
-    } else {
-        spsr::io::check_output_path(output, input)
+        return Ok(());
     }
+    spsr::io::MeshFormat::from_path(output)?;
+    spsr::io::check_output_path(output, input)
+}
+
+/// The up-front check of a point-cloud output: its extension names a format
+/// [`spsr::io::write_cloud`] writes ([`spsr::io::CloudFormat::for_output`]), and the path can
+/// be written and is not the input.
+pub fn check_cloud_output_arg(output: &Path, input: &Path) -> spsr::Result<()> {
+    spsr::io::CloudFormat::for_output(output)?;
+    spsr::io::check_output_path(output, input)
 }
 
 /// Writes a mesh to a file (atomically), or as PLY to standard output for `-`.

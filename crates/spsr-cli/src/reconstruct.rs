@@ -25,9 +25,9 @@ extension), PCD (.pcd; ascii, binary or binary_compressed, fields normal_x norma
 text with one point per line: x y z nx ny nz, optionally followed by r g b. Normals must point \
 outward. Points with non-finite coordinates or zero-length normals are dropped with a warning. A cloud without normals gets normals estimated and oriented first, as by `spsr normals` (with a note saying so); --estimate-normals does that for any cloud, replacing its normals.
 
-Output, chosen by the output name's extension: .ply (binary little-endian, ASCII with --ascii; also \
-used for any other extension), .obj (Wavefront OBJ), .stl (binary STL, ASCII with --ascii), .glb \
-(glTF 2.0 binary). The output file appears only once it is complete; on any error no output file \
+Output, chosen by the output name's extension: .ply (binary little-endian, ASCII with --ascii), \
+.obj (Wavefront OBJ), .stl (binary STL, ASCII with --ascii), .off (OFF), .glb (glTF 2.0 binary); \
+any other extension is refused before the work. The output file appears only once it is complete; on any error no output file \
 is left behind. The output must not be the input file.";
 
 /// Boundary condition on the bounding cube, as spelled on the command line.
@@ -69,7 +69,7 @@ pub struct ReconstructArgs {
     #[arg(value_name = "INPUT")]
     pub input: PathBuf,
 
-    /// Output mesh, by extension: .ply (also any other name), .obj, .stl or .glb; `-` writes
+    /// Output mesh, by extension: .ply, .obj, .stl, .off or .glb; `-` writes
     /// PLY to standard output.
     #[arg(short, long, value_name = "OUTPUT")]
     pub output: PathBuf,

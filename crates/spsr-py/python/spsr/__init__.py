@@ -879,7 +879,9 @@ def eval(  # noqa: A001 (the command line's name)
 
 
 def read_points(path: PathLike) -> PointCloud:
-    """Read a point cloud: PLY, text (``.xyz``, ``.txt``, ``.csv``, ...), LAS/LAZ, E57 or PCD.
+    """Read a point cloud: PLY, text (``.xyz``, ``.txt``, ``.csv``, ...), LAS/LAZ, E57 or PCD,
+    or the vertices of a mesh file (OBJ, OFF, STL, GLB; with their normals where the file
+    has one per vertex).
 
     The format is recognised by the file's first bytes, else by its extension; anything
     else is read as text.
@@ -906,11 +908,13 @@ def read_points(path: PathLike) -> PointCloud:
 
 
 def read_mesh(path: PathLike) -> Mesh:
-    """Read a PLY triangle mesh (polygons are fan-triangulated).
+    """Read a triangle mesh: PLY, OBJ, STL, OFF or GLB (polygons are fan-triangulated).
 
-    A vertex property ``density`` fills ``Mesh.density``, ``nx ny nz`` fill
-    ``Mesh.normals``, colour properties ``Mesh.colors`` and every other scalar vertex
-    property ``Mesh.attributes``.
+    The format is recognised by the file's first bytes, else by its extension. PLY: a
+    vertex property ``density`` fills ``Mesh.density``, ``nx ny nz`` fill ``Mesh.normals``,
+    colour properties ``Mesh.colors`` and every other scalar vertex property
+    ``Mesh.attributes``. GLB keeps normals, colours and spsr's density; OBJ and OFF normals
+    and colours; STL positions only (corners at the same position become one vertex).
     """
     return Mesh._from_native(_spsr.read_mesh(os.fspath(path)))
 
@@ -918,15 +922,17 @@ def read_mesh(path: PathLike) -> Mesh:
 def write_mesh(path: PathLike, mesh: Mesh, *, ascii: bool = False) -> None:
     """Write a mesh, in the format its extension names.
 
-    ``.obj`` (Wavefront OBJ with vertex colours and normals), ``.stl`` (binary, or ASCII),
-    ``.glb`` (glTF 2.0 binary), anything else PLY (binary little endian, or ASCII) with
-    normals, colours, attributes and density. The file appears only when complete (written
-    to a temporary file in the same folder, then renamed).
+    ``.ply`` (binary little endian, or ASCII) with normals, colours, attributes and density;
+    ``.obj`` (Wavefront OBJ with vertex colours and normals), ``.off`` (OFF with normals and
+    colours), ``.stl`` (binary, or ASCII), ``.glb`` (glTF 2.0 binary with normals, colours
+    and density). The file appears only when complete (written to a temporary file in the
+    same folder, then renamed).
 
     Raises
     ------
     OSError
-        The folder does not exist or is not writable, or the path is a folder.
+        The extension is none of these, the folder does not exist or is not writable, or
+        the path is a folder.
     """
     if not isinstance(mesh, Mesh):
         raise TypeError(f"mesh must be an spsr.Mesh, got {type(mesh).__name__}")
@@ -942,9 +948,12 @@ def write_points(
     attributes: Optional[Mapping[str, ArrayLike]] = None,
     ascii: bool = False,
 ) -> None:
-    """Write a point cloud as PLY, with normals, colours and attributes in their own types.
+    """Write a point cloud, in the format its extension names.
 
-    Written atomically, like :func:`write_mesh`. ``points`` may be a :class:`PointCloud`.
+    ``.ply``: normals, colours and attributes in their own types. ``.xyz`` or ``.txt``:
+    text, ``x y z``, then ``nx ny nz`` with normals, then ``r g b`` with normals and
+    colours. Any other extension raises ``OSError``. Written atomically, like
+    :func:`write_mesh`. ``points`` may be a :class:`PointCloud`.
     """
     if isinstance(points, PointCloud):
         cloud = points
