@@ -113,6 +113,12 @@ pub struct ReconstructArgs {
     #[arg(long)]
     pub keep_outliers: bool,
 
+    /// Keep the normals as given even when many point against their neighbours' (by
+    /// default such normals are made consistent, each connected piece following the
+    /// majority of its normals, with a warning) [default: off]
+    #[arg(long)]
+    pub keep_normals: bool,
+
     /// B-spline degree of the finite elements, 1 or 2. Default as PoissonRecon 18 (the 2013 paper
     /// and PoissonRecon 6 use 2).
     #[arg(long, value_name = "K", default_value_t = spsr::Params::default().degree, value_parser = parse_degree)]
@@ -269,6 +275,7 @@ impl ReconstructArgs {
             normals: self.normals,
             noise: self.noise(),
             keep_outliers: self.keep_outliers,
+            keep_normals: self.keep_normals,
         }
     }
 

@@ -175,6 +175,7 @@ fn reconstruct_defaults<'py>(py: Python<'py>, trim: &TrimParams) -> PyResult<Bou
     // None: adaptive, or off when samples_per_node or point_weight is given.
     d.set_item("noise", py.None())?;
     d.set_item("keep_outliers", p.keep_outliers)?;
+    d.set_item("keep_normals", p.keep_normals)?;
     d.set_item("point_weight", p.point_weight)?;
     d.set_item("degree", p.degree.get())?;
     d.set_item("boundary", boundary_name(p.boundary))?;

@@ -21,7 +21,7 @@ use crate::params::{
     points, normals, columns, *, depth, full_depth, samples_per_node, point_weight, degree,
     boundary, scale, iters, confidence, density, linear_fit, max_memory, two_level_splat,
     attributes, data_pull, vertex_normals, confidence_property, threads, trim,
-    min_island_area, hole_area, noise, keep_outliers
+    min_island_area, hole_area, noise, keep_outliers, keep_normals
 ))]
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct<'py>(
@@ -52,6 +52,7 @@ pub fn reconstruct<'py>(
     hole_area: f64,
     noise: Option<&str>,
     keep_outliers: bool,
+    keep_normals: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     let given_noise = match noise {
         None => None,
@@ -85,6 +86,7 @@ pub fn reconstruct<'py>(
             samples_per_node.is_some() || point_weight.is_some(),
         ),
         keep_outliers,
+        keep_normals,
     };
     let given = [
         ("depth", Some(depth)),

@@ -172,6 +172,16 @@ pub enum Warning {
     /// A few far points make the bounding cube much larger than the bulk of the cloud; the
     /// cube sets the finest cell size, so they silently waste depth.
     FarOutliers(FarOutliers),
+    /// Many normals contradicted their neighbours; they were made consistent (the default;
+    /// keep them as given with `keep_normals`).
+    NormalsReoriented {
+        /// Samples whose normal changed sign.
+        flipped: usize,
+        /// Samples (points merged per finest cell).
+        samples: usize,
+        /// Share of the samples whose normal pointed against their cell's before.
+        disagreeing: f64,
+    },
     /// The far outliers of [`Warning::FarOutliers`] were left out (the default; keep them
     /// with `keep_outliers`).
     OutliersDropped(FarOutliers),
@@ -218,6 +228,18 @@ impl std::fmt::Display for Warning {
                 f,
                 "removed {pieces} small piece(s) of the mesh (each under 0.1 % of its area), \
                  bubbles left by noise far from the surface"
+            ),
+            Warning::NormalsReoriented {
+                flipped,
+                samples,
+                disagreeing,
+            } => write!(
+                f,
+                "{:.1} % of the normals pointed against their neighbours'; re-oriented {flipped} \
+                 of {samples} samples ({:.1} %) so that each connected piece follows the \
+                 clear majority of its normals, or faces outward",
+                100.0 * disagreeing,
+                100.0 * *flipped as f64 / (*samples).max(1) as f64
             ),
             Warning::OutliersDropped(o) => {
                 let fmt = |v: [f64; 3]| format!("({:.6e}, {:.6e}, {:.6e})", v[0], v[1], v[2]);

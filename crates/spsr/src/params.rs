@@ -69,6 +69,9 @@ pub struct Params {
     /// instead of leaving them out, as PoissonRecon does. Default off: they are left out,
     /// with a warning.
     pub keep_outliers: bool,
+    /// Keep the normals as given even when many contradict their neighbours. Default off:
+    /// such normals are made consistent, with a warning.
+    pub keep_normals: bool,
 }
 
 /// Whether the reconstruction adapts to the local noise of the points (issue 16).
@@ -138,6 +141,7 @@ impl Default for Params {
             normals: false,
             noise: Noise::Adaptive,
             keep_outliers: false,
+            keep_normals: false,
         }
     }
 }

@@ -493,6 +493,7 @@ def reconstruct(
     hole_area: float = 0.001,
     noise: Optional[str] = None,
     keep_outliers: bool = False,
+    keep_normals: bool = False,
     threads: Optional[int] = None,
 ) -> Mesh:
     """Reconstruct a watertight triangle mesh from oriented points.
@@ -533,6 +534,9 @@ def reconstruct(
     keep_outliers : bool, default False
         Keep the far outliers (a few points far outside the box that holds the rest)
         instead of leaving them out with a warning.
+    keep_normals : bool, default False
+        Keep the normals as given even when many point against their neighbours' (by
+        default such normals are made consistent, with a warning).
     degree : {1, 2}, default 1
         B-spline degree (PoissonRecon 18; the 2013 paper uses 2).
     boundary : {"neumann", "dirichlet", "free"}, default "neumann"
@@ -648,6 +652,7 @@ def reconstruct(
         point_weight=point_weight,
         noise=noise,
         keep_outliers=keep_outliers,
+        keep_normals=keep_normals,
         degree=degree,
         boundary=boundary,
         scale=scale,

@@ -39,6 +39,7 @@ def reconstruct(
     hole_area: float,
     noise: Optional[str],
     keep_outliers: bool,
+    keep_normals: bool,
 ) -> Dict[str, Any]: ...
 def trim(
     mesh: _MeshArgs,

@@ -5,6 +5,7 @@
 //! |---|---|---|---|
 //! | 1 preparing points | [`prepare`] | §3.1, §3.2, §3.4 | [`prepare::Prepared`] |
 //! | 2 density | [`density`] | §3.3, §3.5 | [`density::Sampled`] |
+//! | 2a orientation | [`orientation`] | (issue 16) | the samples' normals, made consistent |
 //! | 2b noise | [`noise`] | (issue 16) | the samples' depths, lowered |
 //! | 3 octree | [`tree`] | §3.6, §4.2 | [`tree::Refined`] |
 //! | 4 splatting | [`splat`] | §3.6 | [`splat::VectorField`] |
@@ -34,6 +35,7 @@ pub mod extract;
 pub mod fragments;
 pub mod iso;
 pub mod noise;
+pub mod orientation;
 pub mod prepare;
 pub mod solve;
 pub mod splat;
@@ -230,6 +232,13 @@ pub(crate) fn solve_implicit(
         warnings,
     } = prepared;
     let mut sampled = run.stage("density", || density::sample(points, carried, params));
+    let mut warnings = warnings;
+    if !params.keep_normals {
+        let flips = run.stage("orientation", || {
+            orientation::repair(&mut sampled.samples, params.depth)
+        });
+        warnings.extend(flips);
+    }
     let noise = (params.noise == Noise::Adaptive).then(|| {
         run.stage("noise", || {
             noise::adapt(&sampled.samples, &mut sampled.depths, params.depth)

@@ -133,3 +133,46 @@ fn pieces_and_their_areas() {
     assert_eq!(small.attributes[0].data.get(3), Some(70.0));
     assert!(small.topology().closed);
 }
+
+#[test]
+fn every_second_normal_flipped_still_gives_one_closed_surface() {
+    let mut cloud = sphere(20_000, [0.0; 3], 1.0, 5);
+    for n in cloud.normals.iter_mut().skip(1).step_by(2) {
+        *n = n.map(|c| -c);
+    }
+    let out = spsr::reconstruct(&cloud, &params(Noise::Adaptive)).unwrap();
+    let topo = assert_closed_manifold(&out.mesh, "every second normal flipped");
+    assert_eq!(topo.components, 1);
+    assert!(out.mesh.signed_volume() > 0.0, "the surface faces outward");
+    let Some(spsr::Warning::NormalsReoriented {
+        flipped, samples, ..
+    }) = out
+        .stats
+        .warnings
+        .iter()
+        .find(|w| matches!(w, spsr::Warning::NormalsReoriented { .. }))
+    else {
+        panic!("{:?}", out.stats.warnings)
+    };
+    let share = *flipped as f64 / *samples as f64;
+    assert!((share - 0.5).abs() < 0.05, "{flipped} of {samples}");
+    // Kept as given, the surface falls apart.
+    let kept = Params {
+        keep_normals: true,
+        ..params(Noise::Adaptive)
+    };
+    let out = spsr::reconstruct(&cloud, &kept).unwrap();
+    assert!(!out.mesh.topology().closed || out.mesh.topology().components > 1);
+    assert!(!out
+        .stats
+        .warnings
+        .iter()
+        .any(|w| matches!(w, spsr::Warning::NormalsReoriented { .. })));
+}
+
+#[test]
+fn consistent_normals_are_left_alone() {
+    let cloud = noisy_sphere(20_000, 0.02, 0.2, 9);
+    let out = spsr::reconstruct(&cloud, &params(Noise::Adaptive)).unwrap();
+    assert!(out.stats.warnings.is_empty(), "{:?}", out.stats.warnings);
+}
