@@ -170,10 +170,14 @@ fn reconstruct_defaults<'py>(py: Python<'py>, trim: &TrimParams) -> PyResult<Bou
     let d = PyDict::new(py);
     d.set_item("depth", p.depth)?;
     d.set_item("full_depth", p.full_depth)?;
-    // None: 1.5, and a given value turns the noise adaptation off (the docstring says so).
-    d.set_item("samples_per_node", py.None())?;
-    // None: adaptive, or off when samples_per_node or point_weight is given.
-    d.set_item("noise", py.None())?;
+    d.set_item("samples_per_node", p.samples_per_node)?;
+    d.set_item(
+        "noise",
+        match p.noise {
+            spsr::Noise::Adaptive => "adaptive",
+            spsr::Noise::Off => "off",
+        },
+    )?;
     d.set_item("keep_outliers", p.keep_outliers)?;
     d.set_item("keep_normals", p.keep_normals)?;
     d.set_item("point_weight", p.point_weight)?;
