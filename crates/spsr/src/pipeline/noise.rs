@@ -9,23 +9,26 @@
 //! coarser, as a larger `S` would do, but only there.
 //!
 //! **Measuring.** The samples' moments (weight, weighted sums of `p` and `p pᵀ`) are summed
-//! into the cells of every depth. For a sample, the covariance of the 3×3×3 cells around it is
-//! examined from the finest depth upwards; the first depth at which that neighbourhood is
-//! *flat* (its smallest eigenvalue below `FLAT²` times the middle one, with at least
-//! `MIN_SAMPLES` samples) gives the noise `σ = √λ_min`: the neighbourhood is then many times
-//! wider than the noise, so the plane fit measures it rather than a blob. Where no depth is
-//! flat (creases, corners, thin parts, isolated samples) nothing is measured and nothing is
-//! lowered.
+//! into the cells of every depth. For a sample, the 3×3×3 cells around it are examined from
+//! the finest depth upwards; the first depth at which that neighbourhood is *flat* (its
+//! covariance's smallest eigenvalue below `FLAT²` times the middle one, with at least
+//! `MIN_SAMPLES` samples) gives a plane, and the sample its offset from it. Over a clean
+//! surface the offsets vary smoothly (curvature, a crease nearby); noise makes them vary from
+//! sample to sample. So the noise `σ` is the spread of the offsets among the samples sharing
+//! a cell one depth finer, where the smooth part hardly varies. (The plane's own residual
+//! √λ_min measures noise as well, and more exactly, but also the curvature and creases of
+//! clean shapes: on the rocker arm and the fandisk it cost 6–18 % in accuracy.) Where no
+//! depth is flat or too few samples share the cell, nothing is measured.
 //!
 //! **Choosing.** A sample whose density gives cells of width `h` (depth `d`) and whose noise
-//! is `σ` is splatted at cells of width `√(h² + (κσ)²)`, `κ = CELLS_PER_NOISE`:
-//! `d' = d − ½ log2(1 + (κσ/h)²)`, the same as multiplying its samples per node by
-//! `1 + (κσ/h)²`. Where the noise is well below the spacing nothing changes; where it is
-//! larger the cells grow with it. `κ` was fitted on the bunny with noise of 0.25 % and 0.5 %
-//! of its diagonal, whose best single `--samples-per-node` (5 and 10 of 1.5–20, depth 9) this
-//! rule reproduces. The noise is smoothed first: each sample takes the median noise of the
-//! measured samples in the 3×3×3 cells around it one level above the typical measuring depth,
-//! so that a crease or a chance arrangement does not change the depth of a few samples alone.
+//! is `σ` is splatted at depth `d' = d − ½ log2(1 + r²)`, `r = (κσ/h)^p`, the same as
+//! multiplying its samples per node by `1 + r²`: where the noise is well below the spacing
+//! nothing changes, where it is larger the cells grow with it. `κ = 3.5` and `p = 1.3` were
+//! fitted at depth 9 on the bunny with noise of 0.25 % and 0.5 % of its diagonal and the noise
+//! ramp, against the accuracy on the clean rocker arm and fandisk (bench/noise/run.py). The
+//! noise is smoothed first: each sample takes the median noise of the measured samples in the
+//! 3×3×3 cells around it one level above the typical measuring depth, so that a chance
+//! arrangement does not change the depth of a few samples alone.
 
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
@@ -39,13 +42,18 @@ const FLAT: f64 = 0.5;
 /// Fewest samples in a neighbourhood for its plane fit to count.
 const MIN_SAMPLES: f64 = 20.0;
 
-/// Splat cells are made this many times as wide as the noise `σ`.
-const CELLS_PER_NOISE: f64 = 2.5;
+/// Splat cells grow with `(CELLS_PER_NOISE σ / h)^NOISE_POWER` (see the module docs).
+const CELLS_PER_NOISE: f64 = 3.5;
+
+/// See [`CELLS_PER_NOISE`].
+const NOISE_POWER: f64 = 1.3;
 
 /// What the noise stage found, for the user.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct NoiseSummary {
-    /// Median noise over the samples where it was measured, in unit-cube units.
+    /// Median noise over the samples where it was measured, in unit-cube units: the spread of
+    /// the samples' offsets within cells, which reads about half the standard deviation of
+    /// Gaussian noise (the cells cut off its tails).
     pub median: f64,
     /// Share of the samples where it was measured.
     pub measured: f64,
@@ -91,8 +99,8 @@ impl Moments {
         }
     }
 
-    /// The noise across the fitted plane, when the moments look like a flat patch.
-    fn flat_noise(&self, count: f64) -> Option<f64> {
+    /// The fitted plane (centroid and unit normal), when the moments look like a flat patch.
+    fn flat_plane(&self, count: f64) -> Option<Plane> {
         if count < MIN_SAMPLES || self.w <= 0.0 {
             return None;
         }
@@ -102,9 +110,27 @@ impl Moments {
             let (i, j) = idx[k];
             self.ss[k] / self.w - m[i] * m[j]
         });
-        let (l, _) = eigen_sym3(&cov);
+        let (l, v) = eigen_sym3(&cov);
         let lo = l[0].max(0.0);
-        (l[1] > 0.0 && lo <= FLAT * FLAT * l[1]).then(|| lo.sqrt())
+        (l[1] > 0.0 && lo <= FLAT * FLAT * l[1]).then_some(Plane {
+            centre: m,
+            normal: v[0],
+        })
+    }
+}
+
+/// A plane fitted to a flat neighbourhood.
+#[derive(Debug, Clone, Copy)]
+struct Plane {
+    centre: [f64; 3],
+    normal: [f64; 3],
+}
+
+impl Plane {
+    fn offset(&self, p: [f64; 3]) -> f64 {
+        (0..3)
+            .map(|a| (p[a] - self.centre[a]) * self.normal[a])
+            .sum()
     }
 }
 
@@ -151,7 +177,7 @@ fn unpack(k: u64) -> [i64; 3] {
 }
 
 /// The noise of each occupied cell's 3×3×3 neighbourhood, where it is flat.
-fn flat_cells(level: &Level) -> FxHashMap<u64, f64> {
+fn flat_cells(level: &Level) -> FxHashMap<u64, Plane> {
     let keys: Vec<u64> = level.keys().copied().collect();
     keys.par_iter()
         .filter_map(|&k| {
@@ -172,26 +198,61 @@ fn flat_cells(level: &Level) -> FxHashMap<u64, f64> {
                     }
                 }
             }
-            m.flat_noise(n).map(|s| (k, s))
+            m.flat_plane(n).map(|s| (k, s))
         })
         .collect()
 }
 
-/// Each sample's noise `σ` and the depth it was measured at, `None` where no depth is flat.
+/// Each sample's noise `σ` and the depth its plane was fitted at, `None` where no depth is
+/// flat or too few samples share its fine cell.
+///
+/// The plane of the finest flat neighbourhood leaves each sample an offset `r`. Over a
+/// smooth clean surface the offsets vary smoothly (curvature, a crease nearby); noise makes
+/// them vary from sample to sample. So the noise is the spread of the offsets among the
+/// samples of one cell of the next finer depth, where the smooth part hardly varies.
 fn measure(samples: &[Sample], top: u32) -> Vec<Option<(f64, u32)>> {
     let levels = levels(samples, top);
-    let flat: Vec<FxHashMap<u64, f64>> = levels.iter().map(flat_cells).collect();
-    samples
+    let flat: Vec<FxHashMap<u64, Plane>> = levels.iter().map(flat_cells).collect();
+    drop(levels);
+    // Each sample's plane depth and offset.
+    let offsets: Vec<Option<(u32, f64)>> = samples
         .par_iter()
         .map(|s| {
-            (1..=top).rev().find_map(|d| {
+            (1..top).rev().find_map(|d| {
                 flat[d as usize]
                     .get(&pack(cell_of(s.pos, d)))
-                    .map(|&sigma| (sigma, d))
+                    .map(|plane| (d, plane.offset(s.pos)))
+            })
+        })
+        .collect();
+    // Offsets' sums per (plane depth, fine cell).
+    let mut spread: FxHashMap<(u32, u64), (f64, f64, f64)> = FxHashMap::default();
+    for (s, o) in samples.iter().zip(&offsets) {
+        if let Some((d, r)) = *o {
+            let e = spread
+                .entry((d, pack(cell_of(s.pos, d + 1))))
+                .or_insert((0.0, 0.0, 0.0));
+            e.0 += 1.0;
+            e.1 += r;
+            e.2 += r * r;
+        }
+    }
+    samples
+        .par_iter()
+        .zip(&offsets)
+        .map(|(s, o)| {
+            let (d, _) = (*o)?;
+            let (n, sum, sum2) = spread[&(d, pack(cell_of(s.pos, d + 1)))];
+            (n >= FINE_SAMPLES).then(|| {
+                let var = (sum2 - sum * sum / n).max(0.0) / (n - 1.0);
+                (var.sqrt(), d)
             })
         })
         .collect()
 }
+
+/// Fewest samples in a fine cell for the spread of their offsets to count.
+const FINE_SAMPLES: f64 = 3.0;
 
 /// Smooths the noise: each sample takes the median noise of the measured samples (those
 /// not NaN) in the 3×3×3 cells around it at depth `d`; 0 where none was measured.
@@ -260,7 +321,7 @@ pub fn adapt(samples: &[Sample], depths: &mut [DepthAndArea], max_depth: u32) ->
         .zip(&sigma)
         .map(|(q, &s)| {
             let d0 = q.depth.min(f64::from(max_depth));
-            let r = CELLS_PER_NOISE * s * d0.exp2();
+            let r = (CELLS_PER_NOISE * s * d0.exp2()).powf(NOISE_POWER);
             let d = d0 - 0.5 * (1.0 + r * r).log2();
             let drop = (d0 - d).max(0.0);
             if drop > 0.0 {
