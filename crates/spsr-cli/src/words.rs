@@ -1,7 +1,7 @@
 //! How the command line words the library's errors and warnings: the library names fields
 //! (`depth`), the command line names flags (`--depth`).
 
-use spsr::{Error, MemoryShortfall, Warning};
+use spsr::{Error, MemoryShortfall, Remedy, Warning};
 
 /// The flag that sets a library field.
 pub fn flag(field: &str) -> String {
@@ -59,7 +59,19 @@ pub fn warning(w: &Warning) -> String {
             }
             s
         }
-        other => other.to_string(),
+        other => other.advice(&remedy).unwrap_or_else(|| other.to_string()),
+    }
+}
+
+/// A remedy a warning advises, in the command line's words.
+fn remedy(r: Remedy) -> String {
+    match r {
+        Remedy::Field(field) => flag(field),
+        Remedy::Set(field, value) => format!("{} {value}", flag(field)),
+        Remedy::ReorientNormals => "re-estimate and orient the normals with --estimate-normals \
+                                    (--orient global is the most robust; --orient viewpoint \
+                                    for scans with known sensor positions)"
+            .into(),
     }
 }
 
