@@ -253,6 +253,48 @@ mod tests {
     }
 
     #[test]
+    fn the_arguments_given_are_recorded_by_any_spelling() {
+        let argv = [
+            "spsr",
+            "reconstruct",
+            "--in",
+            "in.ply",
+            "--out",
+            "o.ply",
+            "--samplesPerNode",
+            "2",
+            "--bType",
+            "1",
+            "--depth",
+            "8",
+        ];
+        let Command::Reconstruct(a) = try_parse_from(argv).unwrap().command else {
+            panic!("not reconstruct");
+        };
+        let mut given = a.given.clone();
+        given.sort();
+        assert_eq!(
+            given,
+            [
+                "depth",
+                "output",
+                "reference_boundary",
+                "reference_in",
+                "samples_per_node"
+            ]
+        );
+        assert_eq!(a.input(), Path::new("in.ply"));
+        let p = a.params();
+        assert_eq!(
+            (p.samples_per_node, p.boundary),
+            (2.0, spsr::Boundary::Free)
+        );
+        // Other subcommands do not look at PoissonRecon's options.
+        let e = try_parse_from(["spsr", "trim", "m.ply", "--tempDir", "x"]).unwrap_err();
+        assert!(!e.to_string().contains("PoissonRecon"), "{e}");
+    }
+
+    #[test]
     fn default_full_depth_follows_a_smaller_depth() {
         assert_eq!(args(&["--depth", "3"]).params().full_depth, 3);
         assert_eq!(

@@ -150,4 +150,30 @@ mod tests {
         };
         assert!(warning(&w).starts_with("3 of 10 points dropped"));
     }
+
+    #[test]
+    fn the_advice_on_a_result_names_flags() {
+        let d = spsr::Diagnosis {
+            pieces: 40,
+            closed: true,
+            depth: 9,
+            ..spsr::Diagnosis::default()
+        };
+        let text = warning(&Warning::ManyPieces(d));
+        assert!(
+            text.contains("--samples-per-node 5 to 10") && text.contains("--depth 8"),
+            "{text}"
+        );
+        let open = spsr::Diagnosis { on_cube: 12, ..d };
+        let text = warning(&Warning::SurfaceOnCube(open));
+        assert!(
+            text.contains("--estimate-normals") && text.contains("--trim auto"),
+            "{text}"
+        );
+        let trimmed = spsr::Diagnosis {
+            trimmed: true,
+            ..open
+        };
+        assert!(!warning(&Warning::SurfaceOnCube(trimmed)).contains("--trim"));
+    }
 }
