@@ -170,7 +170,7 @@ mod tests {
         // The square spans the cube at x, y = ±1: its four corners lie on the faces.
         assert_eq!(on_cube(&square(0.5), frame, 8), 4);
         let inside = Frame {
-            origin: [-1.0; 3],
+            origin: [-1.1; 3],
             width: 2.2,
         };
         assert_eq!(on_cube(&square(0.5), inside, 8), 0);
