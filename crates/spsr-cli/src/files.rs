@@ -81,18 +81,25 @@ pub fn write_mesh_arg(
 
 /// The closing summary line: on stdout, or on stderr when stdout carries the mesh.
 pub(crate) fn report_written(output: &Path, mesh: &spsr::Mesh, start: Instant) {
-    let line = format!(
-        "spsr: wrote {}: {} vertices, {} faces in {:.2} s",
-        if is_std_stream(output) {
-            Path::new(STDOUT_NAME)
-        } else {
-            output
-        }
-        .display(),
-        mesh.vertices.len(),
-        mesh.triangles.len(),
-        start.elapsed().as_secs_f64()
+    report(
+        output,
+        &format!(
+            "{} vertices, {} faces in {:.2} s",
+            mesh.vertices.len(),
+            mesh.triangles.len(),
+            start.elapsed().as_secs_f64()
+        ),
     );
+}
+
+/// `spsr: wrote OUTPUT: <what>`, on stdout, or on stderr when stdout carries the mesh.
+pub(crate) fn report(output: &Path, what: &str) {
+    let name = if is_std_stream(output) {
+        Path::new(STDOUT_NAME)
+    } else {
+        output
+    };
+    let line = format!("spsr: wrote {}: {what}", name.display());
     if is_std_stream(output) {
         eprintln!("{line}");
     } else {

@@ -2,13 +2,13 @@
 //! write the mesh.
 
 use std::io::{IsTerminal, Write};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
 
 use crate::args::{parse_size, CommonArgs};
-use crate::files::{check_output_arg, input_name, read_cloud_arg, report_written, write_mesh_arg};
+use crate::files::{check_output_arg, input_name, read_cloud_arg, report, write_mesh_arg};
 use crate::normals::{self, NormalOptions};
 use crate::progress::Progress;
 use crate::trim::{parse_trim, print_trim};
@@ -66,12 +66,21 @@ impl From<BoundaryArg> for spsr::Boundary {
 pub struct ReconstructArgs {
     /// Oriented point cloud: PLY, LAS/LAZ, E57, PCD, or text with `x y z nx ny nz` per line;
     /// `-` reads standard input.
-    #[arg(value_name = "INPUT")]
-    pub input: PathBuf,
+    #[arg(value_name = "INPUT", required_unless_present = "reference_in")]
+    pub input: Option<PathBuf>,
+
+    /// PoissonRecon's spelling of INPUT.
+    #[arg(
+        long = "in",
+        value_name = "INPUT",
+        hide = true,
+        conflicts_with = "input"
+    )]
+    pub reference_in: Option<PathBuf>,
 
     /// Output mesh, by extension: .ply, .obj, .stl, .off or .glb; `-` writes
     /// PLY to standard output.
-    #[arg(short, long, value_name = "OUTPUT")]
+    #[arg(short, long, value_name = "OUTPUT", alias = "out")]
     pub output: PathBuf,
 
     /// Maximum octree depth; the finest cells are 1/2^depth of the bounding cube. Default as
@@ -86,19 +95,29 @@ pub struct ReconstructArgs {
 
     /// Depth down to which the octree is complete; the coarse solve happens there. Default as
     /// PoissonRecon 6 and 18 [default: 5, or --depth when that is smaller]
-    #[arg(long, value_name = "D")]
+    #[arg(long, value_name = "D", alias = "fullDepth")]
     pub full_depth: Option<u32>,
 
     /// Target number of samples per octree node (sets each sample's splat depth). Default as
     /// PoissonRecon 18 (version 6 used 1.0). Giving it turns the noise adaptation off unless
     /// --noise adaptive is given too [default: 1.5]
-    #[arg(long, value_name = "N", allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "N",
+        allow_negative_numbers = true,
+        alias = "samplesPerNode"
+    )]
     pub samples_per_node: Option<f64>,
 
     /// Screening weight alpha; 0 gives the unscreened 2006 method. Default as PoissonRecon 18
     /// (4 for degree 2, the 2013 paper's value). Giving it turns the noise adaptation off
     /// unless --noise adaptive is given too [default: 2 × degree]
-    #[arg(long, value_name = "ALPHA", allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "ALPHA",
+        allow_negative_numbers = true,
+        alias = "pointWeight"
+    )]
     pub point_weight: Option<f64>,
 
     /// Adapt the reconstruction to the noise measured around each point (adaptive: noisy
@@ -127,6 +146,16 @@ pub struct ReconstructArgs {
     /// Boundary condition on the bounding cube. Default as PoissonRecon 6 and 18.
     #[arg(long, value_enum, default_value_t = spsr::Params::default().boundary.into())]
     pub boundary: BoundaryArg,
+
+    /// PoissonRecon's --bType: 1 free, 2 Dirichlet, 3 Neumann.
+    #[arg(
+        long = "bType",
+        value_name = "N",
+        hide = true,
+        value_parser = crate::poissonrecon::parse_boundary,
+        conflicts_with = "boundary"
+    )]
+    pub reference_boundary: Option<BoundaryArg>,
 
     /// The bounding cube's side is the points' bounding box's largest side times this factor.
     /// Default as PoissonRecon 6 and 18.
@@ -167,13 +196,18 @@ pub struct ReconstructArgs {
     #[arg(long)]
     pub no_attributes: bool,
 
+    /// PoissonRecon's --colors: spsr carries colours (and every other attribute) anyway.
+    #[arg(long = "colors", hide = true, conflicts_with = "no_attributes")]
+    pub reference_colors: bool,
+
     /// Pull factor of the attribute interpolation: larger values keep attributes sharper
     /// and stop them bleeding between nearby surfaces. Default as PoissonRecon 18 (--dataX)
     #[arg(
         long,
         value_name = "X",
         default_value_t = spsr::Params::default().data_pull,
-        allow_negative_numbers = true
+        allow_negative_numbers = true,
+        alias = "data"
     )]
     pub data_pull: f64,
 
@@ -215,7 +249,7 @@ pub struct ReconstructArgs {
     /// Place mesh vertices by linear interpolation along cell edges instead of the quadratic fit
     /// through the end values and gradients. Off by default, as PoissonRecon 18 (--linearFit)
     /// [default: off]
-    #[arg(long)]
+    #[arg(long, alias = "linearFit")]
     pub linear_fit: bool,
 
     /// Refuse the run, before the octree is built, when its estimated peak memory exceeds this
@@ -223,6 +257,16 @@ pub struct ReconstructArgs {
     /// the machine has available]
     #[arg(long, value_name = "SIZE", value_parser = parse_size)]
     pub max_memory: Option<u64>,
+
+    /// PoissonRecon's --maxMemory, in GB; 0 (no limit) keeps the default.
+    #[arg(
+        long = "maxMemory",
+        value_name = "GB",
+        hide = true,
+        value_parser = crate::poissonrecon::parse_max_memory_gb,
+        conflicts_with = "max_memory"
+    )]
+    pub reference_max_memory: Option<u64>,
 
     /// Split each sample's normal between the two depths around its estimated depth (2006 paper,
     /// PoissonRecon 6) instead of splatting it whole at the depth above (PoissonRecon 18):
@@ -241,9 +285,33 @@ pub struct ReconstructArgs {
     /// How estimated normals are oriented (see `spsr normals --help`).
     #[command(flatten)]
     pub estimation: NormalOptions,
+
+    /// The ids of the arguments given on the command line (filled by
+    /// [`crate::try_parse_from`]), which `-v` reports as set by a flag.
+    #[arg(skip)]
+    pub given: Vec<String>,
 }
 
 impl ReconstructArgs {
+    /// The input file, given as INPUT or as PoissonRecon's --in.
+    pub fn input(&self) -> &Path {
+        self.input
+            .as_deref()
+            .or(self.reference_in.as_deref())
+            .unwrap_or(Path::new("-"))
+    }
+
+    /// The boundary condition, from --boundary or PoissonRecon's --bType.
+    fn boundary(&self) -> BoundaryArg {
+        self.reference_boundary.unwrap_or(self.boundary)
+    }
+
+    /// Whether the argument with this id was given on the command line (by any of its
+    /// spellings).
+    fn given(&self, id: &str) -> bool {
+        self.given.iter().any(|g| g == id)
+    }
+
     /// The library parameters these arguments describe (not yet validated).
     pub fn params(&self) -> spsr::Params {
         // An explicit --full-depth deeper than --depth is an error; the default follows --depth.
@@ -258,7 +326,7 @@ impl ReconstructArgs {
                 .unwrap_or(spsr::Params::default().samples_per_node),
             point_weight: self.point_weight,
             degree: self.degree,
-            boundary: self.boundary.into(),
+            boundary: self.boundary().into(),
             scale: self.scale,
             iters: self.iters,
             weights: match (&self.confidence_property, self.confidence) {
@@ -268,7 +336,9 @@ impl ReconstructArgs {
             },
             density: self.density,
             linear_fit: self.linear_fit,
-            max_memory: self.max_memory,
+            max_memory: self
+                .max_memory
+                .or(self.reference_max_memory.filter(|&bytes| bytes > 0)),
             two_level_splat: self.two_level_splat,
             attributes: !self.no_attributes,
             data_pull: self.data_pull,
@@ -321,7 +391,7 @@ impl ReconstructArgs {
 
 pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     let start = Instant::now();
-    let input = args.input.as_path();
+    let input = args.input();
     let output = args.output.as_path();
     let fail = |e: spsr::Error| Failure::from_spsr(e, input_name(input));
 
@@ -334,8 +404,13 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     }
     start_threads(args.common.threads.threads)?;
     check_output_arg(output, input).map_err(fail)?;
+    if args.common.verbose {
+        print_parameters(args, &params);
+    }
 
-    let progress = Progress::new(std::io::stderr().is_terminal() && !args.common.verbose);
+    // Reading, the library's stages, writing; estimating normals is added when it happens.
+    let plan = spsr::stage_plan(&params, trim_params.is_some());
+    let progress = Progress::new(plan.len() + 2, std::io::stderr().is_terminal());
     progress.stage("reading");
     let t = Instant::now();
     let mut cloud = read_cloud_arg(input).map_err(fail)?;
@@ -349,6 +424,7 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
                 input.display()
             ));
         }
+        progress.add_stages(1);
         progress.stage("estimating normals");
         estimated = Some(normals::estimate_normals(
             &mut cloud,
@@ -369,8 +445,7 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
             let (result, stats) =
                 spsr::reconstruct_and_trim(cloud, &params, p, &|s| progress.stage(s))
                     .map_err(fail)?;
-            let time = result.stats.stages.last().map_or(Duration::ZERO, |s| s.1);
-            (result, Some((stats, time)))
+            (result, Some(stats))
         }
         None => (
             spsr::reconstruct_owned(cloud, &params, &|s| progress.stage(s)).map_err(fail)?,
@@ -390,18 +465,207 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     for w in &result.stats.warnings {
         eprintln!("spsr: warning: {}: {}", input.display(), words::warning(w));
     }
-    let mesh = &result.mesh;
     if args.common.verbose {
         print_details(args, &result, reading, writing, start.elapsed());
         if let Some(report) = &estimated {
             report.print();
         }
-        if let Some((stats, time)) = &trimmed {
-            print_trim(stats, *time);
+        if let Some(stats) = &trimmed {
+            print_trim(stats, stage_time(&result.stats, "trimming"));
         }
     }
-    report_written(output, mesh, start);
+    report(output, &summary(&result, start.elapsed(), spsr::peak_rss()));
     Ok(())
+}
+
+/// The wall time of the stage called `name` (zero if it did not run).
+fn stage_time(stats: &spsr::Stats, name: &str) -> Duration {
+    stats
+        .stages
+        .iter()
+        .find(|(n, _)| n == name)
+        .map_or(Duration::ZERO, |s| s.1)
+}
+
+/// The summary line's facts: `V vertices, F faces, P pieces, closed, in T s, peak M MiB`.
+fn summary(result: &spsr::Reconstruction, time: Duration, peak: Option<u64>) -> String {
+    let d = &result.stats.diagnosis;
+    let plural =
+        |n: usize, one: &str, many: &str| format!("{n} {}", if n == 1 { one } else { many });
+    let closed = if d.closed {
+        "closed".to_string()
+    } else {
+        format!(
+            "open ({})",
+            plural(d.boundary_edges, "boundary edge", "boundary edges")
+        )
+    };
+    let mut line = format!(
+        "{}, {}, {}, {closed}, in {:.2} s",
+        plural(result.mesh.vertices.len(), "vertex", "vertices"),
+        plural(result.mesh.triangles.len(), "face", "faces"),
+        plural(d.pieces, "piece", "pieces"),
+        time.as_secs_f64()
+    );
+    if let Some(bytes) = peak {
+        line += &format!(", peak memory {}", mib(bytes));
+    }
+    line
+}
+
+fn mib(bytes: u64) -> String {
+    format!("{:.0} MiB", bytes as f64 / (1024.0 * 1024.0))
+}
+
+/// Where a parameter's value comes from, as `-v` reports it.
+#[derive(Debug, Clone, PartialEq)]
+enum Source {
+    /// The flag's default (the library's).
+    Default,
+    /// Given on the command line.
+    Flag,
+    /// Computed from other values or from the machine, as the text says.
+    Derived(String),
+}
+
+impl std::fmt::Display for Source {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Source::Default => f.write_str("default"),
+            Source::Flag => f.write_str("flag"),
+            Source::Derived(how) => write!(f, "derived: {how}"),
+        }
+    }
+}
+
+/// Every parameter in effect, as `(flag, value, source)`, in the order of `--help`.
+fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, String, Source)> {
+    let src = |id: &str| {
+        if args.given(id) {
+            Source::Flag
+        } else {
+            Source::Default
+        }
+    };
+    let on = |b: bool| if b { "on" } else { "off" }.to_string();
+    let mut rows: Vec<(&str, String, Source)> = vec![
+        ("depth", params.depth.to_string(), src("depth")),
+        (
+            "full_depth",
+            params.full_depth.to_string(),
+            if args.given("full_depth") {
+                Source::Flag
+            } else if params.full_depth != spsr::Params::default().full_depth {
+                Source::Derived("no deeper than --depth".into())
+            } else {
+                Source::Default
+            },
+        ),
+        (
+            "samples_per_node",
+            params.samples_per_node.to_string(),
+            src("samples_per_node"),
+        ),
+        (
+            "point_weight",
+            params.alpha().to_string(),
+            if args.given("point_weight") {
+                Source::Flag
+            } else {
+                Source::Derived("2 × --degree".into())
+            },
+        ),
+        ("degree", params.degree.to_string(), src("degree")),
+        (
+            "boundary",
+            args.boundary()
+                .to_possible_value()
+                .map_or_else(String::new, |v| v.get_name().to_string()),
+            if args.given("boundary") || args.given("reference_boundary") {
+                Source::Flag
+            } else {
+                Source::Default
+            },
+        ),
+        ("scale", params.scale.to_string(), src("scale")),
+        ("iters", params.iters.to_string(), src("iters")),
+        ("confidence", on(args.confidence), src("confidence")),
+        (
+            "confidence_property",
+            args.confidence_property
+                .clone()
+                .unwrap_or_else(|| "none".into()),
+            src("confidence_property"),
+        ),
+        ("normals", on(params.normals), src("normals")),
+        (
+            "no_attributes",
+            on(!params.attributes),
+            src("no_attributes"),
+        ),
+        ("data_pull", params.data_pull.to_string(), src("data_pull")),
+        ("density", on(params.density), src("density")),
+        (
+            "trim",
+            match args.trim {
+                None => "off".into(),
+                Some(spsr::trim::Threshold::Auto) => "auto".into(),
+                Some(spsr::trim::Threshold::Value(v)) => v.to_string(),
+            },
+            src("trim"),
+        ),
+    ];
+    if args.trim.is_some() {
+        rows.push((
+            "min_island_area",
+            args.min_island_area.to_string(),
+            src("min_island_area"),
+        ));
+        rows.push(("hole_area", args.hole_area.to_string(), src("hole_area")));
+    }
+    rows.extend([
+        ("linear_fit", on(params.linear_fit), src("linear_fit")),
+        match params.max_memory {
+            Some(bytes) => ("max_memory", spsr::gib(bytes), Source::Flag),
+            None => (
+                "max_memory",
+                spsr::memory_budget().map_or_else(|| "none".into(), spsr::gib),
+                Source::Derived("the memory available".into()),
+            ),
+        },
+        (
+            "two_level_splat",
+            on(params.two_level_splat),
+            src("two_level_splat"),
+        ),
+        (
+            "threads",
+            rayon::current_num_threads().to_string(),
+            if args.given("threads") {
+                Source::Flag
+            } else {
+                Source::Derived("all cores, or RAYON_NUM_THREADS".into())
+            },
+        ),
+        ("ascii", on(args.common.ascii), src("ascii")),
+        (
+            "estimate_normals",
+            on(args.estimate_normals),
+            src("estimate_normals"),
+        ),
+    ]);
+    rows.into_iter()
+        .map(|(field, value, source)| (words::flag(field), value, source))
+        .collect()
+}
+
+/// `-v`'s first part: every parameter in effect and where its value comes from.
+fn print_parameters(args: &ReconstructArgs, params: &spsr::Params) {
+    let mut err = std::io::stderr().lock();
+    let _ = writeln!(err, "parameters:");
+    for (flag, value, source) in parameters(args, params) {
+        let _ = writeln!(err, "  {flag:<22} {value:<12} {source}");
+    }
 }
 
 fn print_details(
@@ -413,7 +677,7 @@ fn print_details(
 ) {
     let stats = &result.stats;
     let mut err = std::io::stderr().lock();
-    let _ = writeln!(err, "input       {}", args.input.display());
+    let _ = writeln!(err, "input       {}", args.input().display());
     let _ = writeln!(
         err,
         "points      {} read, {} dropped",
@@ -436,6 +700,16 @@ fn print_details(
         "mesh        {} vertices, {} faces",
         result.mesh.vertices.len(),
         result.mesh.triangles.len()
+    );
+    let d = &stats.diagnosis;
+    let _ = writeln!(
+        err,
+        "check       {} pieces, {}, {} vertices on the bounding cube, {:.1} % of the normals \
+         against the surface",
+        d.pieces,
+        if d.closed { "closed" } else { "open" },
+        d.on_cube,
+        100.0 * d.contradicted_normals
     );
     let _ = writeln!(err, "output      {}", args.output.display());
     let _ = writeln!(err, "timings:");

@@ -145,6 +145,14 @@ fn stats_out<'py>(
     stats.set_item("peak_memory", s.peak_memory.clone())?;
     let warnings: Vec<String> = s.warnings.iter().map(errors::warning).collect();
     stats.set_item("warnings", warnings)?;
+    let d = &s.diagnosis;
+    let diagnosis = PyDict::new(py);
+    diagnosis.set_item("pieces", d.pieces)?;
+    diagnosis.set_item("closed", d.closed)?;
+    diagnosis.set_item("boundary_edges", d.boundary_edges)?;
+    diagnosis.set_item("on_cube", d.on_cube)?;
+    diagnosis.set_item("contradicted_normals", d.contradicted_normals)?;
+    stats.set_item("diagnosis", diagnosis)?;
     match trimmed {
         Some(t) => {
             // `reconstruct_and_trim` times the trimming as its last stage.

@@ -3,6 +3,8 @@
 
 use std::path::PathBuf;
 
+use crate::pipeline::diagnose::Diagnosis;
+
 /// Everything that can go wrong in spsr, one variant per stage or validation failure.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -191,6 +193,26 @@ pub enum Warning {
         /// Pieces removed.
         pieces: usize,
     },
+    /// The surface runs on to the bounding cube, which cuts it open: normals flipped in
+    /// places (or an open scan, whose surface is continued to the cube).
+    SurfaceOnCube(Diagnosis),
+    /// Many samples' normals point against the reconstructed surface: their orientations
+    /// contradict each other.
+    ContradictoryNormals(Diagnosis),
+    /// The mesh falls into many pieces: noise reconstructed as small bubbles.
+    ManyPieces(Diagnosis),
+}
+
+/// What the advice of a [`Warning`] asks for, for a front end to spell
+/// (see [`Warning::advice`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Remedy<'a> {
+    /// A parameter, by its library field name (`samples_per_node`).
+    Field(&'static str),
+    /// A parameter set to a value (`depth` 7; `threshold` auto, the trimming's).
+    Set(&'static str, &'a str),
+    /// Estimating and orienting the normals anew.
+    ReorientNormals,
 }
 
 /// The figures of [`Warning::FarOutliers`].
@@ -265,7 +287,82 @@ impl std::fmt::Display for Warning {
                 }
                 Ok(())
             }
+            _ => {
+                let advice = self.advice(&|r| match r {
+                    Remedy::Field(field) => field.to_string(),
+                    Remedy::Set(field, value) => format!("{field} {value}"),
+                    Remedy::ReorientNormals => {
+                        "re-orient the normals (spsr::normals::estimate_normals)".into()
+                    }
+                });
+                f.write_str(&advice.unwrap_or_default())
+            }
         }
+    }
+}
+
+impl Warning {
+    /// The message of a warning on the result (the [`Diagnosis`] variants): what was found,
+    /// the likely cause and what helps, with parameters and remedies spelled by `spell` as the
+    /// front end names them. `None` for the other warnings, which front ends word themselves.
+    pub fn advice(&self, spell: &dyn Fn(Remedy) -> String) -> Option<String> {
+        let pct = |share: f64| format!("{:.0} %", 100.0 * share);
+        let trim = |d: &Diagnosis| {
+            if d.trimmed {
+                String::new()
+            } else {
+                format!(
+                    "; if the points are an open scan, trim the invented surface with {}",
+                    spell(Remedy::Set("threshold", "auto"))
+                )
+            }
+        };
+        Some(match self {
+            Warning::SurfaceOnCube(d) => format!(
+                "the surface runs on to the bounding cube, which cuts it open ({} vertices on \
+                 the cube's faces; {}, {}): the normals are likely flipped in places; {}{}",
+                d.on_cube,
+                pieces(d),
+                closedness(d),
+                spell(Remedy::ReorientNormals),
+                trim(d)
+            ),
+            Warning::ContradictoryNormals(d) => format!(
+                "{} of the points have normals pointing into the reconstructed solid ({}, {}): \
+                 their orientations contradict each other; {}",
+                pct(d.contradicted_normals),
+                pieces(d),
+                closedness(d),
+                spell(Remedy::ReorientNormals)
+            ),
+            Warning::ManyPieces(d) => {
+                let lower = d.depth.saturating_sub(1).max(1).to_string();
+                format!(
+                    "the mesh falls into {} pieces: the points are likely noisy; average more \
+                     samples with {} to 10, or use a lower {} (such as {})",
+                    d.pieces,
+                    spell(Remedy::Set("samples_per_node", "5")),
+                    spell(Remedy::Field("depth")),
+                    spell(Remedy::Set("depth", &lower))
+                )
+            }
+            _ => return None,
+        })
+    }
+}
+
+fn pieces(d: &Diagnosis) -> String {
+    match d.pieces {
+        1 => "1 piece".into(),
+        n => format!("{n} pieces"),
+    }
+}
+
+fn closedness(d: &Diagnosis) -> String {
+    if d.closed {
+        "closed".into()
+    } else {
+        format!("open, {} boundary edges", d.boundary_edges)
     }
 }
 

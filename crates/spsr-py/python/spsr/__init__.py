@@ -251,7 +251,10 @@ class Mesh:
         For meshes returned by :func:`reconstruct`: ``points``, ``dropped``, ``samples``,
         ``iso_value``, ``mean_sample_depth``, ``nodes_per_depth``, ``stages`` (name and
         seconds of each stage), ``peak_memory`` (bytes after each stage, or None),
-        ``warnings`` and ``trim`` (the trimming's figures, or None). For meshes returned by
+        ``warnings``, ``diagnosis`` (the checks of the result: ``pieces``, ``closed``,
+        ``boundary_edges``, ``on_cube``, the vertices on the bounding cube's faces, and
+        ``contradicted_normals``, the share of the normals against the surface)
+        and ``trim`` (the trimming's figures, or None). For meshes returned by
         :func:`trim`: ``trim``.
 
     Examples

@@ -5,6 +5,7 @@
 mod common;
 
 mod attributes;
+mod diagnosis;
 mod hostile;
 mod noise;
 mod normals;
