@@ -256,7 +256,15 @@ fn reconstruct_input(
         trimmed: trim.is_some(),
         ..Diagnosis::of(&mesh, frame, params.depth, contradicted)
     });
-    stats.warnings.extend(stats.diagnosis.warning());
+    // Far outliers coarsen every cell, so their warning already names the likely cause of a
+    // poor mesh.
+    if !stats
+        .warnings
+        .iter()
+        .any(|w| matches!(w, Warning::FarOutliers(_)))
+    {
+        stats.warnings.extend(stats.diagnosis.warning());
+    }
     (stats.stages, stats.peak_memory) = run.finish();
     Ok((Reconstruction { mesh, stats }, trimmed))
 }
