@@ -173,7 +173,20 @@ fn contradictory_normals_warn_with_the_flag_that_helps() {
             }
         })
         .collect();
-    let (_dir, _, out) = run(&points, &["reconstruct", "IN", "-o", "OUT", "--depth", "7"]);
+    let (_dir, _, out) = run(
+        &points,
+        &[
+            "reconstruct",
+            "IN",
+            "-o",
+            "OUT",
+            "--noise",
+            "off",
+            "--keep-normals",
+            "--depth",
+            "7",
+        ],
+    );
     let w = the_warning(&out);
     assert!(
         w.contains("normals pointing into the reconstructed solid")
@@ -206,7 +219,20 @@ fn noise_warns_of_many_pieces_with_the_flags_that_help() {
             (p, m.map(|c| c / l))
         })
         .collect();
-    let (_dir, _, out) = run(&points, &["reconstruct", "IN", "-o", "OUT", "--depth", "7"]);
+    let (_dir, _, out) = run(
+        &points,
+        &[
+            "reconstruct",
+            "IN",
+            "-o",
+            "OUT",
+            "--noise",
+            "off",
+            "--keep-normals",
+            "--depth",
+            "7",
+        ],
+    );
     let w = the_warning(&out);
     assert!(
         w.contains("pieces: the points are likely noisy")
