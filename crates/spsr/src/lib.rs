@@ -32,6 +32,7 @@ mod pipeline;
 pub mod points;
 mod resources;
 mod shared_slice;
+pub mod slabs;
 mod solver;
 mod system;
 pub mod trim;

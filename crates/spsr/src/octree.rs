@@ -208,7 +208,29 @@ impl ClosedRequest {
     }
 }
 
+impl ClosedRequest {
+    /// The keys (packed) of the nodes at tree depth `t` that have children, sorted: with
+    /// [`TreeRequest::refine_keys`], how slabs gather the coarse levels of one tree from the
+    /// closed requests of their samples (closing distributes over the union of requests).
+    pub fn refined_keys(&self, t: u32) -> Vec<u64> {
+        let mut keys: Vec<u64> = self
+            .0
+            .refined
+            .get(t as usize)
+            .map_or_else(Vec::new, |s| s.iter().copied().collect());
+        keys.sort_unstable();
+        keys
+    }
+}
+
 impl TreeRequest {
+    /// Requires the nodes with packed keys `keys` at tree depth `t` to have children.
+    pub fn refine_keys(&mut self, t: u32, keys: impl IntoIterator<Item = u64>) {
+        if let Some(set) = self.refined.get_mut(t as usize) {
+            set.extend(keys);
+        }
+    }
+
     /// Makes levels of unit depth `≤ full_depth` complete, closes the request under ancestry,
     /// and enforces the conforming property at unit depths `≥ conform_from` (ALGORITHM.md §4.2
     /// steps 3 and 5).

@@ -629,14 +629,21 @@ fn add_screening_targets(op: &Op, r: &mut [f64]) {
     });
 }
 
-/// Wall times of the parts of the solve, with the peak memory after each.
-struct Laps {
+/// Wall times of the parts of a solve, with the peak memory after each (see [`Solution::timings`]).
+pub struct Laps {
     clock: std::time::Instant,
     timings: Vec<(String, std::time::Duration, Option<u64>)>,
 }
 
+impl Default for Laps {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 impl Laps {
-    fn new() -> Self {
+    /// A clock started now, with no laps.
+    pub fn new() -> Self {
         Laps {
             clock: std::time::Instant::now(),
             timings: Vec::new(),
@@ -658,45 +665,80 @@ impl Laps {
 /// soon as the cascade no longer needs it.
 pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
     let nlev = p.tree.levels.len();
-    let tb = p.base_level as usize;
-    let max_level = nlev - 1;
     (p.progress)("constraints");
     let mut laps = Laps::new();
     v.resize_with(nlev, Vec::new);
-    let mut tcons = constraints(p, &v);
+    let tcons = constraints(p, &v, p.base_level);
     // The finest level's V has entered the constraints; the cascade only prolongs coarser V.
-    v[max_level] = Vec::new();
+    v[nlev - 1] = Vec::new();
     laps.lap("divergence constraints".into());
+    cascade(p, tcons, v, None, false, laps).0
+}
+
+/// What a level hands to the next finer one in the cascade: the cumulative solution and the
+/// cumulative V, both prolonged to `level`'s nodes. Slabs carry the coarse levels' solution to
+/// their finer levels with it (`crate::slabs`).
+#[derive(Debug, Clone, Default)]
+pub struct Carry {
+    /// The level the vectors live on.
+    pub level: u32,
+    /// The cumulative solution of all levels up to `level`, in double precision.
+    pub p: Vec<f64>,
+    /// The cumulative V of all levels up to `level`.
+    pub vc: Vec<[f32; 3]>,
+}
+
+/// The cascade from the base level (`start` = `None`: solved by conjugate gradients) or from
+/// the level after `start`'s up to the tree's deepest level. `tcons` are the divergence
+/// constraints per level (from [`constraints`]), `v` the V per level. With `keep_last`, the
+/// deepest level's cumulative solution and V are returned too, for a finer tree to go on from.
+pub fn cascade(
+    p: &Problem,
+    mut tcons: Vec<Vec<f32>>,
+    mut v: Vec<Vec<[f32; 3]>>,
+    start: Option<Carry>,
+    keep_last: bool,
+    mut laps: Laps,
+) -> (Solution, Option<Carry>) {
+    let nlev = p.tree.levels.len();
+    let max_level = nlev - 1;
+    v.resize_with(nlev, Vec::new);
     let mut sol = Solution {
         x: vec![Vec::new(); nlev],
         p: vec![Vec::new(); nlev],
         base_level: p.base_level,
         timings: Vec::new(),
     };
-
-    (p.progress)("solving base depth");
     // The cumulative solution of the previous level, kept in full precision for the cascade;
     // the stored copies (for evaluation) are single precision.
-    let mut p_prev = solve_base(p, std::mem::take(&mut tcons[tb]));
-    sol.x[tb] = to_f32(&p_prev);
-    sol.p[tb] = to_f32(&p_prev);
-    laps.lap(format!(
-        "depth {}: conjugate gradients",
-        tb as u32 - DEPTH_OFFSET
-    ));
-
-    // Cumulative V, prolonged level by level (stored in single precision).
-    let mut vc: Vec<[f32; 3]> = std::mem::take(&mut v[tb]);
-    if vc.is_empty() {
-        vc = vec![[0.0; 3]; p.tree.levels[tb].len()];
-    }
-    for t in tb + 1..=max_level {
+    let (first, mut p_prev, mut vc) = match start {
+        Some(c) => (c.level as usize + 1, c.p, c.vc),
+        None => {
+            let tb = p.base_level as usize;
+            (p.progress)("solving base depth");
+            let p_base = solve_base(p, std::mem::take(&mut tcons[tb]));
+            sol.x[tb] = to_f32(&p_base);
+            sol.p[tb] = to_f32(&p_base);
+            laps.lap(format!(
+                "depth {}: conjugate gradients",
+                tb as u32 - DEPTH_OFFSET
+            ));
+            // Cumulative V, prolonged level by level (stored in single precision).
+            let mut vc: Vec<[f32; 3]> = std::mem::take(&mut v[tb]);
+            if vc.is_empty() {
+                vc = vec![[0.0; 3]; p.tree.levels[tb].len()];
+            }
+            (tb + 1, p_base, vc)
+        }
+    };
+    for t in first..=max_level {
         let dd = t as u32 - DEPTH_OFFSET;
         (p.progress)(&format!("solving depth {dd}"));
         let op = Op::new(p, t as u32);
         let r = right_hand_side(&op, p.fem, &tcons[t], &p_prev, &vc);
         tcons[t] = Vec::new();
-        if t == max_level {
+        let carry_on = t < max_level || keep_last;
+        if !carry_on {
             // The coarser V has entered the right-hand side for the last time.
             vc = Vec::new();
         }
@@ -707,7 +749,7 @@ pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
         laps.lap(format!("depth {dd}: Gauss-Seidel"));
         // Cumulative solution and V at this level, for the next level. The deepest level
         // needs neither (evaluation reads a leaf's parent's cumulative solution).
-        if t < max_level {
+        if carry_on {
             let cum = prolong_solution(&op, &p_prev, &x);
             sol.p[t] = to_f32(&cum);
             p_prev = cum;
@@ -717,22 +759,43 @@ pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
         laps.lap(format!("depth {dd}: prolongation"));
     }
     sol.timings = laps.timings;
-    sol
+    let carry = keep_last.then_some(Carry {
+        level: max_level as u32,
+        p: p_prev,
+        vc,
+    });
+    (sol, carry)
 }
 
-/// The divergence constraints of every level from the base up, computed fine to coarse and
-/// stored in single precision (summed in double precision); empty below the base.
-fn constraints(p: &Problem, v: &[Vec<[f32; 3]>]) -> Vec<Vec<f32>> {
+/// The cumulative solutions `P_t` of the levels after `from.level` (but the deepest), from
+/// `from.p` and the levels' own coefficients `x`: what evaluation reads besides `x`.
+pub fn cumulate(p: &Problem, from: &Carry, x: &[Vec<f32>]) -> Vec<Vec<f32>> {
+    let nlev = p.tree.levels.len();
+    let mut out = vec![Vec::new(); nlev];
+    let mut p_prev = from.p.clone();
+    for t in from.level as usize + 1..nlev - 1 {
+        let op = Op::new(p, t as u32);
+        let cum = prolong_solution(&op, &p_prev, &x[t]);
+        out[t] = to_f32(&cum);
+        p_prev = cum;
+    }
+    out
+}
+
+/// The divergence constraints of every level from `lowest` up, computed fine to coarse and
+/// stored in single precision (summed in double precision); empty below `lowest`.
+pub fn constraints(p: &Problem, v: &[Vec<[f32; 3]>], lowest: u32) -> Vec<Vec<f32>> {
     let nlev = p.tree.levels.len();
     let max_level = nlev - 1;
     let mut tcons: Vec<Vec<f32>> = vec![Vec::new(); nlev];
     let mut g_finer: Vec<f64> = Vec::new();
     let empty: Vec<[f32; 3]> = Vec::new();
-    for t in (p.base_level as usize..=max_level).rev() {
+    for t in (lowest as usize..=max_level).rev() {
         let tab = p.tables[t].as_ref().expect("tables");
+        let v_t = v.get(t).unwrap_or(&empty);
         let v_finer = v.get(t + 1).unwrap_or(&empty);
         let gf = (t < max_level).then_some(g_finer.as_slice());
-        let (g, b) = divergence_constraints(p.tree, t as u32, tab, p.fem, &v[t], v_finer, gf);
+        let (g, b) = divergence_constraints(p.tree, t as u32, tab, p.fem, v_t, v_finer, gf);
         g_finer = g;
         tcons[t] = b;
     }

@@ -327,10 +327,37 @@ pub fn build_clusters(
     weights: &[f64],
     omega_scale: f64,
 ) -> Vec<Clusters> {
+    let mut out: Vec<Clusters> = (0..tree.levels.len())
+        .map(|_| Clusters::default())
+        .collect();
+    for_each_cluster_sum(
+        tree,
+        base_level,
+        leaf_of,
+        positions,
+        weights,
+        |t, merged| {
+            out[t as usize] = level_clusters(tree, fem, t, merged, omega_scale);
+        },
+    );
+    out
+}
+
+/// The samples' weight `W` and weighted position sum `W·p` per node of every level `≥ base
+/// level`, finest level first: `f(level, sums)` with the sums sorted by node. A node's sums
+/// are those of its children's plus the samples whose deepest node it is. The sums of disjoint
+/// sets of samples add, which is how slabs combine their clusters.
+pub fn for_each_cluster_sum(
+    tree: &Octree,
+    base_level: u32,
+    leaf_of: &[(u32, u32)],
+    positions: &[[f64; 3]],
+    weights: &[f64],
+    mut f: impl FnMut(u32, &[ClusterSum]),
+) {
     let nlev = tree.levels.len();
-    let mut out: Vec<Clusters> = (0..nlev).map(|_| Clusters::default()).collect();
     // Entries (node, W, W·p) per level, filled from the samples, merged, then pushed up.
-    let mut pending: Vec<Vec<(u32, f64, [f64; 3])>> = (0..nlev).map(|_| Vec::new()).collect();
+    let mut pending: Vec<Vec<ClusterSum>> = (0..nlev).map(|_| Vec::new()).collect();
     for (s, &(t, n)) in leaf_of.iter().enumerate() {
         let w = weights[s];
         let p = positions[s];
@@ -339,7 +366,7 @@ pub fn build_clusters(
     for t in (base_level as usize..nlev).rev() {
         let mut entries = std::mem::take(&mut pending[t]);
         entries.sort_by_key(|e| e.0);
-        let mut merged: Vec<(u32, f64, [f64; 3])> = Vec::new();
+        let mut merged: Vec<ClusterSum> = Vec::new();
         for (n, w, wp) in entries {
             match merged.last_mut() {
                 Some(last) if last.0 == n => {
@@ -357,31 +384,45 @@ pub fn build_clusters(
                 pending[t - 1].push((p, w, wp));
             }
         }
-        let d = t as u32 - DEPTH_OFFSET;
-        let scale = omega_scale * (1i64 << d) as f64;
-        let mut cl = Clusters {
-            of_node: NodeRank::new(tree.levels[t].len(), merged.iter().map(|e| e.0)),
-            ..Default::default()
-        };
-        for &(n, w, wp) in &merged {
-            let p = [wp[0] / w, wp[1] / w, wp[2] / w];
-            let mut first = [0i32; 3];
-            let mut vals = [[0.0f32; 3]; 3];
-            for a in 0..3 {
-                let win = fem.window(d, p[a]);
-                // Indices fit in i32 (depth ≤ MAX_DEPTH); values are stored in single precision.
-                first[a] = win.first as i32;
-                vals[a] = win.values.map(|v| v as f32);
-            }
-            cl.node.push(n);
-            cl.pos.push(p);
-            cl.omega.push(scale * w);
-            cl.first.push(first);
-            cl.vals.push(vals);
-        }
-        out[t] = cl;
+        f(t as u32, &merged);
     }
-    out
+}
+
+/// One cluster's sums before it is finished: `(node, W, W·p)`.
+pub type ClusterSum = (u32, f64, [f64; 3]);
+
+/// The clusters of level `t` from their sums (sorted by node), with screening weights
+/// `omega_scale · 2^d · W`.
+pub fn level_clusters(
+    tree: &Octree,
+    fem: Basis,
+    t: u32,
+    merged: &[ClusterSum],
+    omega_scale: f64,
+) -> Clusters {
+    let d = t - DEPTH_OFFSET;
+    let scale = omega_scale * (1i64 << d) as f64;
+    let mut cl = Clusters {
+        of_node: NodeRank::new(tree.levels[t as usize].len(), merged.iter().map(|e| e.0)),
+        ..Default::default()
+    };
+    for &(n, w, wp) in merged {
+        let p = [wp[0] / w, wp[1] / w, wp[2] / w];
+        let mut first = [0i32; 3];
+        let mut vals = [[0.0f32; 3]; 3];
+        for a in 0..3 {
+            let win = fem.window(d, p[a]);
+            // Indices fit in i32 (depth ≤ MAX_DEPTH); values are stored in single precision.
+            first[a] = win.first as i32;
+            vals[a] = win.values.map(|v| v as f32);
+        }
+        cl.node.push(n);
+        cl.pos.push(p);
+        cl.omega.push(scale * w);
+        cl.first.push(first);
+        cl.vals.push(vals);
+    }
+    cl
 }
 
 /// Per-axis offsets (relative to a function's own cell) of the cells whose cluster can touch

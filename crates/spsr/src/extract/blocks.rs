@@ -207,6 +207,13 @@ pub fn extract_blocks<C: Cells>(
 }
 
 impl Blocks {
+    /// The blocks of several parts (slabs) in order, to be numbered as one mesh.
+    pub fn concat(parts: Vec<Blocks>) -> Blocks {
+        Blocks {
+            chunks: parts.into_iter().flat_map(|b| b.chunks).collect(),
+        }
+    }
+
     /// Numbers the vertices (each edge vertex is emitted by exactly one owner leaf; block `b`
     /// contributes its owned vertices, then its barycentres) and builds the mesh.
     pub fn assemble(self) -> crate::Result<Mesh> {

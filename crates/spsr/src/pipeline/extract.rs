@@ -7,7 +7,7 @@ use rayon::prelude::*;
 use super::Implicit;
 use crate::attributes::Attribute;
 use crate::evaluate::{CornerField, Evaluator};
-use crate::extract::{extract_blocks, Cells, ExtractOptions};
+use crate::extract::{extract_blocks, Blocks, Cells, ExtractOptions};
 use crate::octree::{func_index, neighbor_in, window_index, Octree, DEPTH_OFFSET, NONE};
 use crate::{Mesh, Params, Result};
 
@@ -65,6 +65,32 @@ pub fn extract(implicit: Implicit, params: &Params) -> Result<Mesh> {
     Ok(mesh)
 }
 
+/// A slab's share of the extraction (ALGORITHM.md §9; `crate::slabs`): the blocks of unit
+/// depth `block_depth` whose x index lies in `columns`, polygonised at `iso`. The blocks of all
+/// slabs, put together with [`Blocks::concat`], assemble into one mesh, its vertices on the
+/// slabs' shared faces numbered once (they are keyed by their finest edge).
+pub(crate) fn slab_blocks(
+    tree: &Octree,
+    fem: crate::bspline::Basis,
+    solution: &crate::solver::Solution,
+    iso: f64,
+    params: &Params,
+    block_depth: u32,
+    columns: std::ops::Range<i64>,
+) -> Result<Blocks> {
+    let eval = Evaluator::new(tree, fem, solution);
+    let cells = TreeCells::columns(tree, block_depth, columns);
+    let field = CornerField {
+        eval: &eval,
+        depth: cells.max_depth,
+    };
+    let options = ExtractOptions {
+        linear_fit: params.linear_fit,
+        normals: params.normals,
+    };
+    extract_blocks(&cells, &field, iso, &options)
+}
+
 /// Each attribute at each vertex, from the data summed up the tree.
 fn interpolate_attributes(
     mesh: &Mesh,
@@ -105,15 +131,25 @@ impl<'a> TreeCells<'a> {
     /// `base_depth`: a unit depth down to which the tree is complete.
     fn new(tree: &'a Octree, base_depth: u32) -> Self {
         let max_depth = tree.depth_count() - 1 - DEPTH_OFFSET;
-        let block_level = max_depth.saturating_sub(5).min(base_depth) + DEPTH_OFFSET;
-        let d = block_level - DEPTH_OFFSET;
+        Self::columns(
+            tree,
+            max_depth.saturating_sub(5).min(base_depth),
+            0..i64::MAX,
+        )
+    }
+
+    /// The blocks of unit depth `block_depth` (at most the complete base depth) whose x index
+    /// lies in `columns`: a slab's share of the extraction.
+    fn columns(tree: &'a Octree, block_depth: u32, columns: std::ops::Range<i64>) -> Self {
+        let max_depth = tree.depth_count() - 1 - DEPTH_OFFSET;
+        let block_level = block_depth + DEPTH_OFFSET;
+        let d = block_depth;
         let level = &tree.levels[block_level as usize];
         let n = 1i64 << d;
         let blocks = (0..level.len() as u32)
             .filter(|&b| {
-                func_index(level.key(b), d)
-                    .iter()
-                    .all(|&c| (0..n).contains(&c))
+                let i = func_index(level.key(b), d);
+                i.iter().all(|&c| (0..n).contains(&c)) && columns.contains(&i[0])
             })
             .collect();
         Self {

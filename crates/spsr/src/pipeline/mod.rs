@@ -88,6 +88,8 @@ pub struct Stats {
     /// The checks of the result (stage 9): pieces, closedness, surface along the bounding
     /// cube, normals against χ. A warning in `warnings` when they look wrong.
     pub diagnosis: Diagnosis,
+    /// Slabs the run was cut into (`crate::slabs`); 0 for a run in one piece.
+    pub slabs: usize,
 }
 
 /// The solved implicit function χ and what extraction needs besides: the output of stages
@@ -443,7 +445,7 @@ impl<'a> Run<'a> {
         }
     }
 
-    fn finish(self) -> (Vec<(String, Duration)>, Vec<Option<u64>>) {
+    pub(crate) fn finish(self) -> (Vec<(String, Duration)>, Vec<Option<u64>>) {
         (self.stages, self.memory)
     }
 }

@@ -299,6 +299,48 @@ fn smooth(samples: &[Sample], sigma: &[f64], d: u32) -> Vec<f64> {
 /// Lowers each sample's splat depth as far as its local noise needs (stage 2b) and says what
 /// it found. `max_depth` is the tree's depth `D`.
 pub fn adapt(samples: &[Sample], depths: &mut [DepthAndArea], max_depth: u32) -> NoiseSummary {
+    adapt_at(samples, depths, max_depth, None)
+}
+
+/// The depths at which the samples `keep` picks had their noise measured, as a histogram
+/// (entry `d` counts the samples measured at depth `d`): slabs add theirs, so that every
+/// slab smooths at the depth [`smoothing_depth`] finds for the whole cloud.
+pub fn measured_depths(
+    samples: &[Sample],
+    max_depth: u32,
+    keep: impl Fn(&Sample) -> bool,
+) -> Vec<u64> {
+    let mut histogram = vec![0u64; max_depth as usize + 1];
+    for (s, m) in samples.iter().zip(measure(samples, max_depth)) {
+        if let Some((_, d)) = m {
+            if keep(s) {
+                histogram[d as usize] += 1;
+            }
+        }
+    }
+    histogram
+}
+
+/// The depth the noise is smoothed at: one above the median depth of measurement, from the
+/// histogram of [`measured_depths`].
+pub fn smoothing_depth(histogram: &[u64], max_depth: u32) -> u32 {
+    let total: u64 = histogram.iter().sum();
+    let mut seen = 0u64;
+    let median = histogram.iter().enumerate().find_map(|(d, &c)| {
+        seen += c;
+        (total > 0 && seen > total / 2).then_some(d as u32)
+    });
+    median.unwrap_or(max_depth).saturating_sub(1).max(1)
+}
+
+/// As [`adapt`], smoothing at `smooth_depth` when given (slabs), else at the depth this
+/// cloud's own measurements give.
+pub fn adapt_at(
+    samples: &[Sample],
+    depths: &mut [DepthAndArea],
+    max_depth: u32,
+    smooth_depth: Option<u32>,
+) -> NoiseSummary {
     let n = samples.len();
     if n == 0 {
         return NoiseSummary::default();
@@ -309,10 +351,12 @@ pub fn adapt(samples: &[Sample], depths: &mut [DepthAndArea], max_depth: u32) ->
         .map(|m| m.map_or(f64::NAN, |(s, _)| s))
         .collect();
     let mut at: Vec<u32> = measured.iter().filter_map(|m| m.map(|(_, d)| d)).collect();
-    let smooth_depth = median_by(&mut at, u32::cmp)
-        .unwrap_or(max_depth)
-        .saturating_sub(1)
-        .max(1);
+    let smooth_depth = smooth_depth.unwrap_or_else(|| {
+        median_by(&mut at, u32::cmp)
+            .unwrap_or(max_depth)
+            .saturating_sub(1)
+            .max(1)
+    });
     let sigma = smooth(samples, &raw, smooth_depth);
     let mut sigmas: Vec<f64> = raw.into_iter().filter(|s| !s.is_nan()).collect();
     let median = median_by(&mut sigmas, f64::total_cmp).unwrap_or(0.0);

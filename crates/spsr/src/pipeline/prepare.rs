@@ -72,14 +72,7 @@ pub struct Prepared {
 /// Filters, weighs and normalises the points (stage 1).
 pub fn prepare(points: &PointCloud, params: &Params) -> Result<Prepared> {
     let weight_of = weights(points, &params.weights)?;
-    let valid: Vec<usize> = (0..points.len())
-        .filter(|&i| {
-            is_valid(&points.positions[i], &points.normals[i]) && {
-                let w = weight_of(i);
-                w.is_finite() && w > 0.0
-            }
-        })
-        .collect();
+    let valid = usable(points, &weight_of);
     let dropped = points.len() - valid.len();
     if valid.len() < MIN_POINTS {
         return Err(Error::TooFewPoints {
@@ -109,15 +102,7 @@ pub fn prepare(points: &PointCloud, params: &Params) -> Result<Prepared> {
     let dropped = points.len() - valid.len();
     let unit: Vec<UnitPoint> = valid
         .par_iter()
-        .map(|&i| {
-            let n = points.normals[i];
-            let len = normal_length(&n);
-            (
-                frame.to_unit(points.positions[i]),
-                [n[0] / len, n[1] / len, n[2] / len],
-                weight_of(i),
-            )
-        })
+        .map(|&i| unit_point(frame, points.positions[i], points.normals[i], weight_of(i)))
         .collect();
     Ok(Prepared {
         points: unit,
@@ -129,8 +114,31 @@ pub fn prepare(points: &PointCloud, params: &Params) -> Result<Prepared> {
     })
 }
 
+/// A usable point in the unit cube: its position mapped by `frame`, its normal scaled to
+/// unit length.
+pub(crate) fn unit_point(frame: Frame, p: [f64; 3], n: [f64; 3], w: f64) -> UnitPoint {
+    let len = normal_length(&n);
+    (frame.to_unit(p), [n[0] / len, n[1] / len, n[2] / len], w)
+}
+
+/// The indices of the usable points (§3.1): finite positions, finite non-zero normals and a
+/// finite positive weight.
+pub(crate) fn usable(
+    points: &PointCloud,
+    weight_of: &(impl Fn(usize) -> f64 + Sync),
+) -> Vec<usize> {
+    (0..points.len())
+        .filter(|&i| {
+            is_valid(&points.positions[i], &points.normals[i]) && {
+                let w = weight_of(i);
+                w.is_finite() && w > 0.0
+            }
+        })
+        .collect()
+}
+
 /// Each point's weight (§3.4); NaN where a weight property has no value.
-fn weights<'a>(
+pub(crate) fn weights<'a>(
     points: &'a PointCloud,
     how: &'a PointWeights,
 ) -> Result<impl Fn(usize) -> f64 + Sync + 'a> {
@@ -165,28 +173,56 @@ fn weights<'a>(
 /// The bounding cube (§3.2): the bounding box's largest side times `scale`, centred on the
 /// box. Also returns the box's largest side.
 fn bounding_cube(points: &PointCloud, valid: &[usize], scale: f64) -> Result<(Frame, f64)> {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
+    let mut bounds = Bounds::default();
     for &i in valid {
-        for a in 0..3 {
-            lo[a] = lo[a].min(points.positions[i][a]);
-            hi[a] = hi[a].max(points.positions[i][a]);
+        bounds.add(points.positions[i]);
+    }
+    bounds.cube(scale)
+}
+
+/// A bounding box, grown point by point (a slab run grows it file by file).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Bounds {
+    pub lo: [f64; 3],
+    pub hi: [f64; 3],
+}
+
+impl Default for Bounds {
+    fn default() -> Self {
+        Bounds {
+            lo: [f64::INFINITY; 3],
+            hi: [f64::NEG_INFINITY; 3],
         }
     }
-    let side = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
-    if !(side.is_finite() && side > 0.0) {
-        return Err(Error::Degenerate(if side == 0.0 {
-            "all usable points are identical; there is no surface to reconstruct".into()
-        } else {
-            "the points' extent is not finite (coordinates too large)".into()
-        }));
+}
+
+impl Bounds {
+    pub fn add(&mut self, p: [f64; 3]) {
+        for a in 0..3 {
+            self.lo[a] = self.lo[a].min(p[a]);
+            self.hi[a] = self.hi[a].max(p[a]);
+        }
     }
-    let width = side * scale;
-    let origin: [f64; 3] = std::array::from_fn(|a| 0.5 * (lo[a] + hi[a]) - 0.5 * width);
-    if !(width.is_finite() && origin.iter().all(|o| o.is_finite())) {
-        return Err(Error::Degenerate("the bounding cube is not finite".into()));
+
+    /// The bounding cube (§3.2): the box's largest side times `scale`, centred on the box.
+    /// Also returns the box's largest side.
+    pub fn cube(&self, scale: f64) -> Result<(Frame, f64)> {
+        let (lo, hi) = (self.lo, self.hi);
+        let side = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+        if !(side.is_finite() && side > 0.0) {
+            return Err(Error::Degenerate(if side == 0.0 {
+                "all usable points are identical; there is no surface to reconstruct".into()
+            } else {
+                "the points' extent is not finite (coordinates too large)".into()
+            }));
+        }
+        let width = side * scale;
+        let origin: [f64; 3] = std::array::from_fn(|a| 0.5 * (lo[a] + hi[a]) - 0.5 * width);
+        if !(width.is_finite() && origin.iter().all(|o| o.is_finite())) {
+            return Err(Error::Degenerate("the bounding cube is not finite".into()));
+        }
+        Ok((Frame { origin, width }, side))
     }
-    Ok((Frame { origin, width }, side))
 }
 
 /// The attributes carried onto the mesh: one f64 channel per attribute, per usable point.

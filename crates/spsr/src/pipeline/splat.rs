@@ -17,6 +17,8 @@ pub struct VectorField {
     pub mean_area: f64,
     /// The samples' weighted mean estimated depth.
     pub mean_depth: f64,
+    /// The samples' total weight, over which the means are taken.
+    pub weight: f64,
 }
 
 /// Splats the samples' normals into V (stage 4).
@@ -82,5 +84,6 @@ pub fn splat(refined: &Refined, sampled: &Sampled, params: &Params) -> Result<Ve
         v,
         mean_area: sum_wa / sum_w,
         mean_depth: sum_depth / sum_w,
+        weight: sum_w,
     })
 }

@@ -71,7 +71,7 @@ pub fn screening(
 }
 
 /// The deepest node `(level, node)` containing each position.
-fn deepest_nodes(tree: &Octree, positions: &[[f64; 3]]) -> Vec<(u32, u32)> {
+pub(crate) fn deepest_nodes(tree: &Octree, positions: &[[f64; 3]]) -> Vec<(u32, u32)> {
     let t_max = tree.depth_count() - 1;
     positions
         .par_iter()

@@ -3,7 +3,7 @@
 //! run is refused here, before the tree is allocated, when it would not fit in memory.
 
 use super::density::Sampled;
-use crate::density::cell_of;
+use crate::density::{cell_of, Sample};
 use crate::error::{MemoryLimit, MemoryShortfall};
 use crate::octree::{Octree, TreeRequest, DEPTH_OFFSET};
 use crate::{resources, Error, Params, Result};
@@ -32,14 +32,33 @@ pub fn build(sampled: &Sampled, params: &Params, input_points: usize) -> Result<
     let depth = params.depth;
     // The base depth must be at least 1 so that it has a parent for prolongation tables.
     let base = params.base_depth().max(1).min(depth);
-    let splats: Vec<Option<Splat>> = sampled
+    let splats = splats_of(sampled, params);
+    let closed = request(&sampled.samples, &splats, params).close(base, base);
+    let memory_estimate = check_memory(&closed.level_counts(), input_points, params)?;
+    Ok(Refined {
+        tree: Octree::materialize(closed),
+        splats,
+        memory_estimate,
+    })
+}
+
+/// Each sample's splat depths, `None` for samples whose normals cancel.
+pub fn splats_of(sampled: &Sampled, params: &Params) -> Vec<Option<Splat>> {
+    let depth = params.depth;
+    let base = params.base_depth().max(1).min(depth);
+    sampled
         .samples
         .iter()
         .zip(&sampled.depths)
         .map(|(s, q)| (s.normal != [0.0; 3]).then(|| splat_depths(q.depth, base, depth, params)))
-        .collect();
-    let mut req = TreeRequest::new(depth + DEPTH_OFFSET);
-    for (s, sp) in sampled.samples.iter().zip(&splats) {
+        .collect()
+}
+
+/// The nodes the samples' splats need (the B-spline windows around their cells), before the
+/// tree is closed.
+pub fn request(samples: &[Sample], splats: &[Option<Splat>], params: &Params) -> TreeRequest {
+    let mut req = TreeRequest::new(params.depth + DEPTH_OFFSET);
+    for (s, sp) in samples.iter().zip(splats) {
         let Some(sp) = sp else { continue };
         for &(d, f) in &sp.levels {
             if f > 0.0 {
@@ -49,13 +68,7 @@ pub fn build(sampled: &Sampled, params: &Params, input_points: usize) -> Result<
             }
         }
     }
-    let closed = req.close(base, base);
-    let memory_estimate = check_memory(&closed.level_counts(), input_points, params)?;
-    Ok(Refined {
-        tree: Octree::materialize(closed),
-        splats,
-        memory_estimate,
-    })
+    req
 }
 
 /// The two depths around a sample's estimated depth `ds` (§3.6), clamped to `base..=depth`.

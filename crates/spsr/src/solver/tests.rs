@@ -317,7 +317,7 @@ fn the_base_solve_meets_its_tolerance() {
         let p = f.problem();
         let mut v = f.v.clone();
         v.resize_with(f.tree.levels.len(), Vec::new);
-        let tcons = constraints(&p, &v);
+        let tcons = constraints(&p, &v, p.base_level);
         let tb = f.base_level as usize;
         let x = solve_base(&p, tcons[tb].clone());
         // The right-hand side as `solve_base` builds it.
@@ -340,7 +340,7 @@ fn finest_right_hand_side(f: &Fixture, op: &Op) -> Vec<f32> {
     let p = f.problem();
     let mut v = f.v.clone();
     v.resize_with(f.tree.levels.len(), Vec::new);
-    let tcons = constraints(&p, &v);
+    let tcons = constraints(&p, &v, p.base_level);
     let parent_len = f.tree.levels[op.t as usize - 1].len();
     right_hand_side(
         op,

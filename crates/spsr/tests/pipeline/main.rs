@@ -11,4 +11,5 @@ mod noise;
 mod normals;
 mod properties;
 mod reconstruct;
+mod slabs;
 mod trim;

@@ -1,0 +1,293 @@
+//! Reconstruction in slabs, for clouds whose tree does not fit in memory (issue 15).
+//!
+//! This follows the plan of Kazhdan & Hoppe, *Distributed Poisson Surface Reconstruction*
+//! (2023) and of the reference's `PoissonReconServer`/`PoissonReconClient`, with our own
+//! stages: the cube is cut along x into slabs of about equal point counts; every slab's
+//! samples add their share to the coarse levels, which are solved once for the whole cloud;
+//! each slab then solves its finer levels from that coarse solution on its own columns plus a
+//! padding; the iso-value is summed over the slabs; each slab polygonises its own blocks, and
+//! the blocks are numbered as one mesh, the vertices on shared faces once (they are keyed by
+//! their finest edge, as in-core).
+//!
+//! Two things make the slabs' meshes one seamless surface that matches the in-core one:
+//! - the slabs' samples are the in-core samples: the points are spilled per column in input
+//!   order, and a slab reads enough padding for the density, the noise and the tree around its
+//!   own samples to be the in-core ones;
+//! - χ on a shared face is the same number in both slabs: after the finer levels are solved,
+//!   the coefficients near a face are taken from the slab that owns each node, in both slabs,
+//!   before extraction.
+//!
+//! The phases are in [`phases`]; they exchange plain data and files in a work folder, so that
+//! they can run as separate tasks.
+//!
+//! Not yet in slab mode (refused with a message): per-vertex density and trimming, attributes,
+//! weights from a property. The orientation repair (stage 2a) and the far-outlier check are
+//! whole-cloud steps and are skipped.
+
+pub mod phases;
+mod plan;
+mod spill;
+
+use std::path::{Path, PathBuf};
+
+use crate::error::Warning;
+use crate::pipeline::prepare::{self, Bounds, MIN_POINTS};
+use crate::pipeline::{diagnose::Diagnosis, fragments, Reconstruction, Run, Stats};
+use crate::{io, Error, Noise, Params, PointCloud, PointWeights, Result};
+pub use plan::Plan;
+use spill::ColumnWriter;
+
+/// Where the points come from: files read one after another as one cloud (tiles), or a cloud
+/// in memory.
+#[derive(Debug, Clone, Copy)]
+pub enum Source<'a> {
+    /// Point files in any format spsr reads.
+    Files(&'a [PathBuf]),
+    /// A cloud already in memory.
+    Cloud(&'a PointCloud),
+}
+
+impl Source<'_> {
+    /// Calls `f` with each tile in turn.
+    fn for_each(&self, mut f: impl FnMut(&PointCloud) -> Result<()>) -> Result<()> {
+        match self {
+            Source::Files(paths) => {
+                for p in *paths {
+                    f(&io::read_points(p)?)?;
+                }
+                Ok(())
+            }
+            Source::Cloud(c) => f(c),
+        }
+    }
+}
+
+/// How a slab run is cut and where it spills.
+#[derive(Debug, Clone)]
+pub struct SlabOptions {
+    /// Slabs wanted (fewer are used when fewer columns of the base depth hold points).
+    pub slabs: usize,
+    /// The folder for the spill files: a subfolder is made in it and removed afterwards.
+    pub work_dir: PathBuf,
+}
+
+/// A work folder removed when dropped (also after an error).
+struct WorkDir(PathBuf);
+
+impl WorkDir {
+    fn new(parent: &Path) -> Result<WorkDir> {
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.subsec_nanos());
+        let path = parent.join(format!("spsr-slabs-{}-{nanos}", std::process::id()));
+        std::fs::create_dir_all(&path).map_err(|e| spill::io_err(&path, e))?;
+        Ok(WorkDir(path))
+    }
+}
+
+impl Drop for WorkDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// Checks the parameters slab mode does not support yet.
+fn check_supported(params: &Params) -> Result<()> {
+    let refuse = |field: &'static str, value: &str| {
+        Err(Error::invalid(
+            field,
+            value.to_string(),
+            "its default in slab mode (not supported there yet)".to_string(),
+        ))
+    };
+    if params.density {
+        return refuse("density", "on");
+    }
+    if let PointWeights::Property(name) = &params.weights {
+        return refuse("weights", name);
+    }
+    Ok(())
+}
+
+/// Reconstructs the cloud of `source` in slabs: one pass for the bounding cube, one that
+/// spills the points per column, then the phases of [`phases`] slab after slab.
+pub fn reconstruct(
+    source: Source,
+    params: &Params,
+    options: &SlabOptions,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<Reconstruction> {
+    params.validate()?;
+    check_supported(params)?;
+    if options.slabs == 0 {
+        return Err(Error::invalid("slabs", 0, "at least 1"));
+    }
+    let mut run = Run::new(progress);
+    let work = WorkDir::new(&options.work_dir)?;
+    let dir = work.0.as_path();
+
+    // Pass 1: the bounding cube of the usable points.
+    let mut bounds = Bounds::default();
+    let (mut input_points, mut usable_points) = (0usize, 0usize);
+    run.stage("reading points", || {
+        source.for_each(|cloud| {
+            check_cloud(cloud, params)?;
+            let weight_of = prepare::weights(cloud, &params.weights)?;
+            let usable = prepare::usable(cloud, &weight_of);
+            input_points += cloud.len();
+            usable_points += usable.len();
+            for &i in &usable {
+                bounds.add(cloud.positions[i]);
+            }
+            Ok(())
+        })
+    })?;
+    let dropped = input_points - usable_points;
+    if usable_points < MIN_POINTS {
+        return Err(Error::TooFewPoints {
+            usable: usable_points,
+            dropped,
+            required: MIN_POINTS,
+        });
+    }
+    let (frame, _) = bounds.cube(params.scale)?;
+
+    // Pass 2: the points in the unit cube, spilled per column.
+    let columns = 1usize << Plan::block_depth(params);
+    let counts = run.stage("spilling points", || {
+        let mut writer = ColumnWriter::new(dir, columns);
+        let n = columns as f64;
+        source.for_each(|cloud| {
+            let weight_of = prepare::weights(cloud, &params.weights)?;
+            for i in prepare::usable(cloud, &weight_of) {
+                let p =
+                    prepare::unit_point(frame, cloud.positions[i], cloud.normals[i], weight_of(i));
+                let c = ((p.0[0] * n).floor() as i64).clamp(0, columns as i64 - 1);
+                writer.push(c as usize, &p)?;
+            }
+            Ok(())
+        })?;
+        writer.finish()
+    })?;
+    let plan = Plan::new(frame, params, counts, options.slabs);
+    let k = plan.slabs.len();
+
+    let smooth = if params.noise == Noise::Adaptive {
+        let mut histogram = vec![0u64; params.depth as usize + 1];
+        run.stage("noise", || -> Result<()> {
+            for s in 0..k {
+                let h = phases::noise_depths(dir, &plan, s, params)?;
+                for (a, b) in histogram.iter_mut().zip(h) {
+                    *a += b;
+                }
+            }
+            Ok(())
+        })?;
+        Some(crate::pipeline::noise::smoothing_depth(
+            &histogram,
+            params.depth,
+        ))
+    } else {
+        None
+    };
+    let parts = run.stage("coarse constraints", || {
+        (0..k)
+            .map(|s| phases::coarse(dir, &plan, s, params, smooth))
+            .collect::<Result<Vec<_>>>()
+    })?;
+    let samples: usize = parts.iter().map(|p| p.samples).sum();
+    let coarse = run.stage("solving coarse depths", || {
+        phases::solve_coarse(&parts, &plan, params)
+    })?;
+    drop(parts);
+    let solved = run.stage("solving slabs", || {
+        (0..k)
+            .map(|s| phases::solve(dir, &plan, s, params, smooth, &coarse))
+            .collect::<Result<Vec<_>>>()
+    })?;
+    let sums = solved.iter().fold([0.0; 2], |a, s| {
+        [a[0] + s.iso_sums[0], a[1] + s.iso_sums[1]]
+    });
+    let iso = sums[0] / sums[1];
+    let blocks = run.stage("extraction", || {
+        (0..k)
+            .map(|s| {
+                let before: &[_] = if s > 0 { &solved[s - 1].faces[1] } else { &[] };
+                let after: &[_] = if s + 1 < k {
+                    &solved[s + 1].faces[0]
+                } else {
+                    &[]
+                };
+                phases::extract(dir, &plan, s, params, smooth, &coarse, iso, [before, after])
+                    .map(|(b, _)| b)
+            })
+            .collect::<Result<Vec<_>>>()
+    })?;
+    drop(work);
+    let mut mesh = run.stage("numbering vertices", || {
+        crate::extract::Blocks::concat(blocks).assemble()
+    })?;
+    for p in &mut mesh.vertices {
+        *p = frame.to_world(*p);
+    }
+    let mut warnings = Vec::new();
+    if dropped > 0 {
+        warnings.push(Warning::DroppedPoints {
+            dropped,
+            total: input_points,
+        });
+    }
+    if params.noise == Noise::Adaptive {
+        let removed = run.stage("fragments", || fragments::remove_fragments(&mut mesh));
+        if removed > 0 {
+            warnings.push(Warning::FragmentsRemoved { pieces: removed });
+        }
+    }
+    let diagnosis = run.stage("checking the mesh", || {
+        Diagnosis::of(&mesh, frame, params.depth, 0.0)
+    });
+    warnings.extend(diagnosis.warning());
+    let (stages, peak_memory) = run.finish();
+    Ok(Reconstruction {
+        mesh,
+        stats: Stats {
+            points: input_points,
+            dropped,
+            samples,
+            iso_value: iso,
+            mean_sample_depth: coarse.mean_depth,
+            stages,
+            warnings,
+            peak_memory,
+            diagnosis,
+            slabs: k,
+            ..Stats::default()
+        },
+    })
+}
+
+/// A tile's normals must match its positions; its attributes cannot be carried yet.
+fn check_cloud(cloud: &PointCloud, params: &Params) -> Result<()> {
+    if params.attributes && !cloud.attributes.is_empty() {
+        return Err(Error::invalid(
+            "attributes",
+            format!(
+                "on (the points have {})",
+                cloud
+                    .attributes
+                    .iter()
+                    .map(|a| a.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+            "off in slab mode, which does not carry attributes onto the mesh yet",
+        ));
+    }
+    if cloud.positions.len() != cloud.normals.len() {
+        return Err(Error::LengthMismatch {
+            positions: cloud.positions.len(),
+            normals: cloud.normals.len(),
+        });
+    }
+    Ok(())
+}

@@ -1,0 +1,575 @@
+//! The phases of a slab run. Each slab phase reads the slab's points (its columns and the
+//! padding) from the spill files, rebuilds the slab's samples and tree (deterministic, so the
+//! same in every phase) and returns plain data for the coordinator, which combines the slabs'
+//! parts between phases:
+//!
+//! 1. `noise`: where each owned sample's noise was measured (a histogram), so that all slabs
+//!    smooth the noise at one depth (only with [`Noise::Adaptive`]);
+//! 2. `coarse`: what the slab's own samples add to the coarse levels — the tree's refined
+//!    nodes, divergence constraints, V and screening clusters, keyed by node;
+//! 3. (coordinator) `solve_coarse`: the coarse levels solved once for the whole cloud;
+//! 4. `solve`: the finer levels of the slab, from the coarse solution, and the slab's share of
+//!    the iso-value; the coefficients go to a file, and those near the slab's faces to the
+//!    neighbours;
+//! 5. `extract`: the neighbours' coefficients near the shared faces replace the slab's own
+//!    (so that χ on a shared face is the same number in both slabs), and the slab's blocks
+//!    are polygonised.
+
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+use super::plan::Plan;
+use super::spill::{io_err, read_columns};
+use crate::bspline::{Basis, Degree};
+use crate::density::Sample;
+use crate::evaluate::Evaluator;
+use crate::extract::Blocks;
+use crate::octree::{Octree, TreeRequest, DEPTH_OFFSET};
+use crate::pipeline::density::{self, Sampled};
+use crate::pipeline::prepare::Carried;
+use crate::pipeline::{extract, noise, splat, system, tree};
+use crate::solver::{self, Carry, Laps, Problem, Solution};
+use crate::system::{for_each_cluster_sum, level_clusters, ClusterSum, Clusters, DepthTables};
+use crate::{Noise, Params, Result};
+
+/// A screening cluster's sums from one slab: the node's key, `W`, `W·p`.
+pub type KeyedCluster = ([u32; 3], f64, [f64; 3]);
+
+/// A node's coarse sums from one slab: key, divergence constraint, V.
+pub type NodeSums = ([u32; 3], f32, [f32; 3]);
+
+/// What one slab's own samples add to the coarse levels (phase 2).
+#[derive(Debug, Clone, Default)]
+pub struct CoarsePart {
+    /// Per tree depth below the coarse level: the refined nodes of the slab's own samples'
+    /// closed request (packed keys).
+    pub refined: Vec<Vec<u64>>,
+    /// Per tree depth from the base level to the coarse level (index 0 is the base level):
+    /// the nodes with a constraint or V.
+    pub nodes: Vec<Vec<NodeSums>>,
+    /// Per tree depth from the base level: the screening clusters' sums `(key, W, W·p)`.
+    pub clusters: Vec<Vec<KeyedCluster>>,
+    /// `Σ w·area`, `Σ w` and `Σ w·depth` over the slab's own samples with a splat.
+    pub sums: [f64; 3],
+    /// The slab's own samples.
+    pub samples: usize,
+}
+
+/// A coefficient near a slab's face: tree depth, node key, value.
+pub type FaceCoefficient = (u32, [u32; 3], f32);
+
+/// The coarse levels solved for the whole cloud (phase 3).
+pub struct Coarse {
+    /// The tree's levels up to the coarse level.
+    pub tree: Octree,
+    /// The coefficients and cumulative solutions of those levels.
+    pub solution: Solution,
+    /// The cumulative solution and V at the coarse level, for the slabs' finer levels.
+    pub carry: Carry,
+    /// The samples' mean area weight Ā (scales the screening).
+    pub mean_area: f64,
+    /// The samples' weighted mean depth.
+    pub mean_depth: f64,
+}
+
+/// A slab's finer levels (phase 4).
+#[derive(Debug, Clone, Default)]
+pub struct Solved {
+    /// `Σ w·χ(p)` and `Σ w` over the slab's own samples (for γ).
+    pub iso_sums: [f64; 2],
+    /// The coefficients of the slab's own nodes near its low and high faces: `(tree depth,
+    /// key, x)`.
+    pub faces: [Vec<FaceCoefficient>; 2],
+}
+
+/// Width, in cells of their own depth, of the band of coefficients on either side of a shared
+/// face that both slabs take from the face's owner: χ and its gradient on the face read
+/// coefficients within two cells, and cumulative solutions within two cells of the parents'.
+const FACE_BAND: f64 = 4.0;
+
+/// One slab's samples, rebuilt from the spill files.
+struct Loaded {
+    sampled: Sampled,
+    /// Whether each sample lies in the slab's own columns.
+    owned: Vec<bool>,
+}
+
+fn load(dir: &Path, plan: &Plan, s: usize, params: &Params, smooth: Option<u32>) -> Result<Loaded> {
+    let (lo, hi) = plan.extent(s);
+    let (lo, hi) = (lo - plan.pad, hi + plan.pad);
+    let first = plan.column_of(lo) as usize;
+    let last = plan.column_of(hi) as usize;
+    let points = read_columns(dir, first..last + 1, &plan.counts, lo, hi)?;
+    let mut sampled = density::sample(points, Carried::default(), params);
+    if params.noise == Noise::Adaptive {
+        if let Some(smooth) = smooth {
+            noise::adapt_at(
+                &sampled.samples,
+                &mut sampled.depths,
+                params.depth,
+                Some(smooth),
+            );
+        }
+    }
+    let range = &plan.slabs[s];
+    let owned = sampled
+        .samples
+        .iter()
+        .map(|x| range.contains(&plan.column_of(x.pos[0])))
+        .collect();
+    Ok(Loaded { sampled, owned })
+}
+
+/// Phase 1: the histogram of the depths at which the slab's own samples' noise is measured.
+pub fn noise_depths(dir: &Path, plan: &Plan, s: usize, params: &Params) -> Result<Vec<u64>> {
+    let loaded = load(dir, plan, s, params, None)?;
+    let range = &plan.slabs[s];
+    Ok(noise::measured_depths(
+        &loaded.sampled.samples,
+        params.depth,
+        |x: &Sample| range.contains(&plan.column_of(x.pos[0])),
+    ))
+}
+
+fn base_level(params: &Params) -> u32 {
+    params.base_depth().max(1).min(params.depth) + DEPTH_OFFSET
+}
+
+/// The per-level tables of a tree, from the base level on.
+fn tables(tree: &Octree, params: &Params) -> (Basis, Vec<Option<DepthTables>>) {
+    let fem = Basis::new(params.degree, params.boundary);
+    let vb = Basis::new(Degree::Quadratic, params.boundary.derivative());
+    let tb = base_level(params);
+    let tables = (0..tree.levels.len() as u32)
+        .map(|t| (t >= tb).then(|| DepthTables::new(fem, vb, t - DEPTH_OFFSET)))
+        .collect();
+    (fem, tables)
+}
+
+fn problem<'a>(
+    tree: &'a Octree,
+    fem: Basis,
+    tables: &'a [Option<DepthTables>],
+    clusters: &'a [Clusters],
+    params: &Params,
+) -> Problem<'a> {
+    Problem {
+        tree,
+        fem,
+        tables,
+        clusters,
+        base_level: base_level(params),
+        iters: params.iters,
+        singular: params.alpha() == 0.0 && params.boundary != crate::Boundary::Dirichlet,
+        progress: &|_| {},
+    }
+}
+
+/// Phase 2: what the slab's own samples add to the coarse levels.
+pub fn coarse(
+    dir: &Path,
+    plan: &Plan,
+    s: usize,
+    params: &Params,
+    smooth: Option<u32>,
+) -> Result<CoarsePart> {
+    let Loaded { sampled, owned } = load(dir, plan, s, params, smooth)?;
+    let tb = base_level(params);
+    let tc = plan.coarse_level();
+    let mut refined = tree::build(&sampled, params, sampled.samples.len())?;
+    // The coarse tree is the union of the slabs' own samples' closed requests.
+    let own_splats: Vec<_> = refined
+        .splats
+        .iter()
+        .zip(&owned)
+        .map(|(sp, &o)| if o { *sp } else { None })
+        .collect();
+    let closed = tree::request(&sampled.samples, &own_splats, params)
+        .close(tb - DEPTH_OFFSET, tb - DEPTH_OFFSET);
+    let refined_keys = (0..tc).map(|t| closed.refined_keys(t)).collect();
+    drop(closed);
+    let samples = owned.iter().filter(|&&o| o).count();
+    if own_splats.iter().all(Option::is_none) {
+        return Ok(CoarsePart {
+            refined: refined_keys,
+            samples,
+            ..CoarsePart::default()
+        });
+    }
+    // V of the slab's own samples only, on the slab's tree (which holds every node that V
+    // touches, as the in-core tree does).
+    let all = std::mem::replace(&mut refined.splats, own_splats);
+    let field = splat::splat(&refined, &sampled, params)?;
+    refined.splats = all;
+    let tree = refined.tree;
+    let (fem, tabs) = tables(&tree, params);
+    let no_clusters: Vec<Clusters> = (0..tree.levels.len())
+        .map(|_| Clusters::default())
+        .collect();
+    let p = problem(&tree, fem, &tabs, &no_clusters, params);
+    let tcons = solver::constraints(&p, &field.v, tb);
+    let nodes = (tb..=tc.min(tree.depth_count() - 1))
+        .map(|t| {
+            let level = &tree.levels[t as usize];
+            (0..level.len() as u32)
+                .filter_map(|n| {
+                    let b = tcons[t as usize][n as usize];
+                    let v = field.v[t as usize][n as usize];
+                    (b != 0.0 || v != [0.0; 3]).then(|| (level.key(n), b, v))
+                })
+                .collect()
+        })
+        .collect();
+    // Screening clusters of the own samples, at their deepest nodes of the slab's tree.
+    let positions: Vec<[f64; 3]> = sampled
+        .samples
+        .iter()
+        .zip(&owned)
+        .filter(|(_, &o)| o)
+        .map(|(x, _)| x.pos)
+        .collect();
+    let weights: Vec<f64> = sampled
+        .samples
+        .iter()
+        .zip(&owned)
+        .filter(|(_, &o)| o)
+        .map(|(x, _)| x.weight)
+        .collect();
+    let leaf_of = system::deepest_nodes(&tree, &positions);
+    let mut clusters = vec![Vec::new(); (tc.min(tree.depth_count() - 1) + 1 - tb) as usize];
+    for_each_cluster_sum(&tree, tb, &leaf_of, &positions, &weights, |t, merged| {
+        if t <= tc {
+            let level = &tree.levels[t as usize];
+            clusters[(t - tb) as usize] = merged
+                .iter()
+                .map(|&(n, w, wp)| (level.key(n), w, wp))
+                .collect();
+        }
+    });
+    Ok(CoarsePart {
+        refined: refined_keys,
+        nodes,
+        clusters,
+        sums: [
+            field.mean_area * field.weight,
+            field.weight,
+            field.mean_depth * field.weight,
+        ],
+        samples,
+    })
+}
+
+/// The node of `tree` at tree depth `t` with key `key`, if the tree has it.
+fn find(tree: &Octree, t: u32, key: [u32; 3]) -> Option<u32> {
+    if t as usize >= tree.levels.len() {
+        return None;
+    }
+    let (reached, n) = tree.descend(key.map(u64::from), t, t);
+    (reached == t).then_some(n)
+}
+
+/// Phase 3 (coordinator): the coarse levels solved for the whole cloud from the slabs' parts.
+pub fn solve_coarse(parts: &[CoarsePart], plan: &Plan, params: &Params) -> Result<Coarse> {
+    let tb = base_level(params);
+    let tc = plan.coarse_level();
+    let mut req = TreeRequest::new(tc);
+    for part in parts {
+        for (t, keys) in part.refined.iter().enumerate() {
+            req.refine_keys(t as u32, keys.iter().copied());
+        }
+    }
+    let tree = Octree::materialize(req.close(tb - DEPTH_OFFSET, tb - DEPTH_OFFSET));
+    let sums = parts.iter().fold([0.0; 3], |acc, p| {
+        [acc[0] + p.sums[0], acc[1] + p.sums[1], acc[2] + p.sums[2]]
+    });
+    if sums[1] <= 0.0 {
+        return Err(crate::Error::Degenerate(
+            "the normals cancel everywhere (opposite normals at the same places)".into(),
+        ));
+    }
+    let mean_area = sums[0] / sums[1];
+    let nlev = tree.levels.len();
+    let mut tcons: Vec<Vec<f64>> = vec![Vec::new(); nlev];
+    let mut v: Vec<Vec<[f64; 3]>> = vec![Vec::new(); nlev];
+    let mut cluster_sums: Vec<Vec<ClusterSum>> = vec![Vec::new(); nlev];
+    for t in tb..=tc {
+        tcons[t as usize] = vec![0.0; tree.levels[t as usize].len()];
+        v[t as usize] = vec![[0.0; 3]; tree.levels[t as usize].len()];
+    }
+    for part in parts {
+        for (k, nodes) in part.nodes.iter().enumerate() {
+            let t = tb + k as u32;
+            for &(key, b, vv) in nodes {
+                // A node the union lacks gets nothing from the slab's own samples.
+                if let Some(n) = find(&tree, t, key) {
+                    tcons[t as usize][n as usize] += f64::from(b);
+                    for a in 0..3 {
+                        v[t as usize][n as usize][a] += f64::from(vv[a]);
+                    }
+                }
+            }
+        }
+        for (k, cl) in part.clusters.iter().enumerate() {
+            let t = tb + k as u32;
+            for &(key, w, wp) in cl {
+                if let Some(n) = find(&tree, t, key) {
+                    cluster_sums[t as usize].push((n, w, wp));
+                }
+            }
+        }
+    }
+    let (fem, tabs) = tables(&tree, params);
+    let alpha = params.alpha();
+    let clusters: Vec<Clusters> = (0..nlev as u32)
+        .map(|t| {
+            let mut entries = std::mem::take(&mut cluster_sums[t as usize]);
+            if alpha <= 0.0 || entries.is_empty() {
+                return Clusters::default();
+            }
+            entries.sort_by_key(|e| e.0);
+            let mut merged: Vec<ClusterSum> = Vec::new();
+            for (n, w, wp) in entries {
+                match merged.last_mut() {
+                    Some(last) if last.0 == n => {
+                        last.1 += w;
+                        for a in 0..3 {
+                            last.2[a] += wp[a];
+                        }
+                    }
+                    _ => merged.push((n, w, wp)),
+                }
+            }
+            level_clusters(&tree, fem, t, &merged, alpha * mean_area)
+        })
+        .collect();
+    let p = problem(&tree, fem, &tabs, &clusters, params);
+    let tcons32 = tcons
+        .iter()
+        .map(|c| c.iter().map(|&x| x as f32).collect())
+        .collect();
+    let v32 = v
+        .iter()
+        .map(|l| l.iter().map(|x| x.map(|c| c as f32)).collect())
+        .collect();
+    let (solution, carry) = solver::cascade(&p, tcons32, v32, None, true, Laps::new());
+    Ok(Coarse {
+        carry: carry.expect("kept"),
+        solution,
+        mean_area,
+        mean_depth: sums[2] / sums[1],
+        tree,
+    })
+}
+
+/// The slab's tree with the coarse solution copied onto its coarse levels: the solution with
+/// `x` and `p` up to the coarse level, and the carry on the slab's coarse level.
+fn coarse_onto(tree: &Octree, coarse: &Coarse, params: &Params, tc: u32) -> (Solution, Carry) {
+    let nlev = tree.levels.len();
+    let tb = base_level(params);
+    let mut sol = Solution {
+        x: vec![Vec::new(); nlev],
+        p: vec![Vec::new(); nlev],
+        base_level: tb,
+        timings: Vec::new(),
+    };
+    let map = |t: u32, from: &dyn Fn(u32) -> f32| -> Vec<f32> {
+        let level = &tree.levels[t as usize];
+        (0..level.len() as u32)
+            .map(|n| find(&coarse.tree, t, level.key(n)).map_or(0.0, from))
+            .collect()
+    };
+    let tc = tc.min(nlev as u32 - 1);
+    for t in tb..=tc {
+        sol.x[t as usize] = map(t, &|m| coarse.solution.x[t as usize][m as usize]);
+        if t < tc {
+            sol.p[t as usize] = map(t, &|m| coarse.solution.p[t as usize][m as usize]);
+        }
+    }
+    let level = &tree.levels[tc as usize];
+    let mut carry = Carry {
+        level: tc,
+        p: Vec::with_capacity(level.len()),
+        vc: Vec::with_capacity(level.len()),
+    };
+    for n in 0..level.len() as u32 {
+        match find(&coarse.tree, tc, level.key(n)) {
+            Some(m) => {
+                carry.p.push(coarse.carry.p[m as usize]);
+                carry.vc.push(coarse.carry.vc[m as usize]);
+            }
+            None => {
+                carry.p.push(0.0);
+                carry.vc.push([0.0; 3]);
+            }
+        }
+    }
+    sol.p[tc as usize] = carry.p.iter().map(|&x| x as f32).collect();
+    (sol, carry)
+}
+
+fn solution_path(dir: &Path, s: usize) -> PathBuf {
+    dir.join(format!("slab-{s:04}.solution"))
+}
+
+/// Phase 4: the slab's finer levels solved from the coarse solution, its share of γ, and its
+/// coefficients near its faces for the neighbours.
+pub fn solve(
+    dir: &Path,
+    plan: &Plan,
+    s: usize,
+    params: &Params,
+    smooth: Option<u32>,
+    coarse: &Coarse,
+) -> Result<Solved> {
+    let Loaded { sampled, owned } = load(dir, plan, s, params, smooth)?;
+    let tc = plan.coarse_level();
+    let refined = tree::build(&sampled, params, sampled.samples.len())?;
+    let field = splat::splat(&refined, &sampled, params)?;
+    let tree = refined.tree;
+    let points = system::SamplePoints {
+        positions: sampled.samples.iter().map(|x| x.pos).collect(),
+        weights: sampled.samples.iter().map(|x| x.weight).collect(),
+    };
+    drop(sampled);
+    let fem = Basis::new(params.degree, params.boundary);
+    let screening = system::screening(&tree, fem, &points, Vec::new(), 0, coarse.mean_area, params);
+    let (_, tabs) = tables(&tree, params);
+    let p = problem(&tree, fem, &tabs, &screening.clusters, params);
+    let (mut sol, carry) = coarse_onto(&tree, coarse, params, tc);
+    let max_level = tree.depth_count() - 1;
+    if tc < max_level {
+        let tcons = solver::constraints(&p, &field.v, tc + 1);
+        let (mut fine, _) = solver::cascade(&p, tcons, field.v, Some(carry), false, Laps::new());
+        for t in tc as usize + 1..=max_level as usize {
+            sol.x[t] = std::mem::take(&mut fine.x[t]);
+            sol.p[t] = std::mem::take(&mut fine.p[t]);
+        }
+    }
+    let eval = Evaluator::new(&tree, fem, &sol);
+    let mut iso_sums = [0.0; 2];
+    for ((pos, w), &o) in points.positions.iter().zip(&points.weights).zip(&owned) {
+        if o {
+            iso_sums[0] += w * eval.value(*pos);
+            iso_sums[1] += w;
+        }
+    }
+    write_solution(&solution_path(dir, s), &sol, tc + 1)?;
+    let faces = face_bands(&tree, &sol, plan, s);
+    Ok(Solved { iso_sums, faces })
+}
+
+/// The slab's own coefficients within [`FACE_BAND`] cells of its low and high faces, at the
+/// levels below the coarse level.
+fn face_bands(tree: &Octree, sol: &Solution, plan: &Plan, s: usize) -> [Vec<FaceCoefficient>; 2] {
+    let (lo, hi) = plan.extent(s);
+    let range = &plan.slabs[s];
+    let mut faces = [Vec::new(), Vec::new()];
+    for t in plan.coarse_level() + 1..tree.depth_count() {
+        let level = &tree.levels[t as usize];
+        let d = t - DEPTH_OFFSET;
+        let cells = (1u64 << d) as f64;
+        for n in 0..level.len() as u32 {
+            let key = level.key(n);
+            if !range.contains(&plan.column_of_node(t, key)) {
+                continue;
+            }
+            let centre = (crate::octree::func_index(key, d)[0] as f64 + 0.5) / cells;
+            let x = sol.x[t as usize][n as usize];
+            if (centre - lo).abs() * cells <= FACE_BAND {
+                faces[0].push((t, key, x));
+            }
+            if (centre - hi).abs() * cells <= FACE_BAND {
+                faces[1].push((t, key, x));
+            }
+        }
+    }
+    faces
+}
+
+/// Phase 5: the slab's blocks polygonised at `iso`, with the neighbours' coefficients near the
+/// shared faces (`before`: the high face of slab `s − 1`; `after`: the low face of `s + 1`).
+#[allow(clippy::too_many_arguments)]
+pub fn extract(
+    dir: &Path,
+    plan: &Plan,
+    s: usize,
+    params: &Params,
+    smooth: Option<u32>,
+    coarse: &Coarse,
+    iso: f64,
+    neighbours: [&[FaceCoefficient]; 2],
+) -> Result<(Blocks, usize)> {
+    let Loaded { sampled, .. } = load(dir, plan, s, params, smooth)?;
+    let tc = plan.coarse_level();
+    let refined = tree::build(&sampled, params, sampled.samples.len())?;
+    drop(sampled);
+    let tree = refined.tree;
+    let (fem, tabs) = tables(&tree, params);
+    let (mut sol, carry) = coarse_onto(&tree, coarse, params, tc);
+    read_solution(&solution_path(dir, s), &mut sol, tc + 1, &tree)?;
+    let mut missing = 0;
+    for band in neighbours {
+        for &(t, key, x) in band {
+            match find(&tree, t, key) {
+                Some(n) => sol.x[t as usize][n as usize] = x,
+                None => missing += 1,
+            }
+        }
+    }
+    let no_clusters: Vec<Clusters> = (0..tree.levels.len())
+        .map(|_| Clusters::default())
+        .collect();
+    let p = problem(&tree, fem, &tabs, &no_clusters, params);
+    let cum = solver::cumulate(&p, &carry, &sol.x);
+    for (t, c) in cum.into_iter().enumerate() {
+        if t > tc as usize {
+            sol.p[t] = c;
+        }
+    }
+    let range = plan.slabs[s].clone();
+    let blocks = extract::slab_blocks(&tree, fem, &sol, iso, params, plan.block_depth, range)?;
+    Ok((blocks, missing))
+}
+
+fn write_solution(path: &Path, sol: &Solution, from: u32) -> Result<()> {
+    let f = File::create(path).map_err(|e| io_err(path, e))?;
+    let mut w = BufWriter::new(f);
+    for x in &sol.x[from as usize..] {
+        w.write_all(&(x.len() as u64).to_le_bytes())
+            .map_err(|e| io_err(path, e))?;
+        for v in x {
+            w.write_all(&v.to_le_bytes()).map_err(|e| io_err(path, e))?;
+        }
+    }
+    w.into_inner()
+        .map_err(|e| io_err(path, e.into_error()))?
+        .sync_all()
+        .map_err(|e| io_err(path, e))
+}
+
+fn read_solution(path: &Path, sol: &mut Solution, from: u32, tree: &Octree) -> Result<()> {
+    let f = File::open(path).map_err(|e| io_err(path, e))?;
+    let mut r = BufReader::new(f);
+    for t in from as usize..tree.levels.len() {
+        let mut len = [0u8; 8];
+        r.read_exact(&mut len).map_err(|e| io_err(path, e))?;
+        let len = u64::from_le_bytes(len) as usize;
+        if len != tree.levels[t].len() {
+            return Err(crate::Error::Parse {
+                path: path.to_path_buf(),
+                message: format!(
+                    "the slab's solution has {len} coefficients at level {t}, its tree {}",
+                    tree.levels[t].len()
+                ),
+            });
+        }
+        let mut bytes = vec![0u8; len * 4];
+        r.read_exact(&mut bytes).map_err(|e| io_err(path, e))?;
+        sol.x[t] = bytes
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes")))
+            .collect();
+    }
+    Ok(())
+}

@@ -1,0 +1,104 @@
+//! The spill files of a slab run: the usable points, already in the unit cube, one file per
+//! column (a cell of the block depth along x) in the work folder. A slab reads its columns and
+//! the neighbouring columns' points within its padding, in column order and, within a column,
+//! in input order, so that the points of every finest cell keep their input order (the
+//! samples are then the in-core run's, bit for bit).
+
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+use crate::pipeline::prepare::UnitPoint;
+use crate::{Error, Result};
+
+/// Bytes of one spilled point: position, unit normal and weight, seven `f64` (little endian).
+const RECORD: usize = 56;
+
+/// The column files of a run, written point by point.
+pub(crate) struct ColumnWriter {
+    dir: PathBuf,
+    files: Vec<Option<BufWriter<File>>>,
+    pub counts: Vec<u64>,
+}
+
+impl ColumnWriter {
+    pub fn new(dir: &Path, columns: usize) -> Self {
+        ColumnWriter {
+            dir: dir.to_path_buf(),
+            files: (0..columns).map(|_| None).collect(),
+            counts: vec![0; columns],
+        }
+    }
+
+    /// Appends a point to column `c`'s file (created on first use).
+    pub fn push(&mut self, c: usize, p: &UnitPoint) -> Result<()> {
+        if self.files[c].is_none() {
+            let path = column_path(&self.dir, c);
+            let f = File::create(&path).map_err(|e| io_err(&path, e))?;
+            self.files[c] = Some(BufWriter::with_capacity(1 << 16, f));
+        }
+        let w = self.files[c].as_mut().expect("opened above");
+        let mut rec = [0u8; RECORD];
+        let values = [p.0[0], p.0[1], p.0[2], p.1[0], p.1[1], p.1[2], p.2];
+        for (k, v) in values.iter().enumerate() {
+            rec[k * 8..k * 8 + 8].copy_from_slice(&v.to_le_bytes());
+        }
+        w.write_all(&rec)
+            .map_err(|e| io_err(&column_path(&self.dir, c), e))?;
+        self.counts[c] += 1;
+        Ok(())
+    }
+
+    /// Flushes and closes every file; a full disk is reported here at the latest.
+    pub fn finish(mut self) -> Result<Vec<u64>> {
+        for (c, f) in self.files.iter_mut().enumerate() {
+            if let Some(w) = f.take() {
+                let path = column_path(&self.dir, c);
+                let file = w.into_inner().map_err(|e| io_err(&path, e.into_error()))?;
+                file.sync_all().map_err(|e| io_err(&path, e))?;
+            }
+        }
+        Ok(self.counts)
+    }
+}
+
+/// The points of columns `columns` whose x lies in `[lo, hi)`, in column order.
+pub(crate) fn read_columns(
+    dir: &Path,
+    columns: std::ops::Range<usize>,
+    counts: &[u64],
+    lo: f64,
+    hi: f64,
+) -> Result<Vec<UnitPoint>> {
+    let mut out = Vec::new();
+    for c in columns {
+        if counts[c] == 0 {
+            continue;
+        }
+        let path = column_path(dir, c);
+        let f = File::open(&path).map_err(|e| io_err(&path, e))?;
+        let mut r = BufReader::with_capacity(1 << 16, f);
+        let mut rec = [0u8; RECORD];
+        for _ in 0..counts[c] {
+            r.read_exact(&mut rec).map_err(|e| io_err(&path, e))?;
+            let v: [f64; 7] = std::array::from_fn(|k| {
+                f64::from_le_bytes(rec[k * 8..k * 8 + 8].try_into().expect("8 bytes"))
+            });
+            if v[0] >= lo && v[0] < hi {
+                out.push(([v[0], v[1], v[2]], [v[3], v[4], v[5]], v[6]));
+            }
+        }
+    }
+    Ok(out)
+}
+
+fn column_path(dir: &Path, c: usize) -> PathBuf {
+    dir.join(format!("column-{c:05}.points"))
+}
+
+pub(crate) fn io_err(path: &Path, source: std::io::Error) -> Error {
+    Error::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}

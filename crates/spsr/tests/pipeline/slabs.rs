@@ -1,0 +1,89 @@
+//! Slab mode (issue 15): the mesh of a run cut into slabs is one closed manifold surface
+//! that matches the in-core mesh within a fraction of a finest cell.
+
+use spsr::metrics::MeshDistance;
+use spsr::slabs::{self, SlabOptions, Source};
+use spsr::{Mesh, Noise, Params, PointCloud};
+
+use crate::common::torus;
+use crate::common::{assert_closed_manifold, bunny};
+
+/// Largest and mean distance from `a`'s vertices to `b`, in both directions.
+fn distances(a: &Mesh, b: &Mesh) -> (f64, f64) {
+    let ab = MeshDistance::new(b).distances(&a.vertices);
+    let ba = MeshDistance::new(a).distances(&b.vertices);
+    let max = ab.iter().chain(&ba).fold(0.0f64, |m, &d| m.max(d));
+    let mean = (ab.iter().sum::<f64>() + ba.iter().sum::<f64>()) / (ab.len() + ba.len()) as f64;
+    (max, mean)
+}
+
+fn cell(cloud: &PointCloud, params: &Params) -> f64 {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in &cloud.positions {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    let side = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+    side * params.scale / f64::from(1u32 << params.depth)
+}
+
+fn compare(name: &str, cloud: &PointCloud, params: &Params, counts: &[usize]) {
+    let dir = tempfile::tempdir().unwrap();
+    let whole = spsr::reconstruct(cloud, params).unwrap().mesh;
+    let h = cell(cloud, params);
+    for &k in counts {
+        let out = slabs::reconstruct(
+            Source::Cloud(cloud),
+            params,
+            &SlabOptions {
+                slabs: k,
+                work_dir: dir.path().to_path_buf(),
+            },
+            &|_| {},
+        )
+        .unwrap();
+        let (max, mean) = distances(&out.mesh, &whole);
+        eprintln!(
+            "{name} {k} slabs ({} used): {} / {} vertices, max {:.3} cells, mean {:.4} cells",
+            out.stats.slabs,
+            out.mesh.vertices.len(),
+            whole.vertices.len(),
+            max / h,
+            mean / h
+        );
+        let topo = assert_closed_manifold(&out.mesh, &format!("{name}, {k} slabs"));
+        assert_eq!(topo.components, 1, "{name}, {k} slabs: one piece");
+        assert!(max <= h, "{name}, {k} slabs: {} cells apart", max / h);
+        assert!(
+            mean <= 0.05 * h,
+            "{name}, {k} slabs: mean {} cells",
+            mean / h
+        );
+        // The spill files are gone.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+}
+
+fn plain(depth: u32) -> Params {
+    Params {
+        depth,
+        noise: Noise::Off,
+        keep_normals: true,
+        keep_outliers: true,
+        attributes: false,
+        ..Params::default()
+    }
+}
+
+#[test]
+fn slabs_match_the_in_core_torus() {
+    compare("torus", &torus(20_000, 1.0, 0.35, 7), &plain(7), &[1, 3, 5]);
+}
+
+#[test]
+fn slabs_match_the_in_core_bunny() {
+    compare("bunny", &bunny(), &plain(8), &[1, 3, 5]);
+}
