@@ -12,7 +12,7 @@ use crate::files::{check_output_arg, input_name, read_cloud_arg, report, write_m
 use crate::normals::{self, NormalOptions};
 use crate::progress::Progress;
 use crate::trim::{parse_trim, print_trim};
-use crate::{start_threads, usage, words, Failure};
+use crate::{slabs, start_threads, usage, words, Failure};
 
 pub(crate) const RECONSTRUCT_LONG_ABOUT: &str = "\
 Reconstruct a watertight triangle mesh from an oriented point cloud (Screened Poisson Surface \
@@ -61,13 +61,37 @@ impl From<BoundaryArg> for spsr::Boundary {
     }
 }
 
+/// `--slabs`: a number, or `auto`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Slabs {
+    /// In one piece when it fits in memory, else in the fewest slabs that fit.
+    Auto,
+    /// This many slabs.
+    Count(usize),
+}
+
+fn parse_slabs(s: &str) -> Result<Slabs, String> {
+    if s == "auto" {
+        return Ok(Slabs::Auto);
+    }
+    match s.parse::<usize>() {
+        Ok(k) if (1..=MAX_SLABS).contains(&k) => Ok(Slabs::Count(k)),
+        _ => Err(format!(
+            "expected `auto` or a number of slabs from 1 to {MAX_SLABS}"
+        )),
+    }
+}
+
+/// Most slabs `--slabs` takes (the columns of the base depth are the finest cut).
+const MAX_SLABS: usize = 256;
+
 /// Arguments of `spsr reconstruct`. Defaults mirror [`spsr::Params::default`].
 #[derive(Debug, Args)]
 pub struct ReconstructArgs {
     /// Oriented point cloud: PLY, LAS/LAZ, E57, PCD, or text with `x y z nx ny nz` per line;
-    /// `-` reads standard input.
-    #[arg(value_name = "INPUT", required_unless_present = "reference_in")]
-    pub input: Option<PathBuf>,
+    /// `-` reads standard input. Several files (tiles) are read as one cloud.
+    #[arg(value_name = "INPUT", num_args = 1.., required_unless_present = "reference_in")]
+    pub input: Vec<PathBuf>,
 
     /// PoissonRecon's spelling of INPUT.
     #[arg(
@@ -268,6 +292,18 @@ pub struct ReconstructArgs {
     )]
     pub reference_max_memory: Option<u64>,
 
+    /// Cut the run into K slabs along x, solved one after another in bounded memory with the
+    /// points spilled to --work-dir; the mesh is one seamless surface. `auto` runs in one piece
+    /// when the memory estimate fits --max-memory, and otherwise in the fewest slabs that fit
+    /// [default: auto]
+    #[arg(long, value_name = "K", default_value = "auto", value_parser = parse_slabs)]
+    pub slabs: Slabs,
+
+    /// Folder for a slab run's spill files: a subfolder is made in it and removed afterwards,
+    /// also on Ctrl-C [default: the output's folder]
+    #[arg(long, value_name = "DIR")]
+    pub work_dir: Option<PathBuf>,
+
     /// Split each sample's normal between the two depths around its estimated depth (2006 paper,
     /// PoissonRecon 6) instead of splatting it whole at the depth above (PoissonRecon 18):
     /// smoother, better on smooth surfaces, less detail on scans [default: off]
@@ -293,12 +329,22 @@ pub struct ReconstructArgs {
 }
 
 impl ReconstructArgs {
-    /// The input file, given as INPUT or as PoissonRecon's --in.
+    /// The (first) input file, given as INPUT or as PoissonRecon's --in.
     pub fn input(&self) -> &Path {
         self.input
-            .as_deref()
+            .first()
+            .map(PathBuf::as_path)
             .or(self.reference_in.as_deref())
             .unwrap_or(Path::new("-"))
+    }
+
+    /// Every input file, in order.
+    pub fn inputs(&self) -> Vec<PathBuf> {
+        if self.input.is_empty() {
+            vec![self.input().to_path_buf()]
+        } else {
+            self.input.clone()
+        }
     }
 
     /// The boundary condition, from --boundary or PoissonRecon's --bType.
@@ -408,12 +454,17 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
         print_parameters(args, &params);
     }
 
+    if let Slabs::Count(k) = args.slabs {
+        let (result, reading, progress) = slabs::run(args, &params, k, trim_params.is_some())?;
+        return finish(args, result, None, None, reading, start, progress);
+    }
+
     // Reading, the library's stages, writing; estimating normals is added when it happens.
     let plan = spsr::stage_plan(&params, trim_params.is_some());
     let progress = Progress::new(plan.len() + 2, std::io::stderr().is_terminal());
     progress.stage("reading");
     let t = Instant::now();
-    let mut cloud = read_cloud_arg(input).map_err(fail)?;
+    let mut cloud = read_clouds(&args.inputs()).map_err(fail)?;
     let reading = t.elapsed();
 
     let mut estimated = None;
@@ -447,12 +498,60 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
                     .map_err(fail)?;
             (result, Some(stats))
         }
-        None => (
-            spsr::reconstruct_owned(cloud, &params, &|s| progress.stage(s)).map_err(fail)?,
-            None,
-        ),
+        None => match spsr::reconstruct_owned(cloud, &params, &|s| progress.stage(s)) {
+            Err(spsr::Error::ResourceLimit(short)) if args.slabs == Slabs::Auto => {
+                drop(progress);
+                let k = slabs::enough(&short);
+                eprintln!(
+                    "spsr: note: the run needs about {} in one piece, over the limit of {}; \
+                     running it in {k} slabs (--slabs)",
+                    spsr::gib(short.estimate),
+                    spsr::gib(short.limit)
+                );
+                let (result, more, progress) = slabs::run(args, &params, k, false)?;
+                return finish(
+                    args,
+                    result,
+                    None,
+                    estimated,
+                    reading + more,
+                    start,
+                    progress,
+                );
+            }
+            r => (r.map_err(fail)?, None),
+        },
     };
+    finish(args, result, trimmed, estimated, reading, start, progress)
+}
 
+/// Reads the inputs as one cloud: the tiles' points one after another. Tiles must have the
+/// same properties.
+fn read_clouds(inputs: &[PathBuf]) -> spsr::Result<spsr::PointCloud> {
+    let mut cloud = read_cloud_arg(&inputs[0])?;
+    for path in &inputs[1..] {
+        let tile = read_cloud_arg(path)?;
+        cloud.append(tile).map_err(|message| spsr::Error::Parse {
+            path: path.clone(),
+            message,
+        })?;
+    }
+    Ok(cloud)
+}
+
+/// Writes the mesh, the warnings, `-v`'s details and the summary line.
+fn finish(
+    args: &ReconstructArgs,
+    result: spsr::Reconstruction,
+    trimmed: Option<spsr::trim::TrimStats>,
+    estimated: Option<normals::NormalReport>,
+    reading: Duration,
+    start: Instant,
+    progress: Progress,
+) -> Result<(), Failure> {
+    let input = args.input();
+    let output = args.output.as_path();
+    let fail = |e: spsr::Error| Failure::from_spsr(e, input_name(input));
     progress.stage("writing");
     let t = Instant::now();
     let opts = spsr::io::WriteOptions {

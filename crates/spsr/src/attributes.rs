@@ -241,6 +241,27 @@ impl AttributeData {
     pub fn reserve(&mut self, n: usize) {
         each!(self, v => v.reserve(n))
     }
+
+    /// Appends the values of a column of the same type (another of a different type is
+    /// converted as by [`AttributeData::push_f64`]).
+    pub fn append(&mut self, other: AttributeData) {
+        match (self, other) {
+            (AttributeData::U8(a), AttributeData::U8(b)) => a.extend(b),
+            (AttributeData::I8(a), AttributeData::I8(b)) => a.extend(b),
+            (AttributeData::U16(a), AttributeData::U16(b)) => a.extend(b),
+            (AttributeData::I16(a), AttributeData::I16(b)) => a.extend(b),
+            (AttributeData::U32(a), AttributeData::U32(b)) => a.extend(b),
+            (AttributeData::I32(a), AttributeData::I32(b)) => a.extend(b),
+            (AttributeData::F32(a), AttributeData::F32(b)) => a.extend(b),
+            (AttributeData::F64(a), AttributeData::F64(b)) => a.extend(b),
+            (a, b) => {
+                a.reserve(b.len());
+                for v in b.iter_f64() {
+                    a.push_f64(v);
+                }
+            }
+        }
+    }
 }
 
 /// A named per-point (or per-vertex) column of numbers.

@@ -39,6 +39,34 @@ pub struct ScanOrigin {
 }
 
 impl PointCloud {
+    /// Appends another cloud's points (a tile of the same scan): both must have normals, or
+    /// neither, and the same attributes (names and types, in order). The other cloud's scan
+    /// origins are dropped. The error says what differs.
+    pub fn append(&mut self, other: PointCloud) -> std::result::Result<(), String> {
+        if self.normals.is_empty() != other.normals.is_empty() {
+            return Err("one tile has normals and another has none".into());
+        }
+        let names = |c: &PointCloud| -> Vec<String> {
+            c.attributes
+                .iter()
+                .map(|a| format!("{} ({:?})", a.name, a.data.scalar_type()))
+                .collect()
+        };
+        if names(self) != names(&other) {
+            return Err(format!(
+                "the tiles' properties differ: [{}] here, [{}] before",
+                names(&other).join(", "),
+                names(self).join(", ")
+            ));
+        }
+        self.positions.extend(other.positions);
+        self.normals.extend(other.normals);
+        for (a, b) in self.attributes.iter_mut().zip(other.attributes) {
+            a.data.append(b.data);
+        }
+        Ok(())
+    }
+
     /// Builds a cloud from positions and normals of equal length.
     pub fn new(positions: Vec<[f64; 3]>, normals: Vec<[f64; 3]>) -> crate::Result<Self> {
         if positions.len() != normals.len() {

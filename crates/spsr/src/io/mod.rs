@@ -69,7 +69,7 @@ mod read_glb;
 mod read_ply;
 mod stl;
 mod text;
-mod unfinished;
+pub(crate) mod unfinished;
 mod write;
 mod write_ply;
 

@@ -34,6 +34,13 @@ impl Drop for Unfinished {
 pub fn remove_unfinished_files() -> usize {
     let list = UNFINISHED.lock().unwrap_or_else(|e| e.into_inner());
     list.iter()
-        .filter(|p| std::fs::remove_file(p).is_ok())
+        .filter(|p| {
+            if p.is_dir() {
+                // A slab run's work folder, with its spill files.
+                std::fs::remove_dir_all(p).is_ok()
+            } else {
+                std::fs::remove_file(p).is_ok()
+            }
+        })
         .count()
 }

@@ -71,8 +71,31 @@ pub struct SlabOptions {
     pub work_dir: PathBuf,
 }
 
-/// A work folder removed when dropped (also after an error).
-struct WorkDir(PathBuf);
+/// The names [`reconstruct`] reports to its progress callback, in order.
+pub fn stage_plan(params: &Params) -> Vec<String> {
+    let adaptive = params.noise == Noise::Adaptive;
+    ["reading points", "spilling points"]
+        .into_iter()
+        .chain(adaptive.then_some("noise"))
+        .chain([
+            "coarse constraints",
+            "solving coarse depths",
+            "solving slabs",
+            "extraction",
+            "numbering vertices",
+        ])
+        .chain(adaptive.then_some("fragments"))
+        .chain(["checking the mesh"])
+        .map(String::from)
+        .collect()
+}
+
+/// A work folder removed when dropped (also after an error), and by the front ends'
+/// interrupt handlers (`io::remove_unfinished_files`) while it exists.
+struct WorkDir(
+    PathBuf,
+    #[allow(dead_code)] crate::io::unfinished::Unfinished,
+);
 
 impl WorkDir {
     fn new(parent: &Path) -> Result<WorkDir> {
@@ -81,12 +104,14 @@ impl WorkDir {
             .map_or(0, |d| d.subsec_nanos());
         let path = parent.join(format!("spsr-slabs-{}-{nanos}", std::process::id()));
         std::fs::create_dir_all(&path).map_err(|e| spill::io_err(&path, e))?;
-        Ok(WorkDir(path))
+        let guard = crate::io::unfinished::Unfinished::register(&path);
+        Ok(WorkDir(path, guard))
     }
 }
 
 impl Drop for WorkDir {
     fn drop(&mut self) {
+        // Removed before the guard unregisters it (fields drop after this).
         let _ = std::fs::remove_dir_all(&self.0);
     }
 }
