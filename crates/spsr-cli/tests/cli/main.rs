@@ -6,4 +6,5 @@ mod feedback;
 mod hardening;
 mod normals;
 mod reconstruct;
+mod slabs;
 mod trim;

@@ -1,0 +1,150 @@
+//! `spsr reconstruct --slabs` and several inputs (tiles): one seamless mesh that matches the
+//! run in one piece, and clean failures that leave no output and no spill files.
+
+use std::fs;
+use std::path::Path;
+
+use crate::common::{assert_fails, s, sphere, spsr, stderr, stdout, USAGE};
+
+/// Writes points as `x y z nx ny nz` lines.
+fn write_xyz(path: &Path, points: &[([f64; 3], [f64; 3])]) {
+    let text: String = points
+        .iter()
+        .map(|(p, n)| format!("{} {} {} {} {} {}\n", p[0], p[1], p[2], n[0], n[1], n[2]))
+        .collect();
+    fs::write(path, text).unwrap();
+}
+
+/// The sphere in one file and in two tiles (split unevenly, so the tiles are not slabs).
+fn sphere_files(dir: &Path) -> (String, String, String) {
+    let pts = sphere(20_000);
+    let whole = dir.join("whole.xyz");
+    let a = dir.join("a.xyz");
+    let b = dir.join("b.xyz");
+    write_xyz(&whole, &pts);
+    write_xyz(&a, &pts[..7_000]);
+    write_xyz(&b, &pts[7_000..]);
+    (s(&whole).into(), s(&a).into(), s(&b).into())
+}
+
+/// The JSON number after `"key": ` in `spsr eval --json`'s output.
+fn json_number(json: &str, key: &str) -> f64 {
+    let at = json.find(&format!("\"{key}\": ")).expect(key) + key.len() + 4;
+    let end = json[at..].find([',', '}']).unwrap() + at;
+    json[at..end].trim().parse().unwrap()
+}
+
+#[test]
+fn tiles_are_one_cloud() {
+    let dir = tempfile::tempdir().unwrap();
+    let (whole, a, b) = sphere_files(dir.path());
+    let one = dir.path().join("one.ply");
+    let two = dir.path().join("two.ply");
+    for (inputs, out) in [(vec![whole.as_str()], &one), (vec![&a, &b], &two)] {
+        let mut args = vec!["reconstruct"];
+        args.extend(inputs);
+        args.extend(["-o", s(out), "--depth", "6"]);
+        let run = spsr(&args);
+        assert!(run.status.success(), "{}", stderr(&run));
+    }
+    assert_eq!(fs::read(&one).unwrap(), fs::read(&two).unwrap());
+}
+
+#[test]
+fn slabs_give_the_mesh_of_one_piece() {
+    let dir = tempfile::tempdir().unwrap();
+    let (whole, a, b) = sphere_files(dir.path());
+    let work = dir.path().join("work");
+    fs::create_dir(&work).unwrap();
+    let one = dir.path().join("one.ply");
+    let run = spsr(&["reconstruct", &whole, "-o", s(&one), "--depth", "7"]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    for k in ["2", "4"] {
+        let sl = dir.path().join(format!("slabs{k}.ply"));
+        let run = spsr(&[
+            "reconstruct",
+            &a,
+            &b,
+            "-o",
+            s(&sl),
+            "--depth",
+            "7",
+            "--slabs",
+            k,
+            "--work-dir",
+            s(&work),
+        ]);
+        assert!(run.status.success(), "{}", stderr(&run));
+        let said = stdout(&run) + &stderr(&run);
+        assert!(said.contains("1 piece, closed"), "{said}");
+        let eval = spsr(&["eval", s(&sl), "--reference", s(&one), "--json"]);
+        assert!(eval.status.success(), "{}", stderr(&eval));
+        let json = stdout(&eval);
+        // The finest cell is 1.1 × 1.6 / 128 of the bounding box; the slabs' mesh is within a
+        // small fraction of it everywhere.
+        let cell = 1.1 * 1.6 / 128.0;
+        assert!(json_number(&json, "hausdorff") < 0.1 * cell, "{json}");
+        assert_eq!(json_number(&json, "components"), 1.0, "{json}");
+        assert!(json.contains("\"closed\": true"), "{json}");
+        assert_eq!(fs::read_dir(&work).unwrap().count(), 0, "spill files left");
+    }
+}
+
+#[test]
+fn slab_runs_fail_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, a, _) = sphere_files(dir.path());
+    let out = dir.path().join("out.ply");
+    let work = dir.path().join("work");
+    fs::create_dir(&work).unwrap();
+    let missing = dir.path().join("missing.xyz");
+    // An unreadable tile: an error naming it (as for one input); no output, no spill files.
+    let run = spsr(&[
+        "reconstruct",
+        &a,
+        s(&missing),
+        "-o",
+        s(&out),
+        "--slabs",
+        "2",
+        "--work-dir",
+        s(&work),
+        "--depth",
+        "6",
+    ]);
+    assert_fails(&run, USAGE, &["missing.xyz"], &out);
+    assert_eq!(fs::read_dir(&work).unwrap().count(), 0);
+    // A work folder that cannot be made (under a file).
+    let file = dir.path().join("file");
+    fs::write(&file, "x").unwrap();
+    let run = spsr(&[
+        "reconstruct",
+        &a,
+        "-o",
+        s(&out),
+        "--slabs",
+        "2",
+        "--work-dir",
+        s(&file.join("sub")),
+        "--depth",
+        "6",
+    ]);
+    assert_fails(&run, USAGE, &["file"], &out);
+    // What slab mode cannot do yet is refused before any work.
+    for (extra, words) in [
+        (vec!["--trim", "auto"], "--trim"),
+        (vec!["--density"], "density"),
+        (vec!["--estimate-normals"], "--estimate-normals"),
+    ] {
+        let mut args = vec!["reconstruct", &a, "-o", s(&out), "--slabs", "2"];
+        args.extend(extra);
+        let run = spsr(&args);
+        assert!(!run.status.success());
+        assert!(stderr(&run).contains(words), "{}", stderr(&run));
+        assert!(!out.exists());
+    }
+    let run = spsr(&["reconstruct", "-", "-o", s(&out), "--slabs", "2"]);
+    assert_fails(&run, USAGE, &["standard input"], &out);
+    let run = spsr(&["reconstruct", &a, "-o", s(&out), "--slabs", "0"]);
+    assert_fails(&run, USAGE, &["auto"], &out);
+}
