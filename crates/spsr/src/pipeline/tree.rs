@@ -29,11 +29,24 @@ pub struct Refined {
 
 /// Chooses the splat depths and builds the octree (stage 3).
 pub fn build(sampled: &Sampled, params: &Params, input_points: usize) -> Result<Refined> {
+    build_with(sampled, params, input_points, |_| {})
+}
+
+/// As [`build`], with more nodes required by `extra` (a slab's tree takes in the whole
+/// cloud's coarse levels).
+pub fn build_with(
+    sampled: &Sampled,
+    params: &Params,
+    input_points: usize,
+    extra: impl FnOnce(&mut TreeRequest),
+) -> Result<Refined> {
     let depth = params.depth;
     // The base depth must be at least 1 so that it has a parent for prolongation tables.
     let base = params.base_depth().max(1).min(depth);
     let splats = splats_of(sampled, params);
-    let closed = request(&sampled.samples, &splats, params).close(base, base);
+    let mut req = request(&sampled.samples, &splats, params);
+    extra(&mut req);
+    let closed = req.close(base, base);
     let memory_estimate = check_memory(&closed.level_counts(), input_points, params)?;
     Ok(Refined {
         tree: Octree::materialize(closed),

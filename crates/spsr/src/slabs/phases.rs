@@ -63,6 +63,10 @@ pub type FaceCoefficient = (u32, [u32; 3], f32);
 pub struct Coarse {
     /// The tree's levels up to the coarse level.
     pub tree: Octree,
+    /// Its refined nodes per tree depth below the coarse level (packed keys): every slab's
+    /// tree takes them in, so that the slabs' trees agree with each other (and with the
+    /// in-core tree) on the coarse levels, wherever their own samples are.
+    pub refined: Vec<Vec<u64>>,
     /// The coefficients and cumulative solutions of those levels.
     pub solution: Solution,
     /// The cumulative solution and V at the coarse level, for the slabs' finer levels.
@@ -279,7 +283,9 @@ pub fn solve_coarse(parts: &[CoarsePart], plan: &Plan, params: &Params) -> Resul
             req.refine_keys(t as u32, keys.iter().copied());
         }
     }
-    let tree = Octree::materialize(req.close(tb - DEPTH_OFFSET, tb - DEPTH_OFFSET));
+    let closed = req.close(tb - DEPTH_OFFSET, tb - DEPTH_OFFSET);
+    let refined_keys = (0..tc).map(|t| closed.refined_keys(t)).collect();
+    let tree = Octree::materialize(closed);
     let sums = parts.iter().fold([0.0; 3], |acc, p| {
         [acc[0] + p.sums[0], acc[1] + p.sums[1], acc[2] + p.sums[2]]
     });
@@ -359,6 +365,7 @@ pub fn solve_coarse(parts: &[CoarsePart], plan: &Plan, params: &Params) -> Resul
         mean_area,
         mean_depth: sums[2] / sums[1],
         tree,
+        refined: refined_keys,
     })
 }
 
@@ -408,6 +415,15 @@ fn coarse_onto(tree: &Octree, coarse: &Coarse, params: &Params, tc: u32) -> (Sol
     (sol, carry)
 }
 
+/// The slab's tree: its samples' nodes and the whole cloud's coarse levels.
+fn slab_tree(sampled: &Sampled, params: &Params, coarse: &Coarse) -> Result<tree::Refined> {
+    tree::build_with(sampled, params, sampled.samples.len(), |req| {
+        for (t, keys) in coarse.refined.iter().enumerate() {
+            req.refine_keys(t as u32, keys.iter().copied());
+        }
+    })
+}
+
 fn solution_path(dir: &Path, s: usize) -> PathBuf {
     dir.join(format!("slab-{s:04}.solution"))
 }
@@ -424,7 +440,7 @@ pub fn solve(
 ) -> Result<Solved> {
     let Loaded { sampled, owned } = load(dir, plan, s, params, smooth)?;
     let tc = plan.coarse_level();
-    let refined = tree::build(&sampled, params, sampled.samples.len())?;
+    let refined = slab_tree(&sampled, params, coarse)?;
     let field = splat::splat(&refined, &sampled, params)?;
     let tree = refined.tree;
     let points = system::SamplePoints {
@@ -502,7 +518,7 @@ pub fn extract(
 ) -> Result<(Blocks, usize)> {
     let Loaded { sampled, .. } = load(dir, plan, s, params, smooth)?;
     let tc = plan.coarse_level();
-    let refined = tree::build(&sampled, params, sampled.samples.len())?;
+    let refined = slab_tree(&sampled, params, coarse)?;
     drop(sampled);
     let tree = refined.tree;
     let (fem, tabs) = tables(&tree, params);

@@ -10,7 +10,7 @@ use crate::Params;
 
 /// Levels below the maximal depth that the coordinator still solves for the whole cloud: the
 /// slabs solve only the finest `COARSE_BELOW` depths.
-const COARSE_BELOW: u32 = 3;
+const COARSE_BELOW: u32 = 2;
 
 /// Padding on each side of a slab, in cells of the coarse depth. The finer depths of a slab
 /// are solved on its own columns plus this margin; the solution near the margin's outer edge
