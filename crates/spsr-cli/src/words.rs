@@ -8,6 +8,7 @@ pub fn flag(field: &str) -> String {
     match field {
         "weights" => "--confidence-property".into(),
         "threshold" => "--trim".into(),
+        "attributes" => "attribute carrying (--no-attributes turns it off)".into(),
         "orient_neighbours" => "the orientation's neighbour count".into(),
         "scan_origins" => "the scan origins in the file".into(),
         "points" | "leaves" => field.into(),

@@ -87,3 +87,18 @@ fn slabs_match_the_in_core_torus() {
 fn slabs_match_the_in_core_bunny() {
     compare("bunny", &bunny(), &plain(8), &[1, 3, 5]);
 }
+
+#[test]
+fn slabs_match_the_in_core_bunny_with_noise_adaptation() {
+    // The noise stage smooths at one depth for all slabs, found from all slabs' samples.
+    let params = Params {
+        attributes: false,
+        ..Params::default()
+    };
+    compare(
+        "bunny (adaptive)",
+        &bunny(),
+        &Params { depth: 8, ..params },
+        &[4],
+    );
+}
