@@ -455,6 +455,9 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     }
 
     if let Slabs::Count(k) = args.slabs {
+        if slabs::streams(args) {
+            return slabs::run_streamed(args, &params, k, trim_params.is_some(), start);
+        }
         let (result, reading, progress) = slabs::run(args, &params, k, trim_params.is_some())?;
         return finish(args, result, None, None, reading, start, progress);
     }
@@ -508,6 +511,9 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
                     spsr::gib(short.estimate),
                     spsr::gib(short.limit)
                 );
+                if slabs::streams(args) {
+                    return slabs::run_streamed(args, &params, k, false, start);
+                }
                 let (result, more, progress) = slabs::run(args, &params, k, false)?;
                 return finish(
                     args,

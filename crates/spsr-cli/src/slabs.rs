@@ -6,19 +6,87 @@ use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use crate::files::input_name;
+use crate::files::{input_name, report};
 use crate::progress::Progress;
 use crate::reconstruct::ReconstructArgs;
-use crate::{usage, Failure};
+use crate::{usage, words, Failure};
 
-/// Runs the reconstruction in `k` slabs; returns the result, the time spent reading (within
-/// the run: the inputs are read as the run goes) and the progress bar for writing.
-pub(crate) fn run(
+/// Whether the slab run writes its mesh as it goes: a binary PLY file.
+pub(crate) fn streams(args: &ReconstructArgs) -> bool {
+    let out = &args.output;
+    out.as_os_str() != "-"
+        && !args.common.ascii
+        && out
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("ply"))
+}
+
+/// Runs the reconstruction in `k` slabs, writing the mesh (binary PLY) as the slabs produce
+/// it; then the warnings, `-v`'s stage table and the summary line.
+pub(crate) fn run_streamed(
     args: &ReconstructArgs,
     params: &spsr::Params,
     k: usize,
     trimming: bool,
-) -> Result<(spsr::Reconstruction, Duration, Progress), Failure> {
+    start: std::time::Instant,
+) -> Result<(), Failure> {
+    let (inputs, options) = check(args, trimming)?;
+    let plan = spsr::slabs::stage_plan(params, true);
+    let progress = Progress::new(plan.len(), std::io::stderr().is_terminal());
+    let input = args.input();
+    let (stats, written) = spsr::slabs::reconstruct_into(
+        spsr::slabs::Source::Files(&inputs),
+        params,
+        &spsr::slabs::SlabOptions {
+            slabs: k,
+            ..options
+        },
+        &args.output,
+        &|s| progress.stage(s),
+    )
+    .map_err(|e| Failure::from_spsr(e, input_name(input)))?;
+    drop(progress);
+    for w in &stats.warnings {
+        eprintln!("spsr: warning: {}: {}", input.display(), words::warning(w));
+    }
+    if args.common.verbose {
+        eprintln!(
+            "slabs       {}\npoints      {} read, {} dropped\nsamples     {}\niso-value   {}\ntimings:",
+            stats.slabs, stats.points, stats.dropped, stats.samples, stats.iso_value
+        );
+        for ((name, time), peak) in stats.stages.iter().zip(&stats.peak_memory) {
+            let peak = peak.map_or(String::new(), |b| {
+                format!("   peak {:>8.0} MiB", b as f64 / (1024.0 * 1024.0))
+            });
+            eprintln!("  {name:<34} {:>8.3} s{peak}", time.as_secs_f64());
+        }
+    }
+    let d = &stats.diagnosis;
+    let closed = if d.closed {
+        "closed".to_string()
+    } else {
+        format!("open ({} edges without a partner)", d.boundary_edges)
+    };
+    let mut line = format!(
+        "{} vertices, {} faces, {} piece{}, {closed}, in {k} slabs, in {:.2} s",
+        written.vertices,
+        written.triangles,
+        d.pieces,
+        if d.pieces == 1 { "" } else { "s" },
+        start.elapsed().as_secs_f64()
+    );
+    if let Some(bytes) = spsr::peak_rss() {
+        line += &format!(", peak memory {:.0} MiB", bytes as f64 / (1024.0 * 1024.0));
+    }
+    report(&args.output, &line);
+    Ok(())
+}
+
+/// The checks of a slab run's arguments; the inputs and the work folder.
+fn check(
+    args: &ReconstructArgs,
+    trimming: bool,
+) -> Result<(Vec<PathBuf>, spsr::slabs::SlabOptions), Failure> {
     if trimming {
         return Err(usage(
             "--trim is not supported with --slabs yet (slab runs do not compute the per-vertex \
@@ -40,9 +108,24 @@ pub(crate) fn run(
         ));
     }
     let work_dir = work_dir(args.work_dir.as_deref(), &args.output);
-    let plan = spsr::slabs::stage_plan(params);
+    Ok((inputs, spsr::slabs::SlabOptions { slabs: 0, work_dir }))
+}
+
+/// Runs the reconstruction in `k` slabs; returns the result, the time spent reading (within
+/// the run: the inputs are read as the run goes) and the progress bar for writing.
+pub(crate) fn run(
+    args: &ReconstructArgs,
+    params: &spsr::Params,
+    k: usize,
+    trimming: bool,
+) -> Result<(spsr::Reconstruction, Duration, Progress), Failure> {
+    let (inputs, options) = check(args, trimming)?;
+    let options = spsr::slabs::SlabOptions {
+        slabs: k,
+        ..options
+    };
+    let plan = spsr::slabs::stage_plan(params, false);
     let progress = Progress::new(plan.len() + 1, std::io::stderr().is_terminal());
-    let options = spsr::slabs::SlabOptions { slabs: k, work_dir };
     let input = args.input();
     let result = spsr::slabs::reconstruct(
         spsr::slabs::Source::Files(&inputs),

@@ -206,7 +206,78 @@ pub fn extract_blocks<C: Cells>(
     Ok(Blocks { chunks })
 }
 
+/// One part's vertices numbered on their own (see [`Blocks::into_part`]).
+#[derive(Debug, Default)]
+pub struct Part {
+    /// Vertex positions, unit-cube coordinates.
+    pub vertices: Vec<[f64; 3]>,
+    /// Vertex normals, when extracted with normals.
+    pub normals: Option<Vec<[f32; 3]>>,
+    /// The edge key of each vertex (`u64::MAX` for a barycentre).
+    pub keys: Vec<u64>,
+    /// Triangles: a local vertex index, or [`FOREIGN`] plus the edge key of a vertex that
+    /// another part owns (on a face the parts share).
+    pub triangles: Vec<[u64; 3]>,
+}
+
+/// Marks a triangle corner of a [`Part`] that refers to another part's vertex by edge key.
+pub const FOREIGN: u64 = 1 << 62;
+
 impl Blocks {
+    /// Numbers this part's own vertices (owned edge vertices and barycentres, block by block,
+    /// as [`Blocks::assemble`] does) without the other parts': a corner whose vertex another
+    /// part owns keeps its edge key, marked [`FOREIGN`]. Vertices no triangle of this part
+    /// uses are kept (another part may use them).
+    pub fn into_part(self) -> Part {
+        let chunks = self.chunks;
+        let total: usize = chunks
+            .iter()
+            .map(|c| c.owned_keys.len() + c.bary.len())
+            .sum();
+        let with_normals = chunks
+            .iter()
+            .any(|c| !c.owned_nrm.is_empty() || !c.bary_nrm.is_empty());
+        let mut own: FxHashMap<u64, u32> = FxHashMap::default();
+        own.reserve(total);
+        let mut part = Part {
+            vertices: Vec::with_capacity(total),
+            normals: with_normals.then(|| Vec::with_capacity(total)),
+            keys: Vec::with_capacity(total),
+            triangles: Vec::with_capacity(chunks.iter().map(|c| c.tris.len()).sum()),
+        };
+        let mut base = 0u64;
+        let mut bases = Vec::with_capacity(chunks.len());
+        for c in &chunks {
+            for (i, &k) in c.owned_keys.iter().enumerate() {
+                own.insert(k, (base + i as u64) as u32);
+            }
+            bases.push(base);
+            base += (c.owned_keys.len() + c.bary.len()) as u64;
+        }
+        for (c, base) in chunks.into_iter().zip(bases) {
+            let bary_base = base + c.owned_keys.len() as u64;
+            part.triangles.extend(c.tris.iter().map(|t| {
+                t.map(|r| {
+                    if r & BARY != 0 {
+                        bary_base + (r & !BARY)
+                    } else {
+                        own.get(&r).map_or(FOREIGN | r, |&i| u64::from(i))
+                    }
+                })
+            }));
+            part.keys.extend_from_slice(&c.owned_keys);
+            part.keys
+                .extend(std::iter::repeat_n(u64::MAX, c.bary.len()));
+            part.vertices.extend_from_slice(&c.owned_pos);
+            part.vertices.extend_from_slice(&c.bary);
+            if let Some(n) = &mut part.normals {
+                n.extend_from_slice(&c.owned_nrm);
+                n.extend_from_slice(&c.bary_nrm);
+            }
+        }
+        part
+    }
+
     /// The blocks of several parts (slabs) in order, to be numbered as one mesh.
     pub fn concat(parts: Vec<Blocks>) -> Blocks {
         Blocks {

@@ -47,7 +47,7 @@ mod tests;
 mod triangulate;
 mod vertex;
 
-pub use blocks::{extract, extract_blocks, Blocks, ExtractOptions};
+pub use blocks::{extract, extract_blocks, Blocks, ExtractOptions, Part, FOREIGN};
 pub use cells::{Cells, Field, Leaf};
 
 /// Largest supported `max_depth` (coordinates must fit the 20-bit key fields).

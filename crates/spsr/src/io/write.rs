@@ -266,6 +266,15 @@ fn write_atomically(
     Ok(())
 }
 
+/// Writes `path` atomically (see [`write_atomically`]) with `write`: for outputs produced piece
+/// by piece (a slab run's mesh).
+pub(crate) fn write_with(
+    path: &Path,
+    write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
+) -> Result<()> {
+    write_atomically(path, |w| write(w))
+}
+
 pub(crate) fn write_mesh(path: &Path, mesh: &Mesh, opts: &WriteOptions) -> Result<()> {
     let format = MeshFormat::from_path(path)?;
     validate(path, mesh)?;

@@ -24,6 +24,7 @@
 //! weights from a property. The orientation repair (stage 2a) and the far-outlier check are
 //! whole-cloud steps and are skipped.
 
+mod output;
 pub mod phases;
 mod plan;
 mod spill;
@@ -34,6 +35,8 @@ use crate::error::Warning;
 use crate::pipeline::prepare::{self, Bounds, MIN_POINTS};
 use crate::pipeline::{diagnose::Diagnosis, fragments, Reconstruction, Run, Stats};
 use crate::{io, Error, Noise, Params, PointCloud, PointWeights, Result};
+use output::MeshFiles;
+pub use output::Written;
 pub use plan::Plan;
 use spill::ColumnWriter;
 
@@ -71,9 +74,11 @@ pub struct SlabOptions {
     pub work_dir: PathBuf,
 }
 
-/// The names [`reconstruct`] reports to its progress callback, in order.
-pub fn stage_plan(params: &Params) -> Vec<String> {
+/// The names [`reconstruct`] (or, with `streamed`, [`reconstruct_into`]) reports to its
+/// progress callback, in order.
+pub fn stage_plan(params: &Params, streamed: bool) -> Vec<String> {
     let adaptive = params.noise == Noise::Adaptive;
+    let in_memory = !streamed;
     ["reading points", "spilling points"]
         .into_iter()
         .chain(adaptive.then_some("noise"))
@@ -82,10 +87,11 @@ pub fn stage_plan(params: &Params) -> Vec<String> {
             "solving coarse depths",
             "solving slabs",
             "extraction",
-            "numbering vertices",
         ])
-        .chain(adaptive.then_some("fragments"))
-        .chain(["checking the mesh"])
+        .chain(streamed.then_some("writing"))
+        .chain(in_memory.then_some("numbering vertices"))
+        .chain((in_memory && adaptive).then_some("fragments"))
+        .chain(in_memory.then_some("checking the mesh"))
         .map(String::from)
         .collect()
 }
@@ -135,13 +141,43 @@ fn check_supported(params: &Params) -> Result<()> {
 }
 
 /// Reconstructs the cloud of `source` in slabs: one pass for the bounding cube, one that
-/// spills the points per column, then the phases of [`phases`] slab after slab.
+/// spills the points per column, then the phases of [`phases`] slab after slab. The mesh is
+/// assembled in memory; [`reconstruct_into`] writes it as the slabs produce it instead.
 pub fn reconstruct(
     source: Source,
     params: &Params,
     options: &SlabOptions,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<Reconstruction> {
+    let (mesh, stats, _) = run(source, params, options, None, progress)?;
+    Ok(Reconstruction {
+        mesh: mesh.expect("assembled in memory"),
+        stats,
+    })
+}
+
+/// As [`reconstruct`], writing the mesh to `output` (binary PLY) slab by slab, so that it
+/// never has to be in memory whole. The checks of the result count pieces and open edges
+/// only (`Stats::diagnosis`); small pieces are not removed (stage 9).
+pub fn reconstruct_into(
+    source: Source,
+    params: &Params,
+    options: &SlabOptions,
+    output: &Path,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<(Stats, Written)> {
+    let (_, stats, written) = run(source, params, options, Some(output), progress)?;
+    Ok((stats, written.expect("written")))
+}
+
+/// The slab run; with `output`, the mesh goes to that file as it is produced.
+fn run(
+    source: Source,
+    params: &Params,
+    options: &SlabOptions,
+    output: Option<&Path>,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<(Option<crate::Mesh>, Stats, Option<Written>)> {
     params.validate()?;
     check_supported(params)?;
     if options.slabs == 0 {
@@ -234,27 +270,35 @@ pub fn reconstruct(
         [a[0] + s.iso_sums[0], a[1] + s.iso_sums[1]]
     });
     let iso = sums[0] / sums[1];
-    let blocks = run.stage("extraction", || {
-        (0..k)
-            .map(|s| {
-                let before: &[_] = if s > 0 { &solved[s - 1].faces[1] } else { &[] };
-                let after: &[_] = if s + 1 < k {
-                    &solved[s + 1].faces[0]
-                } else {
-                    &[]
-                };
-                phases::extract(dir, &plan, s, params, smooth, &coarse, iso, [before, after])
-                    .map(|(b, _)| b)
-            })
-            .collect::<Result<Vec<_>>>()
+    let mut sink = match output {
+        Some(_) => {
+            let cells = 1u32 << params.depth;
+            let planes = plan.slabs[1..]
+                .iter()
+                .map(|r| (r.start as u32) << (params.depth - plan.block_depth))
+                .filter(|&x| x < cells)
+                .collect();
+            Sink::Files(MeshFiles::new(dir, planes)?)
+        }
+        None => Sink::Memory(Vec::with_capacity(k)),
+    };
+    run.stage("extraction", || -> Result<()> {
+        for s in 0..k {
+            let before: &[_] = if s > 0 { &solved[s - 1].faces[1] } else { &[] };
+            let after: &[_] = if s + 1 < k {
+                &solved[s + 1].faces[0]
+            } else {
+                &[]
+            };
+            let (blocks, _) =
+                phases::extract(dir, &plan, s, params, smooth, &coarse, iso, [before, after])?;
+            match &mut sink {
+                Sink::Memory(all) => all.push(blocks),
+                Sink::Files(files) => files.add(blocks.into_part(), frame)?,
+            }
+        }
+        Ok(())
     })?;
-    drop(work);
-    let mut mesh = run.stage("numbering vertices", || {
-        crate::extract::Blocks::concat(blocks).assemble()
-    })?;
-    for p in &mut mesh.vertices {
-        *p = frame.to_world(*p);
-    }
     let mut warnings = Vec::new();
     if dropped > 0 {
         warnings.push(Warning::DroppedPoints {
@@ -262,33 +306,62 @@ pub fn reconstruct(
             total: input_points,
         });
     }
-    if params.noise == Noise::Adaptive {
-        let removed = run.stage("fragments", || fragments::remove_fragments(&mut mesh));
-        if removed > 0 {
-            warnings.push(Warning::FragmentsRemoved { pieces: removed });
+    let (mesh, written, diagnosis) = match (sink, output) {
+        (Sink::Files(files), Some(path)) => {
+            let written = run.stage("writing", || files.finish(path))?;
+            let diagnosis = Diagnosis {
+                pieces: written.pieces,
+                closed: written.open_edges == 0,
+                boundary_edges: written.open_edges as usize,
+                ..Diagnosis::default()
+            };
+            (None, Some(written), diagnosis)
         }
-    }
-    let diagnosis = run.stage("checking the mesh", || {
-        Diagnosis::of(&mesh, frame, params.depth, 0.0)
-    });
+        (Sink::Memory(blocks), _) => {
+            drop(work);
+            let mut mesh = run.stage("numbering vertices", || {
+                crate::extract::Blocks::concat(blocks).assemble()
+            })?;
+            for p in &mut mesh.vertices {
+                *p = frame.to_world(*p);
+            }
+            if params.noise == Noise::Adaptive {
+                let removed = run.stage("fragments", || fragments::remove_fragments(&mut mesh));
+                if removed > 0 {
+                    warnings.push(Warning::FragmentsRemoved { pieces: removed });
+                }
+            }
+            let diagnosis = run.stage("checking the mesh", || {
+                Diagnosis::of(&mesh, frame, params.depth, 0.0)
+            });
+            (Some(mesh), None, diagnosis)
+        }
+        (Sink::Files(_), None) => unreachable!("files only with an output"),
+    };
     warnings.extend(diagnosis.warning());
     let (stages, peak_memory) = run.finish();
-    Ok(Reconstruction {
-        mesh,
-        stats: Stats {
-            points: input_points,
-            dropped,
-            samples,
-            iso_value: iso,
-            mean_sample_depth: coarse.mean_depth,
-            stages,
-            warnings,
-            peak_memory,
-            diagnosis,
-            slabs: k,
-            ..Stats::default()
-        },
-    })
+    let stats = Stats {
+        points: input_points,
+        dropped,
+        samples,
+        iso_value: iso,
+        mean_sample_depth: coarse.mean_depth,
+        stages,
+        warnings,
+        peak_memory,
+        diagnosis,
+        slabs: k,
+        ..Stats::default()
+    };
+    Ok((mesh, stats, written))
+}
+
+/// Where the slabs' meshes go.
+enum Sink {
+    /// Kept, to be numbered as one mesh in memory.
+    Memory(Vec<crate::extract::Blocks>),
+    /// Written to the work folder as they come.
+    Files(MeshFiles),
 }
 
 /// A tile's normals must match its positions; its attributes cannot be carried yet.

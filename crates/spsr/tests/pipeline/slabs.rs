@@ -102,3 +102,33 @@ fn slabs_match_the_in_core_bunny_with_noise_adaptation() {
         &[4],
     );
 }
+
+#[test]
+fn slabs_written_as_they_come_match_the_mesh_in_memory() {
+    let cloud = torus(20_000, 1.0, 0.35, 11);
+    let params = plain(7);
+    let dir = tempfile::tempdir().unwrap();
+    let options = SlabOptions {
+        slabs: 4,
+        work_dir: dir.path().to_path_buf(),
+    };
+    let in_memory = slabs::reconstruct(Source::Cloud(&cloud), &params, &options, &|_| {})
+        .unwrap()
+        .mesh;
+    let out = dir.path().join("torus.ply");
+    let (stats, written) =
+        slabs::reconstruct_into(Source::Cloud(&cloud), &params, &options, &out, &|_| {}).unwrap();
+    let read = spsr::io::read_mesh(&out).unwrap();
+    assert_eq!(written.vertices as usize, read.vertices.len());
+    assert_eq!(written.triangles as usize, read.triangles.len());
+    assert_eq!(read.triangles.len(), in_memory.triangles.len());
+    // The torus: one piece, closed, genus one (as the checks on the way found).
+    let topo = assert_closed_manifold(&read, "torus written slab by slab");
+    assert_eq!((topo.components, topo.euler), (1, 0));
+    assert_eq!((stats.diagnosis.pieces, stats.diagnosis.closed), (1, true));
+    let (max, _) = distances(&read, &in_memory);
+    // Positions are written in single precision.
+    assert!(max < 1e-6, "{max}");
+    // Only the mesh is left in the folder.
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+}

@@ -1,0 +1,283 @@
+//! The mesh of a slab run written as the slabs produce it, so that it never has to be in
+//! memory whole: each slab's vertices and triangles go to files in the work folder as soon as
+//! the slab is polygonised, and the binary PLY is put together from them at the end. The
+//! vertices on the shared faces are numbered by the slab that owns them; a triangle of the
+//! other slab finds them by edge key. The checks of the result are made on the way: pieces by
+//! union–find over the vertices, closedness by counting each edge's triangles (within a slab,
+//! and across slabs for the edges that lie in a shared face).
+
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+use rustc_hash::FxHashMap;
+
+use super::spill::io_err;
+use crate::extract::{Part, FOREIGN};
+use crate::pipeline::prepare::Frame;
+use crate::{Error, Result};
+
+/// Counts of a written mesh and what its checks found.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Written {
+    /// Vertices written.
+    pub vertices: u64,
+    /// Triangles written.
+    pub triangles: u64,
+    /// Connected pieces (triangles sharing a vertex).
+    pub pieces: usize,
+    /// Edges with one triangle, or more than two.
+    pub open_edges: u64,
+}
+
+/// The slabs' meshes, gathered in files.
+pub(crate) struct MeshFiles {
+    dir: PathBuf,
+    vertices: BufWriter<File>,
+    triangles: BufWriter<File>,
+    normals: Option<bool>,
+    vertex_count: u64,
+    triangle_count: u64,
+    /// Whether every coordinate survives a round trip through `f32`.
+    fits_f32: bool,
+    /// The vertices on the shared faces: edge key → global index.
+    face_vertices: FxHashMap<u64, u32>,
+    /// Triangle counts of the edges that lie in a shared face, by their ends' edge keys.
+    face_edges: FxHashMap<(u64, u64), u32>,
+    /// x of the shared faces, in finest cells.
+    planes: Vec<u32>,
+    open_edges: u64,
+}
+
+fn edge_start_x(key: u64) -> u32 {
+    (key & ((1 << 20) - 1)) as u32
+}
+
+fn edge_axis(key: u64) -> u64 {
+    (key >> 60) & 3
+}
+
+impl MeshFiles {
+    /// `planes`: x of the faces between slabs, in cells of the finest depth.
+    pub fn new(dir: &Path, planes: Vec<u32>) -> Result<MeshFiles> {
+        let open = |name: &str| -> Result<BufWriter<File>> {
+            let path = dir.join(name);
+            Ok(BufWriter::with_capacity(
+                1 << 16,
+                File::create(&path).map_err(|e| io_err(&path, e))?,
+            ))
+        };
+        Ok(MeshFiles {
+            dir: dir.to_path_buf(),
+            vertices: open("mesh.vertices")?,
+            triangles: open("mesh.triangles")?,
+            normals: None,
+            vertex_count: 0,
+            triangle_count: 0,
+            fits_f32: true,
+            face_vertices: FxHashMap::default(),
+            face_edges: FxHashMap::default(),
+            planes,
+            open_edges: 0,
+        })
+    }
+
+    fn on_face(&self, key: u64) -> bool {
+        key != u64::MAX && edge_axis(key) != 0 && self.planes.contains(&edge_start_x(key))
+    }
+
+    /// Appends one slab's mesh (unit-cube coordinates, mapped to the input's frame here).
+    pub fn add(&mut self, part: Part, frame: Frame) -> Result<()> {
+        let base = self.vertex_count;
+        let has_normals = part.normals.is_some();
+        if *self.normals.get_or_insert(has_normals) != has_normals {
+            return Err(Error::InvalidMesh(
+                "the slabs disagree on vertex normals".into(),
+            ));
+        }
+        let vpath = self.dir.join("mesh.vertices");
+        for (i, p) in part.vertices.iter().enumerate() {
+            let w = frame.to_world(*p);
+            self.fits_f32 &= w.iter().all(|&c| f64::from(c as f32) == c);
+            let mut rec = [0u8; 36];
+            for a in 0..3 {
+                rec[a * 8..a * 8 + 8].copy_from_slice(&w[a].to_le_bytes());
+            }
+            if let Some(n) = &part.normals {
+                for a in 0..3 {
+                    rec[24 + a * 4..28 + a * 4].copy_from_slice(&n[i][a].to_le_bytes());
+                }
+            }
+            let len = if has_normals { 36 } else { 24 };
+            self.vertices
+                .write_all(&rec[..len])
+                .map_err(|e| io_err(&vpath, e))?;
+        }
+        for (i, &k) in part.keys.iter().enumerate() {
+            if self.on_face(k) {
+                self.face_vertices.insert(k, (base + i as u64) as u32);
+            }
+        }
+        // Edges within the slab must have two triangles; edges in a shared face are counted
+        // across slabs.
+        let mut edges: FxHashMap<(u64, u64), u32> = FxHashMap::default();
+        let tpath = self.dir.join("mesh.triangles");
+        for t in &part.triangles {
+            // A corner as (global index or foreign marker, edge key or none).
+            let key_of = |r: u64| -> u64 {
+                if r & FOREIGN != 0 {
+                    r & !FOREIGN
+                } else {
+                    part.keys[r as usize]
+                }
+            };
+            for e in 0..3 {
+                let (a, b) = (t[e], t[(e + 1) % 3]);
+                let (ka, kb) = (key_of(a), key_of(b));
+                if self.on_face(ka) && self.on_face(kb) {
+                    *self.face_edges.entry((ka.min(kb), ka.max(kb))).or_insert(0) += 1;
+                } else {
+                    *edges.entry((a.min(b), a.max(b))).or_insert(0) += 1;
+                }
+            }
+            let mut rec = [0u8; 24];
+            for (c, &r) in t.iter().enumerate() {
+                let g = if r & FOREIGN != 0 { r } else { r + base };
+                rec[c * 8..c * 8 + 8].copy_from_slice(&g.to_le_bytes());
+            }
+            self.triangles
+                .write_all(&rec)
+                .map_err(|e| io_err(&tpath, e))?;
+        }
+        self.open_edges += edges.values().filter(|&&n| n != 2).count() as u64;
+        self.vertex_count += part.vertices.len() as u64;
+        self.triangle_count += part.triangles.len() as u64;
+        if self.vertex_count >= u64::from(u32::MAX) {
+            return Err(Error::InvalidMesh(
+                "too many vertices for 32-bit indices".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Writes the binary PLY at `path` (through a temporary file beside it, renamed into
+    /// place when complete) and removes the parts' files.
+    pub fn finish(mut self, path: &Path) -> Result<Written> {
+        let vpath = self.dir.join("mesh.vertices");
+        let tpath = self.dir.join("mesh.triangles");
+        for (w, p) in [(&mut self.vertices, &vpath), (&mut self.triangles, &tpath)] {
+            w.flush().map_err(|e| io_err(p, e))?;
+        }
+        drop(self.vertices);
+        drop(self.triangles);
+        self.open_edges += self.face_edges.values().filter(|&&n| n != 2).count() as u64;
+        let normals = self.normals.unwrap_or(false);
+        let nv = self.vertex_count;
+        let nt = self.triangle_count;
+        let faces = &self.face_vertices;
+        let mut parent: Vec<u32> = (0..nv as u32).collect();
+        let fits_f32 = self.fits_f32;
+        crate::io::write_with(path, |out| {
+            let ty = if fits_f32 { "float" } else { "double" };
+            let mut h = format!(
+                "ply\nformat binary_little_endian 1.0\ncomment generated by spsr\nelement vertex {nv}\n\
+                 property {ty} x\nproperty {ty} y\nproperty {ty} z\n"
+            );
+            if normals {
+                h.push_str("property float nx\nproperty float ny\nproperty float nz\n");
+            }
+            h.push_str(&format!(
+                "element face {nt}\nproperty list uchar int vertex_indices\nend_header\n"
+            ));
+            out.write_all(h.as_bytes())?;
+            let mut r = BufReader::with_capacity(1 << 16, File::open(&vpath)?);
+            let len = if normals { 36 } else { 24 };
+            let mut rec = [0u8; 36];
+            for _ in 0..nv {
+                r.read_exact(&mut rec[..len])?;
+                for a in 0..3 {
+                    let c = f64::from_le_bytes(rec[a * 8..a * 8 + 8].try_into().expect("8"));
+                    if fits_f32 {
+                        out.write_all(&(c as f32).to_le_bytes())?;
+                    } else {
+                        out.write_all(&c.to_le_bytes())?;
+                    }
+                }
+                if normals {
+                    out.write_all(&rec[24..36])?;
+                }
+            }
+            let mut r = BufReader::with_capacity(1 << 16, File::open(&tpath)?);
+            let mut rec = [0u8; 24];
+            for _ in 0..nt {
+                r.read_exact(&mut rec)?;
+                let mut t = [0u32; 3];
+                for (c, ti) in t.iter_mut().enumerate() {
+                    let g = u64::from_le_bytes(rec[c * 8..c * 8 + 8].try_into().expect("8"));
+                    *ti = if g & FOREIGN != 0 {
+                        *faces.get(&(g & !FOREIGN)).ok_or_else(|| {
+                            std::io::Error::other(
+                                "a triangle refers to a vertex no slab owns (a crack between slabs)",
+                            )
+                        })?
+                    } else {
+                        g as u32
+                    };
+                }
+                union(&mut parent, t[0], t[1]);
+                union(&mut parent, t[1], t[2]);
+                out.write_all(&[3])?;
+                for i in t {
+                    out.write_all(&(i as i32).to_le_bytes())?;
+                }
+            }
+            Ok(())
+        })?;
+        let _ = std::fs::remove_file(&vpath);
+        let _ = std::fs::remove_file(&tpath);
+        // Pieces: the roots of vertices that some triangle uses.
+        let mut used = vec![false; nv as usize];
+        let pieces = {
+            // A vertex is in a piece when it is its own root and some triangle reached it;
+            // isolated vertices (no triangle) are their own roots too, so count roots of
+            // vertices that were united with something or that a triangle names.
+            let mut roots = 0usize;
+            for v in 0..nv as u32 {
+                let r = find(&mut parent, v);
+                if r != v {
+                    used[r as usize] = true;
+                }
+            }
+            for v in 0..nv as usize {
+                if used[v] && parent[v] == v as u32 {
+                    roots += 1;
+                }
+            }
+            roots
+        };
+        Ok(Written {
+            vertices: nv,
+            triangles: nt,
+            pieces,
+            open_edges: self.open_edges,
+        })
+    }
+}
+
+fn find(parent: &mut [u32], mut v: u32) -> u32 {
+    while parent[v as usize] != v {
+        let p = parent[v as usize];
+        parent[v as usize] = parent[p as usize];
+        v = p;
+    }
+    v
+}
+
+fn union(parent: &mut [u32], a: u32, b: u32) {
+    let (ra, rb) = (find(parent, a), find(parent, b));
+    if ra != rb {
+        // The smaller index becomes the root, so the result does not depend on the order.
+        let (lo, hi) = (ra.min(rb), ra.max(rb));
+        parent[hi as usize] = lo;
+    }
+}
