@@ -194,17 +194,24 @@ pub fn coarse(
     let refined_keys = (0..tc).map(|t| closed.refined_keys(t)).collect();
     drop(closed);
     let samples = owned.iter().filter(|&&o| o).count();
-    if own_splats.iter().all(Option::is_none) {
-        return Ok(CoarsePart {
-            refined: refined_keys,
-            samples,
-            ..CoarsePart::default()
-        });
-    }
-    // V of the slab's own samples only, on the slab's tree (which holds every node that V
-    // touches, as the in-core tree does).
+    // V of the slab's own samples, and of its padding's, on the slab's tree (which holds
+    // every node that the own samples' V touches, as the in-core tree does).
+    let pad_splats: Vec<_> = refined
+        .splats
+        .iter()
+        .zip(&owned)
+        .map(|(sp, &o)| if o { None } else { *sp })
+        .collect();
+    let any = |sp: &[Option<tree::Splat>]| sp.iter().any(Option::is_some);
+    let (has_own, has_pad) = (any(&own_splats), any(&pad_splats));
     let all = std::mem::replace(&mut refined.splats, own_splats);
-    let field = splat::splat(&refined, &sampled, params)?;
+    let own_field = has_own
+        .then(|| splat::splat(&refined, &sampled, params))
+        .transpose()?;
+    refined.splats = pad_splats;
+    let pad_field = has_pad
+        .then(|| splat::splat(&refined, &sampled, params))
+        .transpose()?;
     refined.splats = all;
     let tree = refined.tree;
     let (fem, tabs) = tables(&tree, params);
@@ -212,7 +219,36 @@ pub fn coarse(
         .map(|_| Clusters::default())
         .collect();
     let p = problem(&tree, fem, &tabs, &no_clusters, params);
-    let tcons = solver::constraints(&p, &field.v, tb);
+    // The finer levels' constraints of all the slab's samples, for its solve (phase 4): the
+    // own samples' (needed down to the coarse levels anyway) plus the padding's.
+    let own_tcons = own_field
+        .as_ref()
+        .map(|f| solver::constraints(&p, &f.v, tb));
+    let pad_tcons = pad_field
+        .as_ref()
+        .map(|f| solver::constraints(&p, &f.v, tc + 1));
+    let fine: Vec<Vec<f32>> = (0..tree.levels.len())
+        .map(|t| {
+            if t <= tc as usize {
+                return Vec::new();
+            }
+            (0..tree.levels[t].len())
+                .map(|n| {
+                    own_tcons.as_ref().map_or(0.0, |c| c[t][n])
+                        + pad_tcons.as_ref().map_or(0.0, |c| c[t][n])
+                })
+                .collect()
+        })
+        .collect();
+    write_levels(&constraints_path(dir, s), &fine, tc + 1)?;
+    drop(fine);
+    let (Some(field), Some(tcons)) = (own_field, own_tcons) else {
+        return Ok(CoarsePart {
+            refined: refined_keys,
+            samples,
+            ..CoarsePart::default()
+        });
+    };
     let nodes = (tb..=tc.min(tree.depth_count() - 1))
         .map(|t| {
             let level = &tree.levels[t as usize];
@@ -424,6 +460,10 @@ fn slab_tree(sampled: &Sampled, params: &Params, coarse: &Coarse) -> Result<tree
     })
 }
 
+fn constraints_path(dir: &Path, s: usize) -> PathBuf {
+    dir.join(format!("slab-{s:04}.constraints"))
+}
+
 fn solution_path(dir: &Path, s: usize) -> PathBuf {
     dir.join(format!("slab-{s:04}.solution"))
 }
@@ -455,7 +495,10 @@ pub fn solve(
     let (mut sol, carry) = coarse_onto(&tree, coarse, params, tc);
     let max_level = tree.depth_count() - 1;
     if tc < max_level {
-        let tcons = solver::constraints(&p, &field.v, tc + 1);
+        // The finer levels' constraints, from phase 2 (the same tree there: the whole
+        // cloud's coarse levels add no finer node).
+        let mut tcons = vec![Vec::new(); tree.levels.len()];
+        read_levels(&constraints_path(dir, s), &mut tcons, tc + 1, &tree)?;
         let (mut fine, _) = solver::cascade(&p, tcons, field.v, Some(carry), false, Laps::new());
         for t in tc as usize + 1..=max_level as usize {
             sol.x[t] = std::mem::take(&mut fine.x[t]);
@@ -470,7 +513,7 @@ pub fn solve(
             iso_sums[1] += w;
         }
     }
-    write_solution(&solution_path(dir, s), &sol, tc + 1)?;
+    write_levels(&solution_path(dir, s), &sol.x, tc + 1)?;
     let faces = face_bands(&tree, &sol, plan, s);
     Ok(Solved { iso_sums, faces })
 }
@@ -523,7 +566,7 @@ pub fn extract(
     let tree = refined.tree;
     let (fem, tabs) = tables(&tree, params);
     let (mut sol, carry) = coarse_onto(&tree, coarse, params, tc);
-    read_solution(&solution_path(dir, s), &mut sol, tc + 1, &tree)?;
+    read_levels(&solution_path(dir, s), &mut sol.x, tc + 1, &tree)?;
     let mut missing = 0;
     for band in neighbours {
         for &(t, key, x) in band {
@@ -548,10 +591,11 @@ pub fn extract(
     Ok((blocks, missing))
 }
 
-fn write_solution(path: &Path, sol: &Solution, from: u32) -> Result<()> {
+/// Writes per-node values of the levels from `from` on.
+fn write_levels(path: &Path, levels: &[Vec<f32>], from: u32) -> Result<()> {
     let f = File::create(path).map_err(|e| io_err(path, e))?;
     let mut w = BufWriter::new(f);
-    for x in &sol.x[from as usize..] {
+    for x in &levels[from as usize..] {
         w.write_all(&(x.len() as u64).to_le_bytes())
             .map_err(|e| io_err(path, e))?;
         for v in x {
@@ -564,7 +608,8 @@ fn write_solution(path: &Path, sol: &Solution, from: u32) -> Result<()> {
         .map_err(|e| io_err(path, e))
 }
 
-fn read_solution(path: &Path, sol: &mut Solution, from: u32, tree: &Octree) -> Result<()> {
+/// Reads what [`write_levels`] wrote, checking each level's length against `tree`.
+fn read_levels(path: &Path, levels: &mut [Vec<f32>], from: u32, tree: &Octree) -> Result<()> {
     let f = File::open(path).map_err(|e| io_err(path, e))?;
     let mut r = BufReader::new(f);
     for t in from as usize..tree.levels.len() {
@@ -575,14 +620,14 @@ fn read_solution(path: &Path, sol: &mut Solution, from: u32, tree: &Octree) -> R
             return Err(crate::Error::Parse {
                 path: path.to_path_buf(),
                 message: format!(
-                    "the slab's solution has {len} coefficients at level {t}, its tree {}",
+                    "the slab's file has {len} values at level {t}, its tree {} nodes",
                     tree.levels[t].len()
                 ),
             });
         }
         let mut bytes = vec![0u8; len * 4];
         r.read_exact(&mut bytes).map_err(|e| io_err(path, e))?;
-        sol.x[t] = bytes
+        levels[t] = bytes
             .chunks_exact(4)
             .map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes")))
             .collect();
