@@ -70,7 +70,7 @@
 //! `rounds` rounds; each normal flips at most once.
 
 mod estimate;
-mod graph;
+pub(crate) mod graph;
 mod knn;
 mod orient;
 
