@@ -12,6 +12,7 @@ mod files;
 mod normals;
 mod progress;
 mod reconstruct;
+mod render;
 mod trim;
 pub mod words;
 
@@ -19,6 +20,7 @@ pub use eval::{run_eval, EvalArgs};
 pub use files::{check_output_arg, is_std_stream, read_cloud_arg, read_mesh_arg, write_mesh_arg};
 pub use normals::{NormalOptions, NormalsArgs, OrientArg};
 pub use reconstruct::{BoundaryArg, ReconstructArgs};
+pub use render::{run_render, RenderArgs};
 pub use trim::{run_trim, TrimArgs};
 
 /// Exit codes of the `spsr` binary (also listed in `--help` and the README).
@@ -71,6 +73,9 @@ pub enum Command {
     /// Estimate and orient normals for a point cloud without (trustworthy) normals.
     #[command(long_about = normals::NORMALS_LONG_ABOUT, after_help = EXIT_CODES)]
     Normals(NormalsArgs),
+    /// Draw a shaded picture of a mesh (PNG), from one side or four.
+    #[command(long_about = render::RENDER_LONG_ABOUT, after_help = EXIT_CODES)]
+    Render(RenderArgs),
 }
 
 /// A failed command: the error to print and the process exit code.
@@ -154,6 +159,7 @@ pub fn run(cli: &Cli) -> Result<(), Failure> {
         Command::Trim(args) => run_trim(args),
         Command::Eval(args) => run_eval(args),
         Command::Normals(args) => normals::run_normals(args),
+        Command::Render(args) => run_render(args),
     }
 }
 

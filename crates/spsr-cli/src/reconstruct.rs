@@ -226,6 +226,11 @@ pub struct ReconstructArgs {
     /// How estimated normals are oriented (see `spsr normals --help`).
     #[command(flatten)]
     pub estimation: NormalOptions,
+
+    /// Also write a picture of the mesh to this .png file (as `spsr render`: iso view,
+    /// 800x800) [default: none]
+    #[arg(long, value_name = "PNG")]
+    pub preview: Option<PathBuf>,
 }
 
 impl ReconstructArgs {
@@ -295,6 +300,9 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     }
     start_threads(args.common.threads.threads)?;
     check_output_arg(output, input).map_err(fail)?;
+    if let Some(p) = &args.preview {
+        crate::render::check_picture_path(p, input)?;
+    }
 
     let progress = Progress::new(std::io::stderr().is_terminal() && !args.common.verbose);
     progress.stage("reading");
@@ -346,6 +354,9 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     };
     write_mesh_arg(output, &result.mesh, &opts).map_err(fail)?;
     let writing = t.elapsed();
+    if let Some(p) = &args.preview {
+        crate::render::write_preview(&result.mesh, p, input)?;
+    }
     drop(progress);
 
     for w in &result.stats.warnings {

@@ -5,4 +5,5 @@ mod eval;
 mod hardening;
 mod normals;
 mod reconstruct;
+mod render;
 mod trim;
