@@ -8,7 +8,7 @@ cd "$(dirname "${BASH_SOURCE[0]}")"
 secs=${1:-240}
 shift || true
 targets=("$@")
-[ ${#targets[@]} -eq 0 ] && targets=(ply ply_mesh text las e57 pcd reconstruct)
+[ ${#targets[@]} -eq 0 ] && targets=(ply ply_mesh mesh text las e57 pcd reconstruct)
 host=$(rustc -vV | sed -n 's/^host: //p')
 bin=target/$host/release
 mkdir -p logs

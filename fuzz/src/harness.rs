@@ -98,6 +98,24 @@ pub fn ply_mesh(data: &[u8]) {
     }
 }
 
+/// The other mesh readers (OBJ, STL, OFF, GLB: `spsr eval` and `spsr trim`, and mesh files
+/// read as clouds): the input under each extension, so that the formats without magic bytes
+/// (OBJ, binary STL) are reached too.
+pub fn mesh(data: &[u8]) {
+    for ext in ["obj", "stl", "off", "glb"] {
+        let path = scratch(ext);
+        std::fs::write(&path, data).expect("write the fuzz input");
+        if let Ok(m) = spsr::io::read_mesh(&path) {
+            check_mesh(&m);
+            let _ = m.topology();
+            let _ = m.area();
+        }
+        if let Ok(c) = spsr::io::read_cloud(&path) {
+            check_cloud(&c);
+        }
+    }
+}
+
 /// Text point clouds.
 pub fn text(data: &[u8]) {
     read_cloud_as(data, "xyz");

@@ -22,16 +22,19 @@ the F-score at 0.5 % and 1 % of that diagonal, the normal consistency (mean |n Â
 closest points, both directions), and the mesh's topology (vertices, faces, closed, edge- and \
 vertex-manifold, components, Euler characteristic, consistent orientation).
 
-Input meshes: PLY (any encoding) with vertex x, y, z and face vertex_indices.";
+Input meshes, recognised by their first bytes or else by extension: PLY (any encoding; vertex x, \
+y, z and face vertex_indices), OBJ, STL (binary or ASCII; corners at the same position merged into \
+one vertex, so the topology can be checked), OFF, or glTF binary (.glb).";
 
 /// Arguments of `spsr eval`.
 #[derive(Debug, Args)]
 pub struct EvalArgs {
-    /// Mesh to score: PLY (any encoding).
+    /// Mesh to score: PLY, OBJ, STL, OFF or GLB.
     #[arg(value_name = "MESH")]
     pub mesh: PathBuf,
 
-    /// Ground-truth mesh (PLY). Exactly one of --reference and --reference-sphere is needed.
+    /// Ground-truth mesh (PLY, OBJ, STL, OFF or GLB). Exactly one of --reference and
+    /// --reference-sphere is needed.
     #[arg(long, value_name = "GT_MESH")]
     pub reference: Option<PathBuf>,
 

@@ -40,13 +40,23 @@ pub fn read_mesh_arg(path: &Path) -> spsr::Result<spsr::Mesh> {
     }
 }
 
-/// The up-front output check; standard output (`-`) needs none.
+/// The up-front check of a mesh output, before any reading or computing: its extension names
+/// a mesh format ([`spsr::io::MeshFormat::from_path`]), and the path can be written and is not
+/// the input. Standard output (`-`, written as PLY) needs none.
 pub fn check_output_arg(output: &Path, input: &Path) -> spsr::Result<()> {
     if is_std_stream(output) {
-        Ok(())
-    } else {
-        spsr::io::check_output_path(output, input)
+        return Ok(());
     }
+    spsr::io::MeshFormat::from_path(output)?;
+    spsr::io::check_output_path(output, input)
+}
+
+/// The up-front check of a point-cloud output: its extension names a format
+/// [`spsr::io::write_cloud`] writes ([`spsr::io::CloudFormat::for_output`]), and the path can
+/// be written and is not the input.
+pub fn check_cloud_output_arg(output: &Path, input: &Path) -> spsr::Result<()> {
+    spsr::io::CloudFormat::for_output(output)?;
+    spsr::io::check_output_path(output, input)
 }
 
 /// Writes a mesh to a file (atomically), or as PLY to standard output for `-`.
@@ -71,18 +81,25 @@ pub fn write_mesh_arg(
 
 /// The closing summary line: on stdout, or on stderr when stdout carries the mesh.
 pub(crate) fn report_written(output: &Path, mesh: &spsr::Mesh, start: Instant) {
-    let line = format!(
-        "spsr: wrote {}: {} vertices, {} faces in {:.2} s",
-        if is_std_stream(output) {
-            Path::new(STDOUT_NAME)
-        } else {
-            output
-        }
-        .display(),
-        mesh.vertices.len(),
-        mesh.triangles.len(),
-        start.elapsed().as_secs_f64()
+    report(
+        output,
+        &format!(
+            "{} vertices, {} faces in {:.2} s",
+            mesh.vertices.len(),
+            mesh.triangles.len(),
+            start.elapsed().as_secs_f64()
+        ),
     );
+}
+
+/// `spsr: wrote OUTPUT: <what>`, on stdout, or on stderr when stdout carries the mesh.
+pub(crate) fn report(output: &Path, what: &str) {
+    let name = if is_std_stream(output) {
+        Path::new(STDOUT_NAME)
+    } else {
+        output
+    };
+    let line = format!("spsr: wrote {}: {what}", name.display());
     if is_std_stream(output) {
         eprintln!("{line}");
     } else {

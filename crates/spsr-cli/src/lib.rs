@@ -2,14 +2,17 @@
 //! and the mapping of failures to exit codes ([`Failure`], [`exit`]). `main.rs` only parses,
 //! calls [`run`], and prints the one error line.
 
+use std::ffi::OsString;
 use std::path::Path;
 
-use clap::{Parser, Subcommand};
+use clap::parser::ValueSource;
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 pub mod args;
 mod eval;
 mod files;
 mod normals;
+mod poissonrecon;
 mod progress;
 mod reconstruct;
 mod render;
@@ -62,7 +65,12 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Reconstruct a mesh from an oriented point cloud.
-    #[command(long_about = reconstruct::RECONSTRUCT_LONG_ABOUT, after_help = EXIT_CODES)]
+    // INPUT may also be given as PoissonRecon's --in, which clap would show as `[INPUT]`.
+    #[command(
+        long_about = reconstruct::RECONSTRUCT_LONG_ABOUT,
+        after_help = EXIT_CODES,
+        override_usage = "spsr reconstruct [OPTIONS] --output <OUTPUT> <INPUT>"
+    )]
     Reconstruct(ReconstructArgs),
     /// Remove the surface a reconstruction invented where there were no samples, by density.
     #[command(long_about = trim::TRIM_LONG_ABOUT, after_help = EXIT_CODES)]
@@ -149,6 +157,31 @@ pub fn install_interrupt_handler() {
     });
 }
 
+/// Parses a command line (program name first) as `spsr` does: PoissonRecon options that
+/// `spsr reconstruct` does not support are refused with a message naming them, and the
+/// arguments given on the command line are recorded (`ReconstructArgs::given`, which `-v`
+/// reports). Errors are clap's, to print and exit with (code 2 for usage errors).
+pub fn try_parse_from<I, T>(argv: I) -> Result<Cli, clap::Error>
+where
+    I: IntoIterator<Item = T>,
+    T: Into<OsString>,
+{
+    let argv: Vec<OsString> = argv.into_iter().map(Into::into).collect();
+    poissonrecon::check(&argv)?;
+    let matches = Cli::command().try_get_matches_from(&argv)?;
+    let mut cli = Cli::from_arg_matches(&matches)?;
+    if let (Command::Reconstruct(args), Some(m)) =
+        (&mut cli.command, matches.subcommand_matches("reconstruct"))
+    {
+        args.given = m
+            .ids()
+            .filter(|id| m.value_source(id.as_str()) == Some(ValueSource::CommandLine))
+            .map(|id| id.to_string())
+            .collect();
+    }
+    Ok(cli)
+}
+
 /// Runs a parsed command line.
 ///
 /// The `spsr` binary installs [`install_interrupt_handler`] first; an embedding process (the
@@ -223,6 +256,48 @@ mod tests {
             ),
             other => panic!("not eval: {other:?}"),
         }
+    }
+
+    #[test]
+    fn the_arguments_given_are_recorded_by_any_spelling() {
+        let argv = [
+            "spsr",
+            "reconstruct",
+            "--in",
+            "in.ply",
+            "--out",
+            "o.ply",
+            "--samplesPerNode",
+            "2",
+            "--bType",
+            "1",
+            "--depth",
+            "8",
+        ];
+        let Command::Reconstruct(a) = try_parse_from(argv).unwrap().command else {
+            panic!("not reconstruct");
+        };
+        let mut given = a.given.clone();
+        given.sort();
+        assert_eq!(
+            given,
+            [
+                "depth",
+                "output",
+                "reference_boundary",
+                "reference_in",
+                "samples_per_node"
+            ]
+        );
+        assert_eq!(a.input(), Path::new("in.ply"));
+        let p = a.params();
+        assert_eq!(
+            (p.samples_per_node, p.boundary),
+            (2.0, spsr::Boundary::Free)
+        );
+        // Other subcommands do not look at PoissonRecon's options.
+        let e = try_parse_from(["spsr", "trim", "m.ply", "--tempDir", "x"]).unwrap_err();
+        assert!(!e.to_string().contains("PoissonRecon"), "{e}");
     }
 
     #[test]

@@ -1,10 +1,11 @@
 //! The `spsr` binary: parse the command line, run it, report one error line and an exit code.
 use std::process::ExitCode;
 
-use clap::Parser;
-
 fn main() -> ExitCode {
-    let cli = spsr_cli::Cli::parse();
+    let cli = match spsr_cli::try_parse_from(std::env::args_os()) {
+        Ok(cli) => cli,
+        Err(e) => e.exit(),
+    };
     spsr_cli::install_interrupt_handler();
     match spsr_cli::run(&cli) {
         Ok(()) => ExitCode::SUCCESS,

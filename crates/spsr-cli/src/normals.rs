@@ -230,23 +230,26 @@ Estimate and orient normals for a point cloud: a plane fitted to each point's ne
 gives the normal's line, and --orient chooses its sign. Normals the file already has are replaced.
 
 Input: a point cloud, with or without normals, in any format `spsr reconstruct` reads (PLY, \
-LAS/LAZ, E57, PCD, text). Output: binary PLY (ASCII with --ascii), whatever the extension, with the \
-same points in the same order, `nx ny nz` set, and every other property of the input kept. Points \
-with a non-finite coordinate keep their place and get the normal 0 0 0. The output file appears \
-only once it is complete, and must not be the input file.
+LAS/LAZ, E57, PCD, text), or the vertices of a mesh file (OBJ, OFF, STL, GLB). Output, by \
+extension: .ply (binary, ASCII with --ascii; every other property of the input kept) or .xyz/.txt \
+(text: x y z nx ny nz, then r g b when the input has colours), with the same points in the same \
+order and `nx ny nz` set. Points with a non-finite coordinate keep their place and get the normal \
+0 0 0. The output file appears only once it is complete, and must not be the input file.
 
 --compare REFERENCE prints how the estimated normals agree with the normals of another file \
 holding the same points in the same order: the percentage pointing to the same side, and the mean \
-angle between the normal lines.";
+angle between the normal lines. The reference is checked first: a different number of points, or \
+a point farther than a millionth of the cloud's size from its counterpart, is refused.";
 
 /// Arguments of `spsr normals`.
 #[derive(Debug, Args)]
 pub struct NormalsArgs {
-    /// Point cloud: PLY, LAS/LAZ, E57, PCD, or text with `x y z` per line.
+    /// Point cloud: PLY, LAS/LAZ, E57, PCD, text with `x y z` per line, or a mesh's vertices
+    /// (OBJ, OFF, STL, GLB).
     #[arg(value_name = "INPUT")]
     pub input: PathBuf,
 
-    /// Output cloud (PLY); may be left out with --compare.
+    /// Output cloud, by extension: .ply, or .xyz/.txt (text); may be left out with --compare.
     #[arg(
         short,
         long,
@@ -274,7 +277,7 @@ pub fn run_normals(args: &NormalsArgs) -> Result<(), Failure> {
     let fail = |e: spsr::Error| Failure::from_spsr(e, input);
     crate::start_threads(args.common.threads.threads)?;
     if let Some(output) = &args.output {
-        spsr::io::check_output_path(output, input).map_err(fail)?;
+        crate::files::check_cloud_output_arg(output, input).map_err(fail)?;
     }
     if let Some(reference) = &args.compare {
         // A missing reference is found before the work, not after it.
@@ -288,6 +291,11 @@ pub fn run_normals(args: &NormalsArgs) -> Result<(), Failure> {
 
     let t = Instant::now();
     let mut cloud = spsr::io::read_cloud(input).map_err(fail)?;
+    // The reference is read and checked before the work, so a wrong one costs nothing.
+    let refcloud = match &args.compare {
+        Some(reference) => Some(read_reference(reference, input, &cloud)?),
+        None => None,
+    };
     let reading = t.elapsed();
     let report = estimate_normals(&mut cloud, &args.normals, input)?;
 
@@ -326,22 +334,8 @@ pub fn run_normals(args: &NormalsArgs) -> Result<(), Failure> {
             start.elapsed().as_secs_f64()
         );
     }
-    if let Some(reference) = &args.compare {
+    if let (Some(reference), Some(refcloud)) = (&args.compare, refcloud) {
         let rfail = |e: spsr::Error| Failure::from_spsr(e, reference);
-        let refcloud = spsr::io::read_points(reference).map_err(rfail)?;
-        if refcloud.len() != cloud.len() {
-            return Err(Failure {
-                code: exit::DATA,
-                error: anyhow::anyhow!(
-                    "{}: {} points, but {} has {}: --compare needs the same points in the same \
-                     order",
-                    reference.display(),
-                    refcloud.len(),
-                    input.display(),
-                    cloud.len()
-                ),
-            });
-        }
         let c = spsr::normals::compare(&cloud.normals, &refcloud.normals).map_err(rfail)?;
         println!(
             "spsr: compared with {}: {:.3} % oriented like the reference, mean angle {:.2}° \
@@ -358,9 +352,129 @@ pub fn run_normals(args: &NormalsArgs) -> Result<(), Failure> {
     Ok(())
 }
 
+/// Reads the `--compare` reference (with normals) and checks that it holds `cloud`'s points
+/// in the same order.
+fn read_reference(
+    reference: &Path,
+    input: &Path,
+    cloud: &spsr::PointCloud,
+) -> Result<spsr::PointCloud, Failure> {
+    let refcloud =
+        spsr::io::read_points(reference).map_err(|e| Failure::from_spsr(e, reference))?;
+    let differ = |why: String| Failure {
+        code: exit::DATA,
+        error: anyhow::anyhow!(
+            "{}: {why}: --compare needs the same points in the same order",
+            reference.display()
+        ),
+    };
+    if refcloud.len() != cloud.len() {
+        return Err(differ(format!(
+            "{} points, but {} has {}",
+            refcloud.len(),
+            input.display(),
+            cloud.len()
+        )));
+    }
+    if let Some(m) = PointMismatch::find(&cloud.positions, &refcloud.positions) {
+        return Err(differ(format!(
+            "its points differ from those of {}: {} of {} are farther than {:.3e} (a millionth \
+             of the cloud's size) from their counterparts, the farthest (point {}, 0-based) by \
+             {:.3e}",
+            input.display(),
+            m.differing,
+            cloud.len(),
+            m.tolerance,
+            m.farthest,
+            m.distance
+        )));
+    }
+    Ok(refcloud)
+}
+
+/// How two clouds that should hold the same points differ.
+#[derive(Debug, PartialEq)]
+struct PointMismatch {
+    /// Pairs farther apart than the tolerance (a pair with one non-finite point counts; a
+    /// pair of two, which both readers keep in place and the pipeline drops, does not).
+    differing: usize,
+    /// The pair farthest apart, and its distance (infinite for a finite point against a
+    /// non-finite one).
+    farthest: usize,
+    distance: f64,
+    /// A millionth of the size of `points`: of its bounding-box diagonal, or of its largest
+    /// coordinate when that is larger (so a reference saved in single precision, which
+    /// rounds far-off coordinates by more than a millionth of the diagonal, still matches).
+    tolerance: f64,
+}
+
+impl PointMismatch {
+    /// The mismatch between `points` and `reference` (same length), if any pair differs.
+    fn find(points: &[[f64; 3]], reference: &[[f64; 3]]) -> Option<Self> {
+        let finite = |p: &[f64; 3]| p.iter().all(|c| c.is_finite());
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        let mut largest = 0.0f64;
+        for p in points.iter().filter(|p| finite(p)) {
+            for k in 0..3 {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+                largest = largest.max(p[k].abs());
+            }
+        }
+        let diagonal = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
+        let tolerance = 1e-6
+            * if diagonal.is_finite() {
+                diagonal.max(largest)
+            } else {
+                0.0
+            };
+        let mut m = PointMismatch {
+            differing: 0,
+            farthest: 0,
+            distance: 0.0,
+            tolerance,
+        };
+        for (i, (p, q)) in points.iter().zip(reference).enumerate() {
+            let d = match (finite(p), finite(q)) {
+                (false, false) => continue,
+                (true, true) => (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt(),
+                _ => f64::INFINITY,
+            };
+            if d > tolerance {
+                m.differing += 1;
+                if m.differing == 1 || d > m.distance {
+                    (m.farthest, m.distance) = (i, d);
+                }
+            }
+        }
+        (m.differing > 0).then_some(m)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn points_differ_beyond_a_millionth_of_the_size() {
+        let a = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [f64::NAN, 0.0, 0.0]];
+        let mut b = a;
+        assert_eq!(PointMismatch::find(&a, &b), None, "NaN pairs are skipped");
+        b[1][1] = 0.9e-6;
+        assert_eq!(PointMismatch::find(&a, &b), None);
+        b[1][1] = 2e-6;
+        let m = PointMismatch::find(&a, &b).unwrap();
+        assert_eq!((m.differing, m.farthest), (1, 1));
+        assert!((m.distance - 2e-6).abs() < 1e-12 && (m.tolerance - 1e-6).abs() < 1e-12);
+        b[0] = [f64::NAN; 3];
+        let m = PointMismatch::find(&a, &b).unwrap();
+        assert_eq!((m.differing, m.farthest, m.distance), (2, 0, f64::INFINITY));
+        // Far from the origin, single-precision rounding of the reference is tolerated.
+        let far = [[500_000.123_456_7, 0.0, 0.0], [500_001.0, 1.0, 0.0]];
+        let rounded = far.map(|p| p.map(|c| f64::from(c as f32)));
+        assert_eq!(PointMismatch::find(&far, &rounded), None);
+    }
 
     fn scan(first_point: usize, x: f64) -> spsr::ScanOrigin {
         spsr::ScanOrigin {

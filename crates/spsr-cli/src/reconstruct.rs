@@ -2,13 +2,13 @@
 //! write the mesh.
 
 use std::io::{IsTerminal, Write};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
 
 use crate::args::{parse_size, CommonArgs};
-use crate::files::{check_output_arg, input_name, read_cloud_arg, report_written, write_mesh_arg};
+use crate::files::{check_output_arg, input_name, read_cloud_arg, report, write_mesh_arg};
 use crate::normals::{self, NormalOptions};
 use crate::progress::Progress;
 use crate::trim::{parse_trim, print_trim};
@@ -25,9 +25,9 @@ extension), PCD (.pcd; ascii, binary or binary_compressed, fields normal_x norma
 text with one point per line: x y z nx ny nz, optionally followed by r g b. Normals must point \
 outward. Points with non-finite coordinates or zero-length normals are dropped with a warning. A cloud without normals gets normals estimated and oriented first, as by `spsr normals` (with a note saying so); --estimate-normals does that for any cloud, replacing its normals.
 
-Output, chosen by the output name's extension: .ply (binary little-endian, ASCII with --ascii; also \
-used for any other extension), .obj (Wavefront OBJ), .stl (binary STL, ASCII with --ascii), .glb \
-(glTF 2.0 binary). The output file appears only once it is complete; on any error no output file \
+Output, chosen by the output name's extension: .ply (binary little-endian, ASCII with --ascii), \
+.obj (Wavefront OBJ), .stl (binary STL, ASCII with --ascii), .off (OFF), .glb (glTF 2.0 binary); \
+any other extension is refused before the work. The output file appears only once it is complete; on any error no output file \
 is left behind. The output must not be the input file.";
 
 /// Boundary condition on the bounding cube, as spelled on the command line.
@@ -66,12 +66,21 @@ impl From<BoundaryArg> for spsr::Boundary {
 pub struct ReconstructArgs {
     /// Oriented point cloud: PLY, LAS/LAZ, E57, PCD, or text with `x y z nx ny nz` per line;
     /// `-` reads standard input.
-    #[arg(value_name = "INPUT")]
-    pub input: PathBuf,
+    #[arg(value_name = "INPUT", required_unless_present = "reference_in")]
+    pub input: Option<PathBuf>,
 
-    /// Output mesh, by extension: .ply (also any other name), .obj, .stl or .glb; `-` writes
+    /// PoissonRecon's spelling of INPUT.
+    #[arg(
+        long = "in",
+        value_name = "INPUT",
+        hide = true,
+        conflicts_with = "input"
+    )]
+    pub reference_in: Option<PathBuf>,
+
+    /// Output mesh, by extension: .ply, .obj, .stl, .off or .glb; `-` writes
     /// PLY to standard output.
-    #[arg(short, long, value_name = "OUTPUT")]
+    #[arg(short, long, value_name = "OUTPUT", alias = "out")]
     pub output: PathBuf,
 
     /// Maximum octree depth; the finest cells are 1/2^depth of the bounding cube. Default as
@@ -86,23 +95,48 @@ pub struct ReconstructArgs {
 
     /// Depth down to which the octree is complete; the coarse solve happens there. Default as
     /// PoissonRecon 6 and 18 [default: 5, or --depth when that is smaller]
-    #[arg(long, value_name = "D")]
+    #[arg(long, value_name = "D", alias = "fullDepth")]
     pub full_depth: Option<u32>,
 
     /// Target number of samples per octree node (sets each sample's splat depth). Default as
-    /// PoissonRecon 18 (version 6 used 1.0).
+    /// PoissonRecon 18 (version 6 used 1.0). Giving it turns the noise adaptation off unless
+    /// --noise adaptive is given too [default: 1.5]
     #[arg(
         long,
         value_name = "N",
-        default_value_t = spsr::Params::default().samples_per_node,
-        allow_negative_numbers = true
+        allow_negative_numbers = true,
+        alias = "samplesPerNode"
     )]
-    pub samples_per_node: f64,
+    pub samples_per_node: Option<f64>,
 
     /// Screening weight alpha; 0 gives the unscreened 2006 method. Default as PoissonRecon 18
-    /// (4 for degree 2, the 2013 paper's value) [default: 2 × degree]
-    #[arg(long, value_name = "ALPHA", allow_negative_numbers = true)]
+    /// (4 for degree 2, the 2013 paper's value). Giving it turns the noise adaptation off
+    /// unless --noise adaptive is given too [default: 2 × degree]
+    #[arg(
+        long,
+        value_name = "ALPHA",
+        allow_negative_numbers = true,
+        alias = "pointWeight"
+    )]
     pub point_weight: Option<f64>,
+
+    /// Adapt the reconstruction to the noise measured around each point (adaptive: noisy
+    /// regions are splatted coarser, clean ones keep full detail), or not (off: exactly
+    /// PoissonRecon's behaviour) [default: adaptive, or off when --samples-per-node or
+    /// --point-weight is given]
+    #[arg(long, value_enum, value_name = "MODE")]
+    pub noise: Option<NoiseArg>,
+
+    /// Keep the far outliers (a few points far outside the box that holds the rest, which
+    /// waste depth) instead of leaving them out with a warning [default: off]
+    #[arg(long)]
+    pub keep_outliers: bool,
+
+    /// Keep the normals as given even when many point against their neighbours' (by
+    /// default such normals are made consistent, each connected piece following the
+    /// majority of its normals, with a warning) [default: off]
+    #[arg(long)]
+    pub keep_normals: bool,
 
     /// B-spline degree of the finite elements, 1 or 2. Default as PoissonRecon 18 (the 2013 paper
     /// and PoissonRecon 6 use 2).
@@ -112,6 +146,16 @@ pub struct ReconstructArgs {
     /// Boundary condition on the bounding cube. Default as PoissonRecon 6 and 18.
     #[arg(long, value_enum, default_value_t = spsr::Params::default().boundary.into())]
     pub boundary: BoundaryArg,
+
+    /// PoissonRecon's --bType: 1 free, 2 Dirichlet, 3 Neumann.
+    #[arg(
+        long = "bType",
+        value_name = "N",
+        hide = true,
+        value_parser = crate::poissonrecon::parse_boundary,
+        conflicts_with = "boundary"
+    )]
+    pub reference_boundary: Option<BoundaryArg>,
 
     /// The bounding cube's side is the points' bounding box's largest side times this factor.
     /// Default as PoissonRecon 6 and 18.
@@ -152,13 +196,18 @@ pub struct ReconstructArgs {
     #[arg(long)]
     pub no_attributes: bool,
 
+    /// PoissonRecon's --colors: spsr carries colours (and every other attribute) anyway.
+    #[arg(long = "colors", hide = true, conflicts_with = "no_attributes")]
+    pub reference_colors: bool,
+
     /// Pull factor of the attribute interpolation: larger values keep attributes sharper
     /// and stop them bleeding between nearby surfaces. Default as PoissonRecon 18 (--dataX)
     #[arg(
         long,
         value_name = "X",
         default_value_t = spsr::Params::default().data_pull,
-        allow_negative_numbers = true
+        allow_negative_numbers = true,
+        alias = "data"
     )]
     pub data_pull: f64,
 
@@ -200,7 +249,7 @@ pub struct ReconstructArgs {
     /// Place mesh vertices by linear interpolation along cell edges instead of the quadratic fit
     /// through the end values and gradients. Off by default, as PoissonRecon 18 (--linearFit)
     /// [default: off]
-    #[arg(long)]
+    #[arg(long, alias = "linearFit")]
     pub linear_fit: bool,
 
     /// Refuse the run, before the octree is built, when its estimated peak memory exceeds this
@@ -208,6 +257,16 @@ pub struct ReconstructArgs {
     /// the machine has available]
     #[arg(long, value_name = "SIZE", value_parser = parse_size)]
     pub max_memory: Option<u64>,
+
+    /// PoissonRecon's --maxMemory, in GB; 0 (no limit) keeps the default.
+    #[arg(
+        long = "maxMemory",
+        value_name = "GB",
+        hide = true,
+        value_parser = crate::poissonrecon::parse_max_memory_gb,
+        conflicts_with = "max_memory"
+    )]
+    pub reference_max_memory: Option<u64>,
 
     /// Split each sample's normal between the two depths around its estimated depth (2006 paper,
     /// PoissonRecon 6) instead of splatting it whole at the depth above (PoissonRecon 18):
@@ -231,9 +290,33 @@ pub struct ReconstructArgs {
     /// 800x800) [default: none]
     #[arg(long, value_name = "PNG")]
     pub preview: Option<PathBuf>,
+
+    /// The ids of the arguments given on the command line (filled by
+    /// [`crate::try_parse_from`]), which `-v` reports as set by a flag.
+    #[arg(skip)]
+    pub given: Vec<String>,
 }
 
 impl ReconstructArgs {
+    /// The input file, given as INPUT or as PoissonRecon's --in.
+    pub fn input(&self) -> &Path {
+        self.input
+            .as_deref()
+            .or(self.reference_in.as_deref())
+            .unwrap_or(Path::new("-"))
+    }
+
+    /// The boundary condition, from --boundary or PoissonRecon's --bType.
+    fn boundary(&self) -> BoundaryArg {
+        self.reference_boundary.unwrap_or(self.boundary)
+    }
+
+    /// Whether the argument with this id was given on the command line (by any of its
+    /// spellings).
+    fn given(&self, id: &str) -> bool {
+        self.given.iter().any(|g| g == id)
+    }
+
     /// The library parameters these arguments describe (not yet validated).
     pub fn params(&self) -> spsr::Params {
         // An explicit --full-depth deeper than --depth is an error; the default follows --depth.
@@ -243,10 +326,12 @@ impl ReconstructArgs {
         spsr::Params {
             depth: self.depth,
             full_depth,
-            samples_per_node: self.samples_per_node,
+            samples_per_node: self
+                .samples_per_node
+                .unwrap_or(spsr::Params::default().samples_per_node),
             point_weight: self.point_weight,
             degree: self.degree,
-            boundary: self.boundary.into(),
+            boundary: self.boundary().into(),
             scale: self.scale,
             iters: self.iters,
             weights: match (&self.confidence_property, self.confidence) {
@@ -256,13 +341,37 @@ impl ReconstructArgs {
             },
             density: self.density,
             linear_fit: self.linear_fit,
-            max_memory: self.max_memory,
+            max_memory: self
+                .max_memory
+                .or(self.reference_max_memory.filter(|&bytes| bytes > 0)),
             two_level_splat: self.two_level_splat,
             attributes: !self.no_attributes,
             data_pull: self.data_pull,
             normals: self.normals,
+            noise: self.noise(),
+            keep_outliers: self.keep_outliers,
+            keep_normals: self.keep_normals,
         }
     }
+
+    /// The noise mode (see [`spsr::Noise::unless_tuned`]).
+    fn noise(&self) -> spsr::Noise {
+        let given = self.noise.map(|n| match n {
+            NoiseArg::Adaptive => spsr::Noise::Adaptive,
+            NoiseArg::Off => spsr::Noise::Off,
+        });
+        let tuned = self.samples_per_node.is_some() || self.point_weight.is_some();
+        spsr::Noise::unless_tuned(given, tuned)
+    }
+}
+
+/// `--noise`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum NoiseArg {
+    /// Adapt the splat depth to the local noise.
+    Adaptive,
+    /// PoissonRecon's behaviour.
+    Off,
 }
 
 /// Parses `--degree`: 1 or 2.
@@ -287,7 +396,7 @@ impl ReconstructArgs {
 
 pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     let start = Instant::now();
-    let input = args.input.as_path();
+    let input = args.input();
     let output = args.output.as_path();
     let fail = |e: spsr::Error| Failure::from_spsr(e, input_name(input));
 
@@ -303,8 +412,13 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     if let Some(p) = &args.preview {
         crate::render::check_picture_path(p, input)?;
     }
+    if args.common.verbose {
+        print_parameters(args, &params);
+    }
 
-    let progress = Progress::new(std::io::stderr().is_terminal() && !args.common.verbose);
+    // Reading, the library's stages, writing; estimating normals is added when it happens.
+    let plan = spsr::stage_plan(&params, trim_params.is_some());
+    let progress = Progress::new(plan.len() + 2, std::io::stderr().is_terminal());
     progress.stage("reading");
     let t = Instant::now();
     let mut cloud = read_cloud_arg(input).map_err(fail)?;
@@ -318,6 +432,7 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
                 input.display()
             ));
         }
+        progress.add_stages(1);
         progress.stage("estimating normals");
         estimated = Some(normals::estimate_normals(
             &mut cloud,
@@ -338,8 +453,7 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
             let (result, stats) =
                 spsr::reconstruct_and_trim(cloud, &params, p, &|s| progress.stage(s))
                     .map_err(fail)?;
-            let time = result.stats.stages.last().map_or(Duration::ZERO, |s| s.1);
-            (result, Some((stats, time)))
+            (result, Some(stats))
         }
         None => (
             spsr::reconstruct_owned(cloud, &params, &|s| progress.stage(s)).map_err(fail)?,
@@ -362,18 +476,207 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     for w in &result.stats.warnings {
         eprintln!("spsr: warning: {}: {}", input.display(), words::warning(w));
     }
-    let mesh = &result.mesh;
     if args.common.verbose {
         print_details(args, &result, reading, writing, start.elapsed());
         if let Some(report) = &estimated {
             report.print();
         }
-        if let Some((stats, time)) = &trimmed {
-            print_trim(stats, *time);
+        if let Some(stats) = &trimmed {
+            print_trim(stats, stage_time(&result.stats, "trimming"));
         }
     }
-    report_written(output, mesh, start);
+    report(output, &summary(&result, start.elapsed(), spsr::peak_rss()));
     Ok(())
+}
+
+/// The wall time of the stage called `name` (zero if it did not run).
+fn stage_time(stats: &spsr::Stats, name: &str) -> Duration {
+    stats
+        .stages
+        .iter()
+        .find(|(n, _)| n == name)
+        .map_or(Duration::ZERO, |s| s.1)
+}
+
+/// The summary line's facts: `V vertices, F faces, P pieces, closed, in T s, peak M MiB`.
+fn summary(result: &spsr::Reconstruction, time: Duration, peak: Option<u64>) -> String {
+    let d = &result.stats.diagnosis;
+    let plural =
+        |n: usize, one: &str, many: &str| format!("{n} {}", if n == 1 { one } else { many });
+    let closed = if d.closed {
+        "closed".to_string()
+    } else {
+        format!(
+            "open ({})",
+            plural(d.boundary_edges, "boundary edge", "boundary edges")
+        )
+    };
+    let mut line = format!(
+        "{}, {}, {}, {closed}, in {:.2} s",
+        plural(result.mesh.vertices.len(), "vertex", "vertices"),
+        plural(result.mesh.triangles.len(), "face", "faces"),
+        plural(d.pieces, "piece", "pieces"),
+        time.as_secs_f64()
+    );
+    if let Some(bytes) = peak {
+        line += &format!(", peak memory {}", mib(bytes));
+    }
+    line
+}
+
+fn mib(bytes: u64) -> String {
+    format!("{:.0} MiB", bytes as f64 / (1024.0 * 1024.0))
+}
+
+/// Where a parameter's value comes from, as `-v` reports it.
+#[derive(Debug, Clone, PartialEq)]
+enum Source {
+    /// The flag's default (the library's).
+    Default,
+    /// Given on the command line.
+    Flag,
+    /// Computed from other values or from the machine, as the text says.
+    Derived(String),
+}
+
+impl std::fmt::Display for Source {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Source::Default => f.write_str("default"),
+            Source::Flag => f.write_str("flag"),
+            Source::Derived(how) => write!(f, "derived: {how}"),
+        }
+    }
+}
+
+/// Every parameter in effect, as `(flag, value, source)`, in the order of `--help`.
+fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, String, Source)> {
+    let src = |id: &str| {
+        if args.given(id) {
+            Source::Flag
+        } else {
+            Source::Default
+        }
+    };
+    let on = |b: bool| if b { "on" } else { "off" }.to_string();
+    let mut rows: Vec<(&str, String, Source)> = vec![
+        ("depth", params.depth.to_string(), src("depth")),
+        (
+            "full_depth",
+            params.full_depth.to_string(),
+            if args.given("full_depth") {
+                Source::Flag
+            } else if params.full_depth != spsr::Params::default().full_depth {
+                Source::Derived("no deeper than --depth".into())
+            } else {
+                Source::Default
+            },
+        ),
+        (
+            "samples_per_node",
+            params.samples_per_node.to_string(),
+            src("samples_per_node"),
+        ),
+        (
+            "point_weight",
+            params.alpha().to_string(),
+            if args.given("point_weight") {
+                Source::Flag
+            } else {
+                Source::Derived("2 × --degree".into())
+            },
+        ),
+        ("degree", params.degree.to_string(), src("degree")),
+        (
+            "boundary",
+            args.boundary()
+                .to_possible_value()
+                .map_or_else(String::new, |v| v.get_name().to_string()),
+            if args.given("boundary") || args.given("reference_boundary") {
+                Source::Flag
+            } else {
+                Source::Default
+            },
+        ),
+        ("scale", params.scale.to_string(), src("scale")),
+        ("iters", params.iters.to_string(), src("iters")),
+        ("confidence", on(args.confidence), src("confidence")),
+        (
+            "confidence_property",
+            args.confidence_property
+                .clone()
+                .unwrap_or_else(|| "none".into()),
+            src("confidence_property"),
+        ),
+        ("normals", on(params.normals), src("normals")),
+        (
+            "no_attributes",
+            on(!params.attributes),
+            src("no_attributes"),
+        ),
+        ("data_pull", params.data_pull.to_string(), src("data_pull")),
+        ("density", on(params.density), src("density")),
+        (
+            "trim",
+            match args.trim {
+                None => "off".into(),
+                Some(spsr::trim::Threshold::Auto) => "auto".into(),
+                Some(spsr::trim::Threshold::Value(v)) => v.to_string(),
+            },
+            src("trim"),
+        ),
+    ];
+    if args.trim.is_some() {
+        rows.push((
+            "min_island_area",
+            args.min_island_area.to_string(),
+            src("min_island_area"),
+        ));
+        rows.push(("hole_area", args.hole_area.to_string(), src("hole_area")));
+    }
+    rows.extend([
+        ("linear_fit", on(params.linear_fit), src("linear_fit")),
+        match params.max_memory {
+            Some(bytes) => ("max_memory", spsr::gib(bytes), Source::Flag),
+            None => (
+                "max_memory",
+                spsr::memory_budget().map_or_else(|| "none".into(), spsr::gib),
+                Source::Derived("the memory available".into()),
+            ),
+        },
+        (
+            "two_level_splat",
+            on(params.two_level_splat),
+            src("two_level_splat"),
+        ),
+        (
+            "threads",
+            rayon::current_num_threads().to_string(),
+            if args.given("threads") {
+                Source::Flag
+            } else {
+                Source::Derived("all cores, or RAYON_NUM_THREADS".into())
+            },
+        ),
+        ("ascii", on(args.common.ascii), src("ascii")),
+        (
+            "estimate_normals",
+            on(args.estimate_normals),
+            src("estimate_normals"),
+        ),
+    ]);
+    rows.into_iter()
+        .map(|(field, value, source)| (words::flag(field), value, source))
+        .collect()
+}
+
+/// `-v`'s first part: every parameter in effect and where its value comes from.
+fn print_parameters(args: &ReconstructArgs, params: &spsr::Params) {
+    let mut err = std::io::stderr().lock();
+    let _ = writeln!(err, "parameters:");
+    for (flag, value, source) in parameters(args, params) {
+        let _ = writeln!(err, "  {flag:<22} {value:<12} {source}");
+    }
 }
 
 fn print_details(
@@ -385,7 +688,7 @@ fn print_details(
 ) {
     let stats = &result.stats;
     let mut err = std::io::stderr().lock();
-    let _ = writeln!(err, "input       {}", args.input.display());
+    let _ = writeln!(err, "input       {}", args.input().display());
     let _ = writeln!(
         err,
         "points      {} read, {} dropped",
@@ -408,6 +711,16 @@ fn print_details(
         "mesh        {} vertices, {} faces",
         result.mesh.vertices.len(),
         result.mesh.triangles.len()
+    );
+    let d = &stats.diagnosis;
+    let _ = writeln!(
+        err,
+        "check       {} pieces, {}, {} vertices on the bounding cube, {:.1} % of the normals \
+         against the surface",
+        d.pieces,
+        if d.closed { "closed" } else { "open" },
+        d.on_cube,
+        100.0 * d.contradicted_normals
     );
     let _ = writeln!(err, "output      {}", args.output.display());
     let _ = writeln!(err, "timings:");

@@ -29,20 +29,21 @@ including the rims of real openings. A gap in a scan of a surface that continues
 opening; auto removes the fill of a large gap too. To keep it, give a lower V (-v prints the \
 median density; e.g. median - 3.5 keeps the fill of a gap a fifth of the object's size).
 
-Input: a PLY mesh with a vertex property `density`, as written by `spsr reconstruct --density`. \
-Output, by extension: .ply (binary, ASCII with --ascii; also any other name), .obj, .stl, .glb. The \
-output must not be the input; it appears only once complete.";
+Input: a mesh with per-vertex density, as written by `spsr reconstruct --density` in PLY (vertex \
+property `density`) or GLB (attribute `_DENSITY`); OBJ, STL and OFF files cannot hold it. Output, by \
+extension: .ply (binary, ASCII with --ascii), .obj, .stl, .off or .glb; only .ply and .glb keep the \
+density. The output must not be the input; it appears only once complete.";
 
 /// Arguments of `spsr trim`.
 #[derive(Debug, Args)]
 pub struct TrimArgs {
-    /// Mesh with a per-vertex `density` property (from `spsr reconstruct --density`), PLY;
-    /// `-` reads standard input.
+    /// Mesh with per-vertex density (from `spsr reconstruct --density`), PLY or GLB; `-` reads
+    /// standard input.
     #[arg(value_name = "MESH")]
     pub mesh: PathBuf,
 
-    /// Output mesh, by extension: .ply (also any other name), .obj, .stl or .glb; `-` writes
-    /// PLY to standard output.
+    /// Output mesh, by extension: .ply, .obj, .stl, .off or .glb; `-` writes PLY to standard
+    /// output.
     #[arg(short, long, value_name = "OUTPUT")]
     pub output: PathBuf,
 
@@ -90,6 +91,9 @@ pub fn run_trim(args: &TrimArgs) -> Result<(), Failure> {
     params.validate().map_err(fail)?;
     check_output_arg(output, input).map_err(fail)?;
     let mesh = read_mesh_arg(input).map_err(fail)?;
+    if mesh.density.is_none() {
+        return Err(no_density(input_name(input)));
+    }
     let t = Instant::now();
     let (trimmed, stats) = spsr::trim::trim(&mesh, &params).map_err(fail)?;
     let time = t.elapsed();
@@ -103,6 +107,19 @@ pub fn run_trim(args: &TrimArgs) -> Result<(), Failure> {
     }
     report_written(output, &trimmed, start);
     Ok(())
+}
+
+/// The mesh read has no density values to trim by: say where they come from.
+fn no_density(input: &std::path::Path) -> Failure {
+    Failure {
+        code: crate::exit::DATA,
+        error: anyhow::anyhow!(
+            "{}: the mesh has no per-vertex density values to trim by; only PLY and GLB files \
+             hold them: reconstruct with `spsr reconstruct --density -o mesh.ply` (or .glb) and \
+             trim that mesh",
+            input.display()
+        ),
+    }
 }
 
 pub(crate) fn print_trim(stats: &spsr::trim::TrimStats, time: Duration) {

@@ -1,7 +1,7 @@
 //! How the command line words the library's errors and warnings: the library names fields
 //! (`depth`), the command line names flags (`--depth`).
 
-use spsr::{Error, MemoryShortfall, Warning};
+use spsr::{Error, MemoryShortfall, Remedy, Warning};
 
 /// The flag that sets a library field.
 pub fn flag(field: &str) -> String {
@@ -59,7 +59,19 @@ pub fn warning(w: &Warning) -> String {
             }
             s
         }
-        other => other.to_string(),
+        other => other.advice(&remedy).unwrap_or_else(|| other.to_string()),
+    }
+}
+
+/// A remedy a warning advises, in the command line's words.
+fn remedy(r: Remedy) -> String {
+    match r {
+        Remedy::Field(field) => flag(field),
+        Remedy::Set(field, value) => format!("{} {value}", flag(field)),
+        Remedy::ReorientNormals => "re-estimate and orient the normals with --estimate-normals \
+                                    (--orient global is the most robust; --orient viewpoint \
+                                    for scans with known sensor positions)"
+            .into(),
     }
 }
 
@@ -140,5 +152,31 @@ mod tests {
             total: 10,
         };
         assert!(warning(&w).starts_with("3 of 10 points dropped"));
+    }
+
+    #[test]
+    fn the_advice_on_a_result_names_flags() {
+        let d = spsr::Diagnosis {
+            pieces: 40,
+            closed: true,
+            depth: 9,
+            ..spsr::Diagnosis::default()
+        };
+        let text = warning(&Warning::ManyPieces(d));
+        assert!(
+            text.contains("--samples-per-node 5 to 10") && text.contains("--depth 8"),
+            "{text}"
+        );
+        let open = spsr::Diagnosis { on_cube: 12, ..d };
+        let text = warning(&Warning::SurfaceOnCube(open));
+        assert!(
+            text.contains("--estimate-normals") && text.contains("--trim auto"),
+            "{text}"
+        );
+        let trimmed = spsr::Diagnosis {
+            trimmed: true,
+            ..open
+        };
+        assert!(!warning(&Warning::SurfaceOnCube(trimmed)).contains("--trim"));
     }
 }

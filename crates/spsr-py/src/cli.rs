@@ -5,8 +5,7 @@ use pyo3::prelude::*;
 /// Runs the command line `spsr` with `argv` (program name first); returns the exit code.
 #[pyfunction]
 pub fn cli_main(py: Python<'_>, argv: Vec<String>) -> PyResult<u8> {
-    use clap::Parser;
-    let cli = match spsr_cli::Cli::try_parse_from(&argv) {
+    let cli = match spsr_cli::try_parse_from(&argv) {
         Ok(cli) => cli,
         Err(e) => {
             // --help and --version print to stdout and succeed; errors print usage.

@@ -8,7 +8,7 @@ use pyo3::exceptions::{
 };
 use pyo3::prelude::*;
 
-use spsr::{Error, MemoryShortfall, Warning};
+use spsr::{Error, MemoryShortfall, Remedy, Warning};
 
 /// The Python function an error comes from: a library field can have a different keyword in
 /// each (the trimming's `threshold` is `trim=` in `reconstruct`, `threshold=` in `trim`).
@@ -89,7 +89,22 @@ pub fn warning(w: &Warning) -> String {
             }
             s
         }
-        other => other.to_string(),
+        other => other.advice(&remedy).unwrap_or_else(|| other.to_string()),
+    }
+}
+
+/// A remedy a warning of `spsr.reconstruct` advises, in Python's words: `samples_per_node=5`,
+/// `trim="auto"`.
+fn remedy(r: Remedy) -> String {
+    match r {
+        Remedy::Field(field) => keyword(field, Call::Reconstruct).to_string(),
+        Remedy::Set(field, value) if value.parse::<f64>().is_ok() => {
+            format!("{}={value}", keyword(field, Call::Reconstruct))
+        }
+        Remedy::Set(field, value) => format!("{}=\"{value}\"", keyword(field, Call::Reconstruct)),
+        Remedy::ReorientNormals => "re-estimate and orient the normals with \
+                                    spsr.estimate_normals(points, orient=\"global\")"
+            .into(),
     }
 }
 

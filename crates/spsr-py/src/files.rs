@@ -9,7 +9,7 @@ use crate::arrays::{attributes_out, cloud_in, mesh_in, mesh_out, rows_out, MeshA
 use crate::detach::run_detached;
 use crate::errors::{py_err, Call};
 
-/// Reads a point cloud of any supported format: a dict with `positions`, `normals` (or
+/// Reads a point cloud of any supported format (mesh files give their vertices): a dict with `positions`, `normals` (or
 /// None), `attributes` (a list of (name, array)) and `scan_origins` (a list of (first point,
 /// (x, y, z))).
 #[pyfunction]
@@ -34,7 +34,8 @@ pub fn read_cloud(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyDict>> 
     Ok(d)
 }
 
-/// Reads a PLY mesh: the dict of `mesh_out`.
+/// Reads a mesh (PLY, OBJ, STL, OFF or GLB, by first bytes then extension): the dict of
+/// `mesh_out`.
 #[pyfunction]
 pub fn read_mesh(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyDict>> {
     let mesh = run_detached(py, None, move |_| spsr::io::read_mesh(&path))?
@@ -42,7 +43,8 @@ pub fn read_mesh(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyDict>> {
     mesh_out(py, mesh)
 }
 
-/// Writes a mesh, format by extension, atomically.
+/// Writes a mesh, format by extension (.ply, .obj, .stl, .off, .glb; any other is an
+/// `OSError`), atomically.
 #[pyfunction]
 #[pyo3(signature = (path, mesh, ascii))]
 pub fn write_mesh(py: Python<'_>, path: PathBuf, mesh: MeshArgs<'_>, ascii: bool) -> PyResult<()> {
@@ -53,7 +55,8 @@ pub fn write_mesh(py: Python<'_>, path: PathBuf, mesh: MeshArgs<'_>, ascii: bool
     .map_err(py_err(py, Call::Files))
 }
 
-/// Writes a point cloud as PLY, atomically.
+/// Writes a point cloud, format by extension (.ply, or text .xyz/.txt; any other is an
+/// `OSError`), atomically.
 #[pyfunction]
 #[pyo3(signature = (path, points, normals, attributes, ascii))]
 pub fn write_points(

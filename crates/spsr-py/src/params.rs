@@ -172,6 +172,15 @@ fn reconstruct_defaults<'py>(py: Python<'py>, trim: &TrimParams) -> PyResult<Bou
     d.set_item("depth", p.depth)?;
     d.set_item("full_depth", p.full_depth)?;
     d.set_item("samples_per_node", p.samples_per_node)?;
+    d.set_item(
+        "noise",
+        match p.noise {
+            spsr::Noise::Adaptive => "adaptive",
+            spsr::Noise::Off => "off",
+        },
+    )?;
+    d.set_item("keep_outliers", p.keep_outliers)?;
+    d.set_item("keep_normals", p.keep_normals)?;
     d.set_item("point_weight", p.point_weight)?;
     d.set_item("degree", p.degree.get())?;
     d.set_item("boundary", boundary_name(p.boundary))?;

@@ -8,7 +8,7 @@ use spsr::{Params, Stats};
 
 use crate::arrays::{cloud_in, mesh_out};
 use crate::detach::{run_detached, threads_arg};
-use crate::errors::{self, py_err, Call};
+use crate::errors::{self, invalid, py_err, Call};
 use crate::mesh_ops::trim_stats_out;
 use crate::params::{
     boundary_arg, degree_arg, int_arg, shown_as_given, threshold_arg, trim_params, weights_arg,
@@ -21,7 +21,7 @@ use crate::params::{
     points, normals, columns, *, depth, full_depth, samples_per_node, point_weight, degree,
     boundary, scale, iters, confidence, density, linear_fit, max_memory, two_level_splat,
     attributes, data_pull, vertex_normals, confidence_property, threads, trim,
-    min_island_area, hole_area
+    min_island_area, hole_area, noise, keep_outliers, keep_normals
 ))]
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct<'py>(
@@ -31,7 +31,7 @@ pub fn reconstruct<'py>(
     columns: Vec<(String, Bound<'py, PyAny>)>,
     depth: i64,
     full_depth: Option<i64>,
-    samples_per_node: f64,
+    samples_per_node: Option<f64>,
     point_weight: Option<f64>,
     degree: i64,
     boundary: &str,
@@ -50,13 +50,23 @@ pub fn reconstruct<'py>(
     trim: Bound<'py, PyAny>,
     min_island_area: f64,
     hole_area: f64,
+    noise: Option<&str>,
+    keep_outliers: bool,
+    keep_normals: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let given_noise = match noise {
+        None => None,
+        Some(name) => Some(
+            spsr::Noise::from_name(name)
+                .ok_or_else(|| invalid("noise", format!("'{name}'"), "'adaptive' or 'off'"))?,
+        ),
+    };
     // Parameters first, before any array is converted.
     let params = Params {
         depth: int_arg(depth),
         // As the command line: the library's 5, or the depth when that is smaller.
         full_depth: full_depth.map_or(Params::default().full_depth.min(int_arg(depth)), int_arg),
-        samples_per_node,
+        samples_per_node: samples_per_node.unwrap_or(Params::default().samples_per_node),
         point_weight,
         degree: degree_arg(degree)?,
         boundary: boundary_arg(boundary)?,
@@ -71,6 +81,12 @@ pub fn reconstruct<'py>(
         attributes,
         data_pull,
         normals: vertex_normals,
+        noise: spsr::Noise::unless_tuned(
+            given_noise,
+            samples_per_node.is_some() || point_weight.is_some(),
+        ),
+        keep_outliers,
+        keep_normals,
     };
     let given = [
         ("depth", Some(depth)),
@@ -129,6 +145,14 @@ fn stats_out<'py>(
     stats.set_item("peak_memory", s.peak_memory.clone())?;
     let warnings: Vec<String> = s.warnings.iter().map(errors::warning).collect();
     stats.set_item("warnings", warnings)?;
+    let d = &s.diagnosis;
+    let diagnosis = PyDict::new(py);
+    diagnosis.set_item("pieces", d.pieces)?;
+    diagnosis.set_item("closed", d.closed)?;
+    diagnosis.set_item("boundary_edges", d.boundary_edges)?;
+    diagnosis.set_item("on_cube", d.on_cube)?;
+    diagnosis.set_item("contradicted_normals", d.contradicted_normals)?;
+    stats.set_item("diagnosis", diagnosis)?;
     match trimmed {
         Some(t) => {
             // `reconstruct_and_trim` times the trimming as its last stage.

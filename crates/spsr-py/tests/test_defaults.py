@@ -21,7 +21,13 @@ PYTHON_ONLY = {
 
 # Keywords whose Python default is None, meaning "the library's default, adjusted": the
 # docstring says what it is. full_depth: the library's 5, or the depth when that is smaller.
-NONE_MEANS_LIBRARY = {("reconstruct", "full_depth")}
+NONE_MEANS_LIBRARY = {
+    ("reconstruct", "full_depth"),
+    # None: the library's 1.5, and a value given turns the noise adaptation off.
+    ("reconstruct", "samples_per_node"),
+    # None: the library's "adaptive", or "off" when samples_per_node or point_weight is given.
+    ("reconstruct", "noise"),
+}
 
 DEFAULTS = _spsr._defaults()
 
@@ -92,6 +98,7 @@ def test_defaults_match_the_documented_values():
     assert (r["depth"], r["full_depth"], r["degree"], r["boundary"]) == (8, 5, 1, "neumann")
     assert (r["samples_per_node"], r["scale"], r["iters"], r["data_pull"]) == (1.5, 1.1, 8, 32.0)
     assert r["confidence"] is False and r["confidence_property"] is None and r["attributes"] is True
+    assert (r["noise"], r["keep_outliers"], r["keep_normals"]) == ("adaptive", False, False)
     assert DEFAULTS["trim"] == {"threshold": "auto", "min_island_area": 0.001, "hole_area": 0.001}
     assert DEFAULTS["estimate_normals"] == {"neighbours": None}
     assert DEFAULTS["eval"] == {"samples": 1_000_000, "seed": 1}

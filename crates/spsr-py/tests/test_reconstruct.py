@@ -143,7 +143,7 @@ def test_far_outliers_warn_in_python_words():
     points = np.concatenate([points, [[100.0, 0.0, 0.0]]])
     normals = np.concatenate([normals, [[1.0, 0.0, 0.0]]])
     with pytest.warns(RuntimeWarning, match="lie far outside the box") as caught:
-        m = spsr.reconstruct(points, normals, depth=4)
+        m = spsr.reconstruct(points, normals, depth=4, keep_outliers=True)
     (message,) = [str(w.message) for w in caught]
     assert m.stats["warnings"] == [message]
     assert message.startswith("1 of 2001 points")
@@ -157,7 +157,9 @@ def test_trim_and_density():
     points, normals = fibonacci_sphere(40_000)
     keep = points[:, 2] - CENTER[2] > -0.5 * RADIUS
     points, normals = points[keep], normals[keep]
-    full = spsr.reconstruct(points, normals, depth=6, density=True)
+    # The surface closing the opening runs on to the bounding cube: trimming is advised.
+    with pytest.warns(RuntimeWarning, match='trim the invented surface with trim="auto"'):
+        full = spsr.reconstruct(points, normals, depth=6, density=True)
     trimmed = spsr.trim(full, "auto")
     assert len(trimmed.faces) < len(full.faces)
     assert not edges_shared_twice(trimmed.faces)
@@ -262,3 +264,26 @@ def test_ctrl_c_stops_the_reconstruction():
     # The library is usable afterwards.
     m = spsr.reconstruct(points[::30], normals[::30], depth=5)
     assert len(m.faces) > 0
+
+
+def test_far_outliers_are_left_out_by_default():
+    points, normals = fibonacci_sphere(2_000)
+    with_outlier = np.concatenate([points, [[100.0, 0.0, 0.0]]])
+    normals_too = np.concatenate([normals, [[1.0, 0.0, 0.0]]])
+    with pytest.warns(RuntimeWarning, match="left out 1 far outlier"):
+        m = spsr.reconstruct(with_outlier, normals_too, depth=5)
+    clean = spsr.reconstruct(points, normals, depth=5)
+    assert np.array_equal(m.vertices, clean.vertices)
+
+
+def test_noise_keyword_and_hand_tuning():
+    points, normals = fibonacci_sphere(5_000)
+    rng = np.random.default_rng(3)
+    noisy = points + rng.normal(scale=0.02, size=points.shape)
+    adaptive = spsr.reconstruct(noisy, normals, depth=7)
+    off = spsr.reconstruct(noisy, normals, depth=7, noise="off")
+    tuned = spsr.reconstruct(noisy, normals, depth=7, samples_per_node=1.5)
+    assert np.array_equal(off.vertices, tuned.vertices)
+    assert len(adaptive.faces) < len(off.faces)
+    with pytest.raises(ValueError, match="noise"):
+        spsr.reconstruct(points, normals, noise="sometimes")

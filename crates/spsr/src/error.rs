@@ -3,6 +3,8 @@
 
 use std::path::PathBuf;
 
+use crate::pipeline::diagnose::Diagnosis;
+
 /// Everything that can go wrong in spsr, one variant per stage or validation failure.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -172,6 +174,45 @@ pub enum Warning {
     /// A few far points make the bounding cube much larger than the bulk of the cloud; the
     /// cube sets the finest cell size, so they silently waste depth.
     FarOutliers(FarOutliers),
+    /// Many normals contradicted their neighbours; they were made consistent (the default;
+    /// keep them as given with `keep_normals`).
+    NormalsReoriented {
+        /// Samples whose normal changed sign.
+        flipped: usize,
+        /// Samples (points merged per finest cell).
+        samples: usize,
+        /// Share of the samples whose normal pointed against their cell's before.
+        disagreeing: f64,
+    },
+    /// The far outliers of [`Warning::FarOutliers`] were left out (the default; keep them
+    /// with `keep_outliers`).
+    OutliersDropped(FarOutliers),
+    /// Pieces of the mesh too small to be anything but bubbles left by noise were removed
+    /// (with the noise adaptation on).
+    FragmentsRemoved {
+        /// Pieces removed.
+        pieces: usize,
+    },
+    /// The surface runs on to the bounding cube, which cuts it open: normals flipped in
+    /// places (or an open scan, whose surface is continued to the cube).
+    SurfaceOnCube(Diagnosis),
+    /// Many samples' normals point against the reconstructed surface: their orientations
+    /// contradict each other.
+    ContradictoryNormals(Diagnosis),
+    /// The mesh falls into many pieces: noise reconstructed as small bubbles.
+    ManyPieces(Diagnosis),
+}
+
+/// What the advice of a [`Warning`] asks for, for a front end to spell
+/// (see [`Warning::advice`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Remedy<'a> {
+    /// A parameter, by its library field name (`samples_per_node`).
+    Field(&'static str),
+    /// A parameter set to a value (`depth` 7; `threshold` auto, the trimming's).
+    Set(&'static str, &'a str),
+    /// Estimating and orienting the normals anew.
+    ReorientNormals,
 }
 
 /// The figures of [`Warning::FarOutliers`].
@@ -205,6 +246,36 @@ impl std::fmt::Display for Warning {
                 "{dropped} of {total} points dropped (non-finite coordinates, zero-length \
                  normals or unusable weights)"
             ),
+            Warning::FragmentsRemoved { pieces } => write!(
+                f,
+                "removed {pieces} small piece(s) of the mesh (each under 0.1 % of its area), \
+                 bubbles left by noise far from the surface"
+            ),
+            Warning::NormalsReoriented {
+                flipped,
+                samples,
+                disagreeing,
+            } => write!(
+                f,
+                "{:.1} % of the normals pointed against their neighbours'; re-oriented {flipped} \
+                 of {samples} samples ({:.1} %) so that each connected piece follows the \
+                 clear majority of its normals, or faces outward",
+                100.0 * disagreeing,
+                100.0 * *flipped as f64 / (*samples).max(1) as f64
+            ),
+            Warning::OutliersDropped(o) => {
+                let fmt = |v: [f64; 3]| format!("({:.6e}, {:.6e}, {:.6e})", v[0], v[1], v[2]);
+                write!(
+                    f,
+                    "left out {} far outlier(s) of {} points, kept the {} points in and \
+                     near the box {} to {}",
+                    o.far,
+                    o.total,
+                    o.total - o.far,
+                    fmt(o.bulk_min),
+                    fmt(o.bulk_max)
+                )
+            }
             Warning::FarOutliers(o) => {
                 write!(
                     f,
@@ -216,11 +287,95 @@ impl std::fmt::Display for Warning {
                 }
                 Ok(())
             }
+            _ => {
+                let advice = self.advice(&|r| match r {
+                    Remedy::Field(field) => field.to_string(),
+                    Remedy::Set(field, value) => format!("{field} {value}"),
+                    Remedy::ReorientNormals => {
+                        "re-orient the normals (spsr::normals::estimate_normals)".into()
+                    }
+                });
+                f.write_str(&advice.unwrap_or_default())
+            }
         }
     }
 }
 
+impl Warning {
+    /// The message of a warning on the result (the [`Diagnosis`] variants): what was found,
+    /// the likely cause and what helps, with parameters and remedies spelled by `spell` as the
+    /// front end names them. `None` for the other warnings, which front ends word themselves.
+    pub fn advice(&self, spell: &dyn Fn(Remedy) -> String) -> Option<String> {
+        let pct = |share: f64| format!("{:.0} %", 100.0 * share);
+        let trim = |d: &Diagnosis| {
+            if d.trimmed {
+                String::new()
+            } else {
+                format!(
+                    "; if the points are an open scan, trim the invented surface with {}",
+                    spell(Remedy::Set("threshold", "auto"))
+                )
+            }
+        };
+        Some(match self {
+            Warning::SurfaceOnCube(d) => format!(
+                "the surface runs on to the bounding cube, which cuts it open ({} vertices on \
+                 the cube's faces; {}, {}): the normals are likely flipped in places; {}{}",
+                d.on_cube,
+                pieces(d),
+                closedness(d),
+                spell(Remedy::ReorientNormals),
+                trim(d)
+            ),
+            Warning::ContradictoryNormals(d) => format!(
+                "{} of the points have normals pointing into the reconstructed solid ({}, {}): \
+                 their orientations contradict each other; {}",
+                pct(d.contradicted_normals),
+                pieces(d),
+                closedness(d),
+                spell(Remedy::ReorientNormals)
+            ),
+            Warning::ManyPieces(d) => {
+                let lower = d.depth.saturating_sub(1).max(1).to_string();
+                format!(
+                    "the mesh falls into {} pieces: the points are likely noisy; average more \
+                     samples with {} to 10, or use a lower {} (such as {})",
+                    d.pieces,
+                    spell(Remedy::Set("samples_per_node", "5")),
+                    spell(Remedy::Field("depth")),
+                    spell(Remedy::Set("depth", &lower))
+                )
+            }
+            _ => return None,
+        })
+    }
+}
+
+fn pieces(d: &Diagnosis) -> String {
+    match d.pieces {
+        1 => "1 piece".into(),
+        n => format!("{n} pieces"),
+    }
+}
+
+fn closedness(d: &Diagnosis) -> String {
+    if d.closed {
+        "closed".into()
+    } else {
+        format!("open, {} boundary edges", d.boundary_edges)
+    }
+}
+
 impl FarOutliers {
+    /// Whether `p` is far from the bulk: outside its box grown by its own size on every side.
+    pub fn is_far(&self, p: [f64; 3]) -> bool {
+        Self::far_from(self.bulk_min, self.bulk_max, self.bulk_extent, p)
+    }
+
+    pub(crate) fn far_from(lo: [f64; 3], hi: [f64; 3], size: f64, p: [f64; 3]) -> bool {
+        (0..3).any(|a| p[a] < lo[a] - size || p[a] > hi[a] + size)
+    }
+
     /// The finding, with depths spelled `depth_word` followed by the number (a front end
     /// passes `"--depth "` or `"depth="`), without the advice.
     pub fn describe(&self, depth_word: &str) -> String {

@@ -39,11 +39,13 @@ pub mod trim;
 mod vec3;
 
 pub use bspline::{Boundary, Degree};
-pub use error::{gib, Error, FarOutliers, MemoryLimit, MemoryShortfall, Result, Warning};
+pub use error::{gib, Error, FarOutliers, MemoryLimit, MemoryShortfall, Remedy, Result, Warning};
 pub use mesh::Mesh;
-pub use params::{Params, PointWeights, MAX_DEPTH};
+pub use params::{Noise, Params, PointWeights, MAX_DEPTH};
+pub use pipeline::diagnose::{self, Diagnosis};
 pub use pipeline::{
-    reconstruct, reconstruct_and_trim, reconstruct_owned, reconstruct_with_progress,
-    Reconstruction, Stats,
+    reconstruct, reconstruct_and_trim, reconstruct_owned, reconstruct_with_progress, stage_plan,
+    NoiseSummary, Reconstruction, Stats,
 };
 pub use points::{PointCloud, ScanOrigin};
+pub use resources::{memory_budget, peak_rss};

@@ -220,6 +220,94 @@ impl Mesh {
         }
     }
 
+    /// The pieces of the mesh: for each triangle the piece it belongs to (triangles sharing
+    /// a vertex are in one piece, as [`Topology::components`] counts them), numbered in order
+    /// of their first triangle, and each piece's area.
+    pub fn pieces(&self) -> (Vec<u32>, Vec<f64>) {
+        let nv = self.vertices.len();
+        let mut parent: Vec<u32> = (0..nv as u32).collect();
+        fn root(parent: &mut [u32], mut x: u32) -> u32 {
+            while parent[x as usize] != x {
+                let up = parent[parent[x as usize] as usize];
+                parent[x as usize] = up;
+                x = up;
+            }
+            x
+        }
+        let valid = |t: &[u32; 3]| t.iter().all(|&v| (v as usize) < nv);
+        for t in self.triangles.iter().filter(|t| valid(t)) {
+            let a = root(&mut parent, t[0]);
+            for &v in &t[1..] {
+                let b = root(&mut parent, v);
+                if a != b {
+                    parent[b as usize] = a;
+                }
+            }
+        }
+        let mut number = vec![u32::MAX; nv];
+        let mut areas: Vec<f64> = Vec::new();
+        let piece_of = self
+            .triangles
+            .iter()
+            .map(|t| {
+                if !valid(t) {
+                    return u32::MAX;
+                }
+                let r = root(&mut parent, t[0]) as usize;
+                if number[r] == u32::MAX {
+                    number[r] = areas.len() as u32;
+                    areas.push(0.0);
+                }
+                let [a, b, c] = t.map(|i| self.vertices[i as usize]);
+                areas[number[r] as usize] += 0.5 * norm(cross(sub(b, a), sub(c, a)));
+                number[r]
+            })
+            .collect();
+        (piece_of, areas)
+    }
+
+    /// The mesh with only the triangles where `keep` is true, and only the vertices they use
+    /// (in their original order), every per-vertex value carried along.
+    pub fn keep_triangles(&self, keep: &[bool]) -> Mesh {
+        let nv = self.vertices.len();
+        let mut new_index = vec![u32::MAX; nv];
+        for (t, _) in self.triangles.iter().zip(keep).filter(|(_, &k)| k) {
+            for &v in t {
+                if (v as usize) < nv {
+                    new_index[v as usize] = 0;
+                }
+            }
+        }
+        let used: Vec<usize> = (0..nv).filter(|&v| new_index[v] == 0).collect();
+        for (i, &v) in used.iter().enumerate() {
+            new_index[v] = i as u32;
+        }
+        let pick = |col: &[f32]| used.iter().map(|&v| col[v]).collect::<Vec<f32>>();
+        Mesh {
+            vertices: used.iter().map(|&v| self.vertices[v]).collect(),
+            triangles: self
+                .triangles
+                .iter()
+                .zip(keep)
+                .filter(|(t, &k)| k && t.iter().all(|&v| (v as usize) < nv))
+                .map(|(t, _)| t.map(|v| new_index[v as usize]))
+                .collect(),
+            density: self.density.as_deref().map(pick),
+            normals: self
+                .normals
+                .as_ref()
+                .map(|n| used.iter().map(|&v| n[v]).collect()),
+            attributes: self
+                .attributes
+                .iter()
+                .map(|a| {
+                    let values = used.iter().map(|&v| a.data.get(v).unwrap_or(0.0));
+                    crate::attributes::Attribute::new(a.name.clone(), a.data.like_from_f64(values))
+                })
+                .collect(),
+        }
+    }
+
     /// Signed enclosed volume (positive when the triangles are counter-clockwise seen from
     /// outside). Meaningful for closed meshes.
     pub fn signed_volume(&self) -> f64 {

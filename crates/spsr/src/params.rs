@@ -62,6 +62,49 @@ pub struct Params {
     /// Compute per-vertex normals from the gradient of the implicit function (`−∇χ`,
     /// unit length). Default off.
     pub normals: bool,
+    /// Adapt the splat depth to the noise measured around each sample (default), or splat
+    /// where the density alone says, as PoissonRecon does.
+    pub noise: Noise,
+    /// Keep the far outliers (points far outside the box that holds the bulk of the cloud)
+    /// instead of leaving them out, as PoissonRecon does. Default off: they are left out,
+    /// with a warning.
+    pub keep_outliers: bool,
+    /// Keep the normals as given even when many contradict their neighbours. Default off:
+    /// such normals are made consistent, with a warning.
+    pub keep_normals: bool,
+}
+
+/// Whether the reconstruction adapts to the local noise of the points (issue 16).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Noise {
+    /// Measure the noise around every sample and splat it no finer than the noise allows
+    /// (default).
+    #[default]
+    Adaptive,
+    /// Splat every sample at the depth its density gives, as PoissonRecon.
+    Off,
+}
+
+impl Noise {
+    /// The mode the front ends use: the one `given`, else off when the user set the samples
+    /// per node or the point weight by hand (their values then mean what they mean in
+    /// PoissonRecon), else adaptive.
+    pub fn unless_tuned(given: Option<Noise>, tuned_by_hand: bool) -> Noise {
+        match given {
+            Some(mode) => mode,
+            None if tuned_by_hand => Noise::Off,
+            None => Noise::Adaptive,
+        }
+    }
+
+    /// The mode named `adaptive` or `off`.
+    pub fn from_name(name: &str) -> Option<Noise> {
+        match name {
+            "adaptive" => Some(Noise::Adaptive),
+            "off" => Some(Noise::Off),
+            _ => None,
+        }
+    }
 }
 
 /// How much each point counts in the fit (ALGORITHM.md §3.4).
@@ -96,6 +139,9 @@ impl Default for Params {
             attributes: true,
             data_pull: 32.0,
             normals: false,
+            noise: Noise::Adaptive,
+            keep_outliers: false,
+            keep_normals: false,
         }
     }
 }

@@ -317,3 +317,47 @@ fn bad_sample_counts() {
         assert_fails(&out, USAGE, &["--samples", "at least 1"]);
     }
 }
+
+#[test]
+fn every_mesh_format_is_scored_alike() {
+    let (dir, mesh, gt) = spheres();
+    let score = |path: &Path, reference: &Path| {
+        let out = spsr(&[
+            "eval",
+            s(path),
+            "--reference",
+            s(reference),
+            "--samples",
+            "5000",
+            "--json",
+        ]);
+        json_of(&out)
+    };
+    let ply = score(&mesh, &gt);
+    let m = spsr::io::read_mesh(&mesh).unwrap();
+    for ext in ["obj", "stl", "off", "glb"] {
+        let path = write(dir.path(), &format!("mesh.{ext}"), &m);
+        let json = score(&path, &gt);
+        // The same surface, so the same numbers; STL too, its corners merged into vertices.
+        for key in ["vertices", "faces", "euler", "closed", "oriented"] {
+            assert_eq!(field(&json, key), field(&ply, key), "{ext}: {key}");
+        }
+        let (a, b) = (number(&json, "chamfer"), number(&ply, "chamfer"));
+        assert!((a - b).abs() < 1e-6, "{ext}: chamfer {a} against {b}");
+        // As the reference, too.
+        let reference = write(
+            dir.path(),
+            &format!("gt.{ext}"),
+            &spsr::io::read_mesh(&gt).unwrap(),
+        );
+        let json = score(&mesh, &reference);
+        assert!(
+            (number(&json, "chamfer") - b).abs() < 1e-6,
+            "{ext} as reference"
+        );
+    }
+    let unknown = dir.path().join("mesh.dat");
+    fs::copy(dir.path().join("mesh.obj"), &unknown).unwrap();
+    let out = spsr(&["eval", s(&unknown), "--reference", s(&gt)]);
+    assert_fails(&out, DATA, &["mesh.dat", "not a mesh format", ".obj"]);
+}

@@ -2,6 +2,7 @@
 
 mod common;
 mod eval;
+mod feedback;
 mod hardening;
 mod normals;
 mod reconstruct;

@@ -356,3 +356,85 @@ fn reconstruct_estimates_missing_normals_and_says_so() {
     ]);
     assert_fails(&out, USAGE, &["needs --viewpoint"], &output);
 }
+
+#[test]
+fn compare_refuses_a_reference_with_other_points() {
+    let (dir, input, _) = sphere_dir(500);
+    // The same number of points, but another sphere: refused before any work, saying why.
+    let shifted: Vec<_> = sphere(500)
+        .into_iter()
+        .map(|(p, n)| (p.map(|x| x + 0.01), n))
+        .collect();
+    let other = dir.path().join("shifted.ply");
+    write_ply(&other, &shifted, true, &[]);
+    let output = dir.path().join("out.ply");
+    let out = spsr(&[
+        "normals",
+        s(&input),
+        "-o",
+        s(&output),
+        "--compare",
+        s(&other),
+    ]);
+    assert_fails(
+        &out,
+        DATA,
+        &[
+            "shifted.ply",
+            "points differ",
+            "500 of 500",
+            "same points in the same order",
+        ],
+        &output,
+    );
+    // One point moved: named, with its distance.
+    let mut moved = sphere(500);
+    moved[17].0[2] += 0.5;
+    write_ply(&other, &moved, true, &[]);
+    let out = spsr(&["normals", s(&input), "--compare", s(&other)]);
+    assert_fails(&out, DATA, &["1 of 500", "point 17", "5.000e-1"], &output);
+}
+
+#[test]
+fn output_formats_by_extension_and_mesh_files_as_input() {
+    let (dir, input, _) = sphere_dir(800);
+    let output = dir.path().join("out.las");
+    let out = spsr(&["normals", s(&input), "-o", s(&output)]);
+    assert_fails(&out, USAGE, &["out.las", ".ply, .xyz, .txt"], &output);
+    // Text output: x y z nx ny nz (the input's `red` alone is no colour), readable as oriented
+    // points.
+    let xyz = dir.path().join("out.xyz");
+    assert_ok(&spsr(&["normals", s(&input), "-o", s(&xyz)]));
+    let cloud = spsr::io::read_points(&xyz).unwrap();
+    assert_eq!(cloud.len(), 800);
+    let first = fs::read_to_string(&xyz).unwrap();
+    assert_eq!(first.lines().next().unwrap().split(' ').count(), 6);
+    // A mesh file's vertices as the cloud, compared with the same vertices with normals.
+    let mesh = spsr::Mesh {
+        vertices: sphere(800).iter().map(|(p, _)| *p).collect(),
+        normals: Some(
+            sphere(800)
+                .iter()
+                .map(|(_, n)| n.map(|c| c as f32))
+                .collect(),
+        ),
+        ..Default::default()
+    };
+    let off = dir.path().join("vertices.off");
+    spsr::io::write_mesh(&off, &mesh, &spsr::io::WriteOptions::default()).unwrap();
+    let out = spsr(&["normals", s(&off), "--compare", s(&off)]);
+    assert_ok(&out);
+    assert!(
+        stdout(&out).contains("100.000 % oriented like the reference"),
+        "{}",
+        stdout(&out)
+    );
+    // Against the PLY of the same points (float there, f32 text in the OFF): accepted.
+    let out = spsr(&[
+        "normals",
+        s(&off),
+        "--compare",
+        s(&dir.path().join("ref.ply")),
+    ]);
+    assert_ok(&out);
+}

@@ -292,3 +292,63 @@ fn help_explains_trimming_and_its_defaults() {
     let help = String::from_utf8(out.stdout).unwrap();
     assert!(help.contains("trim"), "{help}");
 }
+
+#[test]
+fn meshes_without_density_formats_say_where_density_comes_from() {
+    let (dir, input) = dome_dir();
+    let (mesh, _) = reconstruct_dome(dir.path(), &input, "mesh.obj", &["--density"]);
+    let output = dir.path().join("out.ply");
+    let out = spsr(&["trim", s(&mesh), "--trim", "auto", "-o", s(&output)]);
+    assert_fails_one_line(
+        &out,
+        DATA,
+        &[
+            "mesh.obj",
+            "no per-vertex density",
+            "PLY and GLB",
+            "--density",
+        ],
+        &output,
+    );
+}
+
+#[test]
+fn glb_keeps_the_density_and_trim_writes_the_output_format() {
+    let (dir, input) = dome_dir();
+    let (mesh, _) = reconstruct_dome(dir.path(), &input, "mesh.glb", &["--density"]);
+    assert!(spsr::io::read_mesh(&mesh).unwrap().density.is_some());
+    for name in ["trimmed.off", "trimmed.glb"] {
+        let output = dir.path().join(name);
+        let out = spsr(&["trim", s(&mesh), "--trim", "auto", "-o", s(&output)]);
+        assert!(out.status.success(), "{}", stderr(&out));
+        let trimmed = spsr::io::read_mesh(&output).unwrap();
+        assert!(
+            trimmed.topology().boundary_edges > 0,
+            "{name}: the cap is cut away"
+        );
+        assert_eq!(trimmed.density.is_some(), name.ends_with(".glb"), "{name}");
+    }
+    assert!(fs::read_to_string(dir.path().join("trimmed.off"))
+        .unwrap()
+        .starts_with("OFF\n"));
+}
+
+#[test]
+fn unknown_output_extensions_are_refused_before_reading() {
+    let dir = TempDir::new().unwrap();
+    // The input does not exist: the output is checked first.
+    let missing = dir.path().join("missing.ply");
+    for name in ["out.xyz", "out"] {
+        let output = dir.path().join(name);
+        let out = spsr(&["trim", s(&missing), "--trim", "auto", "-o", s(&output)]);
+        assert_fails_one_line(
+            &out,
+            USAGE,
+            &[name, ".ply, .obj, .stl, .off, .glb"],
+            &output,
+        );
+        let out = spsr(&["reconstruct", s(&missing), "-o", s(&output)]);
+        assert_fails_one_line(&out, USAGE, &[name, "not a mesh format"], &output);
+    }
+    assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 0);
+}

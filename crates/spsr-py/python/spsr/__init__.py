@@ -254,7 +254,10 @@ class Mesh:
         For meshes returned by :func:`reconstruct`: ``points``, ``dropped``, ``samples``,
         ``iso_value``, ``mean_sample_depth``, ``nodes_per_depth``, ``stages`` (name and
         seconds of each stage), ``peak_memory`` (bytes after each stage, or None),
-        ``warnings`` and ``trim`` (the trimming's figures, or None). For meshes returned by
+        ``warnings``, ``diagnosis`` (the checks of the result: ``pieces``, ``closed``,
+        ``boundary_edges``, ``on_cube``, the vertices on the bounding cube's faces, and
+        ``contradicted_normals``, the share of the normals against the surface)
+        and ``trim`` (the trimming's figures, or None). For meshes returned by
         :func:`trim`: ``trim``.
 
     Examples
@@ -473,7 +476,7 @@ def reconstruct(
     *,
     depth: int = 8,
     full_depth: Optional[int] = None,
-    samples_per_node: float = 1.5,
+    samples_per_node: Optional[float] = None,
     point_weight: Optional[float] = None,
     degree: int = 1,
     boundary: str = "neumann",
@@ -494,6 +497,9 @@ def reconstruct(
     trim: Union[float, str, None] = None,
     min_island_area: float = 0.001,
     hole_area: float = 0.001,
+    noise: Optional[str] = None,
+    keep_outliers: bool = False,
+    keep_normals: bool = False,
     threads: Optional[int] = None,
 ) -> Mesh:
     """Reconstruct a watertight triangle mesh from oriented points.
@@ -520,10 +526,23 @@ def reconstruct(
     full_depth : int, optional
         The octree is complete down to this depth, where the coarse solve happens.
         Default 5, or ``depth`` when that is smaller.
-    samples_per_node : float, default 1.5
-        Target samples per octree node (PoissonRecon 18; version 6 used 1.0).
+    samples_per_node : float, optional
+        Target samples per octree node (PoissonRecon 18; version 6 used 1.0). Default 1.5.
+        Giving it turns the noise adaptation off unless ``noise="adaptive"`` is given too.
     point_weight : float, optional
         Screening weight alpha; 0 gives the unscreened 2006 method. Default 2 * degree.
+        Giving it turns the noise adaptation off unless ``noise="adaptive"`` is given too.
+    noise : {"adaptive", "off"}, optional
+        ``"adaptive"`` measures the noise around every point and splats noisy regions
+        coarser (clean ones keep full detail), and removes pieces under 0.1 % of the mesh's
+        area (bubbles left by noise); ``"off"`` is exactly PoissonRecon's behaviour.
+        Default adaptive, or off when ``samples_per_node`` or ``point_weight`` is given.
+    keep_outliers : bool, default False
+        Keep the far outliers (a few points far outside the box that holds the rest)
+        instead of leaving them out with a warning.
+    keep_normals : bool, default False
+        Keep the normals as given even when many point against their neighbours' (by
+        default such normals are made consistent, with a warning).
     degree : {1, 2}, default 1
         B-spline degree (PoissonRecon 18; the 2013 paper uses 2).
     boundary : {"neumann", "dirichlet", "free"}, default "neumann"
@@ -637,6 +656,9 @@ def reconstruct(
         full_depth=full_depth,
         samples_per_node=samples_per_node,
         point_weight=point_weight,
+        noise=noise,
+        keep_outliers=keep_outliers,
+        keep_normals=keep_normals,
         degree=degree,
         boundary=boundary,
         scale=scale,
@@ -932,7 +954,9 @@ def render(
 
 
 def read_points(path: PathLike) -> PointCloud:
-    """Read a point cloud: PLY, text (``.xyz``, ``.txt``, ``.csv``, ...), LAS/LAZ, E57 or PCD.
+    """Read a point cloud: PLY, text (``.xyz``, ``.txt``, ``.csv``, ...), LAS/LAZ, E57 or PCD,
+    or the vertices of a mesh file (OBJ, OFF, STL, GLB; with their normals where the file
+    has one per vertex).
 
     The format is recognised by the file's first bytes, else by its extension; anything
     else is read as text.
@@ -959,11 +983,13 @@ def read_points(path: PathLike) -> PointCloud:
 
 
 def read_mesh(path: PathLike) -> Mesh:
-    """Read a PLY triangle mesh (polygons are fan-triangulated).
+    """Read a triangle mesh: PLY, OBJ, STL, OFF or GLB (polygons are fan-triangulated).
 
-    A vertex property ``density`` fills ``Mesh.density``, ``nx ny nz`` fill
-    ``Mesh.normals``, colour properties ``Mesh.colors`` and every other scalar vertex
-    property ``Mesh.attributes``.
+    The format is recognised by the file's first bytes, else by its extension. PLY: a
+    vertex property ``density`` fills ``Mesh.density``, ``nx ny nz`` fill ``Mesh.normals``,
+    colour properties ``Mesh.colors`` and every other scalar vertex property
+    ``Mesh.attributes``. GLB keeps normals, colours and spsr's density; OBJ and OFF normals
+    and colours; STL positions only (corners at the same position become one vertex).
     """
     return Mesh._from_native(_spsr.read_mesh(os.fspath(path)))
 
@@ -971,15 +997,17 @@ def read_mesh(path: PathLike) -> Mesh:
 def write_mesh(path: PathLike, mesh: Mesh, *, ascii: bool = False) -> None:
     """Write a mesh, in the format its extension names.
 
-    ``.obj`` (Wavefront OBJ with vertex colours and normals), ``.stl`` (binary, or ASCII),
-    ``.glb`` (glTF 2.0 binary), anything else PLY (binary little endian, or ASCII) with
-    normals, colours, attributes and density. The file appears only when complete (written
-    to a temporary file in the same folder, then renamed).
+    ``.ply`` (binary little endian, or ASCII) with normals, colours, attributes and density;
+    ``.obj`` (Wavefront OBJ with vertex colours and normals), ``.off`` (OFF with normals and
+    colours), ``.stl`` (binary, or ASCII), ``.glb`` (glTF 2.0 binary with normals, colours
+    and density). The file appears only when complete (written to a temporary file in the
+    same folder, then renamed).
 
     Raises
     ------
     OSError
-        The folder does not exist or is not writable, or the path is a folder.
+        The extension is none of these, the folder does not exist or is not writable, or
+        the path is a folder.
     """
     if not isinstance(mesh, Mesh):
         raise TypeError(f"mesh must be an spsr.Mesh, got {type(mesh).__name__}")
@@ -995,9 +1023,12 @@ def write_points(
     attributes: Optional[Mapping[str, ArrayLike]] = None,
     ascii: bool = False,
 ) -> None:
-    """Write a point cloud as PLY, with normals, colours and attributes in their own types.
+    """Write a point cloud, in the format its extension names.
 
-    Written atomically, like :func:`write_mesh`. ``points`` may be a :class:`PointCloud`.
+    ``.ply``: normals, colours and attributes in their own types. ``.xyz`` or ``.txt``:
+    text, ``x y z``, then ``nx ny nz`` with normals, then ``r g b`` with normals and
+    colours. Any other extension raises ``OSError``. Written atomically, like
+    :func:`write_mesh`. ``points`` may be a :class:`PointCloud`.
     """
     if isinstance(points, PointCloud):
         cloud = points

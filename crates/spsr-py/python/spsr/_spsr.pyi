@@ -18,7 +18,7 @@ def reconstruct(
     *,
     depth: int,
     full_depth: Optional[int],
-    samples_per_node: float,
+    samples_per_node: Optional[float],
     point_weight: Optional[float],
     degree: int,
     boundary: str,
@@ -37,6 +37,9 @@ def reconstruct(
     trim: Optional[object],
     min_island_area: float,
     hole_area: float,
+    noise: Optional[str],
+    keep_outliers: bool,
+    keep_normals: bool,
 ) -> Dict[str, Any]: ...
 def trim(
     mesh: _MeshArgs,

@@ -13,10 +13,22 @@
 //! * E57 (`.e57`): every scan, moved by its pose into one frame; colours, intensity and
 //!   other fields as attributes; normals from the E57 surface-normals extension.
 //! * PCD (`.pcd`): `ascii`, `binary` and `binary_compressed` bodies.
+//! * The vertices of a mesh file, in every mesh format below but PLY (whose `vertex`
+//!   element is read as above): OBJ (`v`, with `vn` normals where each vertex has one), OFF
+//!   (normals with `NOFF`), STL (the merged corners, no normals) and GLB (`POSITION`,
+//!   `NORMAL`); colours as attributes. Vertices no face uses are points too.
 //!
-//! **Meshes in** ([`read_mesh`]): PLY. **Meshes out** ([`write_mesh`], by extension,
-//! [`MeshFormat::from_path`]): PLY (binary little endian, or ASCII), OBJ, STL (binary, or
-//! ASCII), glTF binary (`.glb`). **Point clouds out** ([`write_cloud`]): PLY.
+//! **Meshes in** ([`read_mesh`]), chosen by the first bytes, then by the extension
+//! ([`MeshFormat::detect`]): PLY (any encoding), OBJ (polygons fan-triangulated, negative
+//! indices), STL (binary or ASCII; identical corners merged into one vertex), OFF
+//! (`OFF`/`COFF`/`NOFF`/`CNOFF`/`STOFF`), glTF binary (`.glb`: what spsr writes, and triangle
+//! primitives of other files, placed by their nodes' transforms). **Meshes out**
+//! ([`write_mesh`], by extension, [`MeshFormat::from_path`]; any other extension is an
+//! error): PLY (binary little endian, or ASCII), OBJ, STL (binary, or ASCII), OFF, glTF
+//! binary. Each writer's and reader's module says what the format keeps: PLY and GLB keep
+//! normals, colours and density; OBJ and OFF normals and colours; STL positions only.
+//! **Point clouds out** ([`write_cloud`], by extension): PLY (`.ply`) or text (`.xyz`,
+//! `.txt`).
 //!
 //! Readers stream the file (through a buffered reader, or in chunks of points) and append
 //! to the output columns; no file is loaded whole. Output columns are reserved from the point count in the header, bounded by
@@ -47,10 +59,13 @@ use crate::Result;
 mod e57_file;
 mod glb;
 mod las_file;
+mod lines;
 mod lzf;
 mod obj;
+mod off;
 mod pcd;
 mod ply;
+mod read_glb;
 mod read_ply;
 mod stl;
 mod text;
@@ -109,36 +124,59 @@ pub enum CloudFormat {
     E57,
     /// Point Cloud Library PCD.
     Pcd,
+    /// The vertices of a mesh file other than PLY (OBJ, OFF, STL, GLB).
+    Mesh(MeshFormat),
+}
+
+/// A path's extension in lower case, if it has one.
+fn extension(path: &Path) -> Option<String> {
+    Some(path.extension()?.to_str()?.to_ascii_lowercase())
 }
 
 impl CloudFormat {
     /// The format of a file from its first bytes (`ply`, `LASF`, `ASTM-E57`, `# .PCD` or
-    /// `VERSION`), if they identify one.
+    /// `VERSION`, or a mesh format's: see [`MeshFormat::from_magic`]), if they identify one.
     pub fn from_magic(head: &[u8]) -> Option<Self> {
-        if head.starts_with(b"ply\n") || head.starts_with(b"ply\r\n") {
-            Some(CloudFormat::Ply)
-        } else if head.starts_with(b"LASF") {
+        if head.starts_with(b"LASF") {
             Some(CloudFormat::Las)
         } else if head.starts_with(b"ASTM-E57") {
             Some(CloudFormat::E57)
         } else if head.starts_with(b"# .PCD") || head.starts_with(b"VERSION") {
             Some(CloudFormat::Pcd)
         } else {
-            None
+            MeshFormat::from_magic(head).map(Self::of_mesh)
         }
     }
 
     /// The format named by a file's extension (any case): `.ply`, `.las`, `.laz`, `.e57`,
-    /// `.pcd`; `None` for anything else.
+    /// `.pcd`, and the mesh formats' `.obj`, `.off`, `.stl`, `.glb`; `None` for anything else.
     pub fn from_extension(path: &Path) -> Option<Self> {
-        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
-        Some(match ext.as_str() {
-            "ply" => CloudFormat::Ply,
+        Some(match extension(path)?.as_str() {
             "las" | "laz" => CloudFormat::Las,
             "e57" => CloudFormat::E57,
             "pcd" => CloudFormat::Pcd,
-            _ => return None,
+            _ => return MeshFormat::from_extension(path).map(Self::of_mesh),
         })
+    }
+
+    fn of_mesh(format: MeshFormat) -> Self {
+        match format {
+            MeshFormat::Ply => CloudFormat::Ply,
+            other => CloudFormat::Mesh(other),
+        }
+    }
+
+    /// The format [`write_cloud`] writes to `path`, by its extension (any case): PLY for
+    /// `.ply`, text for `.xyz` and `.txt`.
+    ///
+    /// # Errors
+    /// [`Error::Output`] for any other extension, or none, naming the ones known.
+    pub fn for_output(path: &Path) -> Result<Self> {
+        match extension(path).as_deref() {
+            Some("ply") => Ok(CloudFormat::Ply),
+            Some("xyz" | "txt") => Ok(CloudFormat::Text),
+            _ => Err(unknown_extension(path, "point cloud", ".ply, .xyz, .txt")),
+        }
     }
 
     /// The format [`read_cloud`] uses for `path`: from its first bytes, else from its
@@ -159,7 +197,7 @@ impl CloudFormat {
     }
 }
 
-/// The mesh file formats [`write_mesh`] writes.
+/// The mesh file formats [`read_mesh`] reads and [`write_mesh`] writes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MeshFormat {
     /// Stanford PLY (binary little endian, or ASCII).
@@ -168,24 +206,90 @@ pub enum MeshFormat {
     Obj,
     /// STL (binary, or ASCII).
     Stl,
+    /// Object File Format (ASCII).
+    Off,
     /// glTF 2.0 binary.
     Glb,
 }
 
+/// The mesh formats' extensions, as messages list them.
+const MESH_EXTENSIONS: &str = ".ply, .obj, .stl, .off, .glb";
+
+fn unknown_extension(path: &Path, what: &str, known: &str) -> Error {
+    let found = match path.extension() {
+        Some(e) => format!("extension '.{}' is not", e.to_string_lossy()),
+        None => "a name without an extension is not".into(),
+    };
+    Error::Output {
+        path: path.to_path_buf(),
+        message: format!("{found} a {what} format spsr writes; use one of {known}"),
+    }
+}
+
 impl MeshFormat {
-    /// The format for an output path, by extension (any case): `.obj`, `.stl`, `.glb`, and
-    /// PLY for `.ply` and for every other name (including none).
-    pub fn from_path(path: &Path) -> Self {
-        let ext = path
-            .extension()
-            .and_then(|e| e.to_str())
-            .map(|e| e.to_ascii_lowercase());
-        match ext.as_deref() {
-            Some("obj") => MeshFormat::Obj,
-            Some("stl") => MeshFormat::Stl,
-            Some("glb") => MeshFormat::Glb,
-            _ => MeshFormat::Ply,
+    /// The format of a file from its first bytes: `ply`, `glTF`, an OFF header keyword
+    /// (`OFF`, `COFF`, `NOFF`, ...) or `solid` (ASCII STL; binary STL has no magic).
+    pub fn from_magic(head: &[u8]) -> Option<Self> {
+        if head.starts_with(b"ply\n") || head.starts_with(b"ply\r\n") {
+            Some(MeshFormat::Ply)
+        } else if read_glb::is_glb(head) {
+            Some(MeshFormat::Glb)
+        } else if off::is_off(head) {
+            Some(MeshFormat::Off)
+        } else if stl::starts_solid(head) {
+            Some(MeshFormat::Stl)
+        } else {
+            None
         }
+    }
+
+    /// The format named by a file's extension (any case): `.ply`, `.obj`, `.stl`, `.off`,
+    /// `.glb`; `None` for anything else.
+    pub fn from_extension(path: &Path) -> Option<Self> {
+        Some(match extension(path)?.as_str() {
+            "ply" => MeshFormat::Ply,
+            "obj" => MeshFormat::Obj,
+            "stl" => MeshFormat::Stl,
+            "off" => MeshFormat::Off,
+            "glb" => MeshFormat::Glb,
+            _ => return None,
+        })
+    }
+
+    /// The format for an output path, by its extension (any case): `.ply`, `.obj`, `.stl`,
+    /// `.off` or `.glb`.
+    ///
+    /// # Errors
+    /// [`Error::Output`] for any other extension, or none, naming the ones known (nothing is
+    /// written under a name that says another format).
+    pub fn from_path(path: &Path) -> Result<Self> {
+        Self::from_extension(path).ok_or_else(|| unknown_extension(path, "mesh", MESH_EXTENSIONS))
+    }
+
+    /// The format [`read_mesh`] uses for `path`: from its first bytes, else from its
+    /// extension.
+    ///
+    /// # Errors
+    /// [`Error::Io`] if the file cannot be opened or read, or is a directory;
+    /// [`Error::Parse`] if neither its first bytes nor its extension name a mesh format.
+    pub fn detect(path: &Path) -> Result<Self> {
+        let (mut reader, _) = open(path)?;
+        let head = reader.fill_buf().map_err(|e| io_err(path, e))?;
+        Self::choose(path, head)
+    }
+
+    fn choose(path: &Path, head: &[u8]) -> Result<Self> {
+        Self::from_magic(head)
+            .or_else(|| Self::from_extension(path))
+            .ok_or_else(|| {
+                parse_err(
+                    path,
+                    format!(
+                        "not a mesh format spsr reads: neither its first bytes nor its \
+                         extension say PLY, OBJ, STL, OFF or GLB ({MESH_EXTENSIONS})"
+                    ),
+                )
+            })
     }
 }
 
@@ -198,6 +302,47 @@ fn read_cloud_as(path: &Path, need_normals: bool) -> Result<PointCloud> {
         CloudFormat::Las => las_file::read_las(path, reader, len, need_normals),
         CloudFormat::E57 => e57_file::read_e57(path, reader, len, need_normals),
         CloudFormat::Pcd => pcd::read_pcd(path, reader, len, need_normals),
+        CloudFormat::Mesh(format) => {
+            let mesh = read_mesh_as(path, reader, len, format)?;
+            mesh_vertices(path, mesh, need_normals)
+        }
+    }
+}
+
+/// A mesh's vertices as a point cloud: positions, normals where the mesh has them, and its
+/// attributes (colours); the density is not a property of points and is left out.
+fn mesh_vertices(path: &Path, mesh: Mesh, need_normals: bool) -> Result<PointCloud> {
+    let normals: Vec<[f64; 3]> = mesh
+        .normals
+        .into_iter()
+        .flatten()
+        .map(|n| n.map(f64::from))
+        .collect();
+    if need_normals && normals.is_empty() && !mesh.vertices.is_empty() {
+        return Err(Error::MissingNormals {
+            path: path.to_path_buf(),
+        });
+    }
+    Ok(PointCloud {
+        positions: mesh.vertices,
+        normals,
+        attributes: mesh.attributes,
+        scan_origins: Vec::new(),
+    })
+}
+
+fn read_mesh_as(
+    path: &Path,
+    reader: BufReader<File>,
+    len: u64,
+    format: MeshFormat,
+) -> Result<Mesh> {
+    match format {
+        MeshFormat::Ply => read_ply::read_mesh(path, reader, len),
+        MeshFormat::Obj => obj::read_obj(path, reader),
+        MeshFormat::Stl => stl::read_stl(path, reader, len),
+        MeshFormat::Off => off::read_off(path, reader, len),
+        MeshFormat::Glb => read_glb::read_glb(path, reader, len),
     }
 }
 
@@ -205,8 +350,9 @@ fn read_cloud_as(path: &Path, need_normals: bool) -> Result<PointCloud> {
 /// with or without normals.
 ///
 /// The format comes from the file's first bytes (`ply`, `LASF`, `ASTM-E57`, `# .PCD` or
-/// `VERSION`), else from its extension (`.ply`, `.las`, `.laz`, `.e57`, `.pcd`, any case);
-/// anything else is read as text. Normals are read when the file has them
+/// `VERSION`, `glTF`, an OFF keyword, `solid`), else from its extension (`.ply`, `.las`,
+/// `.laz`, `.e57`, `.pcd`, `.obj`, `.off`, `.stl`, `.glb`, any case); anything else is read as
+/// text. A mesh file gives its vertices (see the [module documentation](self)). Normals are read when the file has them
 /// ([`PointCloud::normals`] is empty otherwise); every other numeric per-point property
 /// becomes an [`crate::attributes::Attribute`] in its own type, in file order. Invalid
 /// points (NaN, zero normals) are kept.
@@ -229,26 +375,31 @@ pub fn read_points(path: &Path) -> Result<PointCloud> {
     read_cloud_as(path, true)
 }
 
-/// Reads a triangle mesh from PLY (faces as lists; polygons fan-triangulated).
+/// Reads a triangle mesh: PLY, OBJ, STL, OFF or GLB, chosen by the file's first bytes, then
+/// by its extension ([`MeshFormat::detect`]). Polygons are fan-triangulated; faces with
+/// fewer than three vertices are skipped.
 ///
-/// Needs a `vertex` element with `x y z` and a `face` element with a list property named
-/// `vertex_indices` or `vertex_index` (any integer types). Faces with fewer than three
-/// indices are skipped. A vertex property `density` (or else `value`) fills
-/// [`Mesh::density`], `nx ny nz` fill [`Mesh::normals`], and every other scalar vertex
-/// property becomes an attribute.
+/// PLY needs a `vertex` element with `x y z` and a `face` element with a list property named
+/// `vertex_indices` or `vertex_index` (any integer types); a vertex property `density` (or
+/// else `value`) fills [`Mesh::density`], `nx ny nz` fill [`Mesh::normals`], and every other
+/// scalar vertex property becomes an attribute. GLB fills the density from spsr's
+/// `_DENSITY`; OBJ, STL and OFF have none. What each other format gives is in its module's
+/// documentation (see the [module documentation](self)).
 ///
 /// # Errors
-/// [`Error::Io`] if the file cannot be read, [`Error::Parse`] if it is malformed or a face
-/// refers to a vertex that does not exist (the message names the face).
+/// [`Error::Io`] if the file cannot be read, [`Error::Parse`] if its format cannot be told,
+/// it is malformed, or a face refers to a vertex that does not exist (the message names the
+/// face or line).
 pub fn read_mesh(path: &Path) -> Result<Mesh> {
-    let (reader, len) = open(path)?;
-    read_ply::read_mesh(path, reader, len)
+    let (mut reader, len) = open(path)?;
+    let head = reader.fill_buf().map_err(|e| io_err(path, e))?;
+    let format = MeshFormat::choose(path, head)?;
+    read_mesh_as(path, reader, len, format)
 }
 
-/// Writes a mesh in the format its extension names ([`MeshFormat::from_path`]): `.obj`
-/// OBJ, `.stl` STL, `.glb` glTF binary, anything else (`.ply`, another extension, none)
-/// PLY. The file appears only when complete (temporary file in the same folder, then
-/// rename).
+/// Writes a mesh in the format its extension names ([`MeshFormat::from_path`]): `.ply` PLY,
+/// `.obj` OBJ, `.stl` STL, `.off` OFF, `.glb` glTF binary; any other extension is an error.
+/// The file appears only when complete (temporary file in the same folder, then rename).
 ///
 /// * **PLY**: binary little endian unless `opts.ascii`. Vertex properties `x y z`, then
 ///   `nx ny nz` (`float`) when [`Mesh::normals`] is set, then every attribute in its own
@@ -260,10 +411,12 @@ pub fn read_mesh(path: &Path) -> Result<Mesh> {
 ///   attributes.
 /// * **STL**: binary unless `opts.ascii`; each triangle with its geometric unit normal.
 ///   Positions only (STL has no vertex attributes).
+/// * **OFF**: ASCII; `NOFF` with normals, `COFF`/`CNOFF` with colours (bytes, alpha when
+///   the mesh has it), triangles `3 a b c`. No density, no other attributes.
 /// * **GLB**: glTF 2.0 binary with `POSITION`, `NORMAL`, `COLOR_0` (sRGB colours converted
 ///   to glTF's linear colours) and `_DENSITY` when present, and `u32` indices.
 ///
-/// Coordinates are written as `f32`, except that PLY and OBJ write `f64` when the mesh lies
+/// Coordinates are written as `f32`, except that PLY, OBJ and OFF write `f64` when the mesh lies
 /// so far from the origin that `f32` would lose more than a millionth of its size (the
 /// largest coordinate exceeds 16 times the bounding-box diagonal, as with georeferenced
 /// lidar); GLB then stores positions relative to the bounding-box centre, which becomes the
@@ -273,24 +426,31 @@ pub fn read_mesh(path: &Path) -> Result<Mesh> {
 /// The file is not `fsync`ed.
 ///
 /// # Errors
-/// [`Error::Output`] if the directory is missing or not writable, the path is a directory,
-/// or the mesh is inconsistent (an index out of range, a per-vertex array of the wrong
+/// [`Error::Output`] if the extension names no mesh format, the directory is missing or not
+/// writable, the path is a directory, or the mesh is inconsistent (an index out of range, a per-vertex array of the wrong
 /// length, more than `i32::MAX` vertices or triangles, attribute names that PLY cannot
 /// hold or that repeat, a GLB over 4 GiB); [`Error::Io`] if a write fails.
 pub fn write_mesh(path: &Path, mesh: &Mesh, opts: &WriteOptions) -> Result<()> {
     write::write_mesh(path, mesh, opts)
 }
 
-/// Writes a point cloud as PLY (binary little endian unless `opts.ascii`), whatever the
-/// extension: the same points in the same order, with `x y z`, `nx ny nz` when the cloud
-/// has normals, then every attribute in its own type and order. Positions (and normals) are
-/// `float` when every value is exactly representable in `f32`, `double` otherwise, so
-/// nothing is lost. [`PointCloud::scan_origins`] are kept as header comments
-/// `comment spsr scan_origin <first point> <x> <y> <z>`, which [`read_cloud`] reads back.
-/// Written atomically, like [`write_mesh`].
+/// Writes a point cloud in the format its extension names ([`CloudFormat::for_output`]),
+/// the same points in the same order. Written atomically, like [`write_mesh`].
+///
+/// * **PLY** (`.ply`; binary little endian unless `opts.ascii`): `x y z`, `nx ny nz` when
+///   the cloud has normals, then every attribute in its own type and order. Positions (and
+///   normals) are `float` when every value is exactly representable in `f32`, `double`
+///   otherwise, so nothing is lost. [`PointCloud::scan_origins`] are kept as header comments
+///   `comment spsr scan_origin <first point> <x> <y> <z>`, which [`read_cloud`] reads back.
+/// * **Text** (`.xyz`, `.txt`): one point per line, `x y z`, then `nx ny nz` when the cloud
+///   has normals, then `r g b` (bytes) when it also has colours — the layout the text
+///   reader reads; numbers written exactly (the shortest text that reads back the same
+///   `f64`). Other attributes and scan origins are not kept, nor colours without normals
+///   (the layout has no place for them).
 ///
 /// # Errors
-/// [`Error::Output`] if the path cannot be used, the normals or an attribute do not have
+/// [`Error::Output`] if the extension names no cloud format, the path cannot be used, the
+/// normals or an attribute do not have
 /// one value per point, or attribute names are not usable PLY property names (empty, with
 /// spaces, repeated, or `x`, `y`, `z`, `nx`, `ny`, `nz`); [`Error::Io`] if a write fails.
 pub fn write_cloud(path: &Path, cloud: &PointCloud, opts: &WriteOptions) -> Result<()> {
@@ -367,7 +527,8 @@ pub fn read_cloud_from(input: impl std::io::Read, name: &Path) -> Result<PointCl
     read_spooled(input, name, read_cloud)
 }
 
-/// [`read_mesh`] from a reader (PLY); see [`read_points_from`].
+/// [`read_mesh`] from a reader; see [`read_points_from`]. Only formats with magic bytes (PLY,
+/// GLB, OFF, ASCII STL) can be told apart this way.
 ///
 /// # Errors
 /// As [`read_mesh`].

@@ -1,10 +1,25 @@
-//! Wavefront OBJ writing: `v` lines (with the common `v x y z r g b` vertex-colour
-//! extension when the mesh has colours), `vn` lines when it has normals, and 1-based faces.
+//! Wavefront OBJ, reading and writing.
+//!
+//! Writing: `v` lines (with the common `v x y z r g b` vertex-colour extension when the mesh
+//! has colours), `vn` lines when it has normals, and 1-based faces.
+//!
+//! Reading: `v x y z` (a fourth value, the weight `w`, is ignored; six or more values are
+//! `x y z r g b`, kept as colours when every vertex has them), `vn`, and `f` with corners `v`,
+//! `v/vt`, `v//vn` or `v/vt/vn`; indices are 1-based, negative ones count back from the
+//! latest vertex (or normal). Polygons are fan-triangulated, faces of fewer than three
+//! corners skipped, and every other statement (`vt`, `l`, `g`, `o`, `s`, `usemtl`, `mtllib`,
+//! ...) ignored. OBJ gives normals per face corner; the mesh keeps them only when every
+//! vertex gets exactly one: from its corners (which must agree), or, for vertices no face
+//! names with a normal, the `vn` of the same number when the file has as many `vn` as `v`
+//! (as point clouds saved as OBJ have). Otherwise the mesh has no normals.
 
-use std::io::Write;
+use std::io::{BufRead, Write};
+use std::path::Path;
 
 use crate::mesh::Mesh;
+use crate::Result;
 
+use super::lines::{colour_attributes, Lines};
 use super::write::{needs_f64, Encoder};
 
 pub(crate) fn write_obj<W: Write>(out: &mut W, mesh: &Mesh) -> std::io::Result<()> {
@@ -42,4 +57,201 @@ pub(crate) fn write_obj<W: Write>(out: &mut W, mesh: &Mesh) -> std::io::Result<(
         enc.maybe_flush()?;
     }
     enc.finish()
+}
+
+/// No normal named for a vertex yet; `CONFLICT`: its corners name different ones.
+const UNSET: u32 = u32::MAX;
+const CONFLICT: u32 = u32::MAX - 1;
+
+/// A face corner's index (1-based, or negative from the end of the `count` read so far) as
+/// a 0-based index; the upper bound of positive ones is checked once the file is read.
+fn corner_index<R: BufRead>(lines: &Lines<'_, R>, word: &str, count: usize) -> Result<u32> {
+    let i: i64 = lines.number_in(word, "an index (a whole number)")?;
+    let resolved = match i {
+        0 => None,
+        1.. => Some(i - 1),
+        _ => Some(count as i64 + i).filter(|&r| r >= 0),
+    };
+    resolved
+        .and_then(|r| u32::try_from(r).ok())
+        .filter(|&r| r < CONFLICT)
+        .ok_or_else(|| {
+            lines.error(format!(
+                "index {i} refers to nothing ({count} defined so far; indices start at 1, \
+                 negative ones count back from the latest)"
+            ))
+        })
+}
+
+/// What the reader collects besides the mesh's own columns.
+#[derive(Default)]
+struct ObjState {
+    colours: Vec<[f64; 4]>,
+    all_coloured: bool,
+    vn: Vec<[f32; 3]>,
+    /// Per vertex: the `vn` its corners name, [`UNSET`] or [`CONFLICT`].
+    vertex_normal: Vec<u32>,
+    /// The largest vertex and normal indices faces use, with the line of each.
+    max_vertex: Option<(u32, usize)>,
+    max_normal: Option<(u32, usize)>,
+}
+
+pub(crate) fn read_obj<R: BufRead>(path: &Path, reader: R) -> Result<Mesh> {
+    let mut lines = Lines::new(reader, path);
+    let mut mesh = Mesh::default();
+    let mut st = ObjState {
+        all_coloured: true,
+        ..Default::default()
+    };
+    let mut corners: Vec<(u32, Option<u32>)> = Vec::new();
+    while lines.advance(Some('#'))? {
+        let mut words = lines.text().split_whitespace();
+        match words.next() {
+            Some("v") => read_v(&lines, words, &mut mesh, &mut st)?,
+            Some("vn") => {
+                let n = three(&lines, words, "vn")?;
+                st.vn.push(n.map(|c| c as f32));
+            }
+            Some("f") => {
+                corners.clear();
+                for word in words {
+                    corners.push(read_corner(&lines, word, &mesh, &mut st)?);
+                }
+                add_face(&corners, &mut mesh, &mut st);
+            }
+            _ => {}
+        }
+    }
+    let nv = mesh.vertices.len();
+    if let Some((i, line)) = st.max_vertex.filter(|&(i, _)| i as usize >= nv) {
+        return Err(super::parse_err(
+            path,
+            format!(
+                "line {line}: a face refers to vertex {} but the file has {nv} vertices",
+                u64::from(i) + 1
+            ),
+        ));
+    }
+    if let Some((i, line)) = st.max_normal.filter(|&(i, _)| i as usize >= st.vn.len()) {
+        return Err(super::parse_err(
+            path,
+            format!(
+                "line {line}: a face refers to normal {} but the file has {} normals (vn)",
+                u64::from(i) + 1,
+                st.vn.len()
+            ),
+        ));
+    }
+    mesh.normals = vertex_normals(&st, nv);
+    if st.all_coloured && !st.colours.is_empty() {
+        mesh.attributes = colour_attributes(&st.colours);
+    }
+    Ok(mesh)
+}
+
+fn three<'a, R: BufRead>(
+    lines: &Lines<'_, R>,
+    mut words: impl Iterator<Item = &'a str>,
+    what: &str,
+) -> Result<[f64; 3]> {
+    let mut v = [0.0; 3];
+    for (k, c) in v.iter_mut().enumerate() {
+        let word = words
+            .next()
+            .ok_or_else(|| lines.error(format!("'{what}' has {k} numbers, expected at least 3")))?;
+        *c = lines.number_in(word, "a number")?;
+    }
+    Ok(v)
+}
+
+fn read_v<'a, R: BufRead>(
+    lines: &Lines<'_, R>,
+    words: impl Iterator<Item = &'a str>,
+    mesh: &mut Mesh,
+    st: &mut ObjState,
+) -> Result<()> {
+    let mut words = words.peekable();
+    let p = three(lines, &mut words, "v")?;
+    let rest: Vec<&str> = words.take(4).collect();
+    mesh.vertices.push(p);
+    if rest.len() >= 3 {
+        let mut c = [f64::NAN; 4];
+        for (k, word) in rest.iter().take(3).enumerate() {
+            c[k] = lines.number_in(word, "a number")?;
+        }
+        st.colours.push(c);
+    } else {
+        st.all_coloured = false;
+    }
+    if u32::try_from(mesh.vertices.len()).is_err() {
+        return Err(lines.error("more than 4294967295 vertices"));
+    }
+    st.vertex_normal.push(UNSET);
+    Ok(())
+}
+
+/// One corner `v`, `v/vt`, `v//vn` or `v/vt/vn` as (vertex, normal).
+fn read_corner<R: BufRead>(
+    lines: &Lines<'_, R>,
+    word: &str,
+    mesh: &Mesh,
+    st: &mut ObjState,
+) -> Result<(u32, Option<u32>)> {
+    let mut parts = word.split('/');
+    let v = corner_index(lines, parts.next().unwrap_or_default(), mesh.vertices.len())?;
+    let n = match parts.nth(1) {
+        Some(n) if !n.is_empty() => Some(corner_index(lines, n, st.vn.len())?),
+        _ => None,
+    };
+    let line = lines.number();
+    if st.max_vertex.is_none_or(|(m, _)| v > m) {
+        st.max_vertex = Some((v, line));
+    }
+    if let Some(n) = n {
+        if st.max_normal.is_none_or(|(m, _)| n > m) {
+            st.max_normal = Some((n, line));
+        }
+    }
+    Ok((v, n))
+}
+
+/// Fan-triangulates a face and records the normals its corners name.
+fn add_face(corners: &[(u32, Option<u32>)], mesh: &mut Mesh, st: &mut ObjState) {
+    if corners.len() < 3 {
+        return;
+    }
+    for &(v, n) in corners {
+        let Some(slot) = st.vertex_normal.get_mut(v as usize) else {
+            continue; // named before it is defined; the index is checked at the end
+        };
+        if let Some(n) = n {
+            *slot = match *slot {
+                UNSET => n,
+                s if s == n => s,
+                _ => CONFLICT,
+            };
+        }
+    }
+    for k in 1..corners.len() - 1 {
+        mesh.triangles
+            .push([corners[0].0, corners[k].0, corners[k + 1].0]);
+    }
+}
+
+/// One normal per vertex, or none (see the module documentation).
+fn vertex_normals(st: &ObjState, nv: usize) -> Option<Vec<[f32; 3]>> {
+    if st.vn.is_empty() {
+        return None;
+    }
+    let same_count = st.vn.len() == nv;
+    (0..nv)
+        .map(
+            |i| match st.vertex_normal.get(i).copied().unwrap_or(UNSET) {
+                CONFLICT => None,
+                UNSET if same_count => Some(st.vn[i]),
+                UNSET => None,
+                n => st.vn.get(n as usize).copied(),
+            },
+        )
+        .collect()
 }

@@ -13,14 +13,19 @@
 //! the layout is an error. Six values are always read as position and normal, never as
 //! position and colour. Colours that are all integers in `0..=255` become `u8` attributes
 //! `red green blue`; otherwise they are kept as `f32` values (taken to be in `[0, 1]`).
+//!
+//! Writing ([`write_text`]) uses the same layouts: `x y z`, `x y z nx ny nz`, or with colours
+//! (as bytes) `x y z nx ny nz r g b`.
 
-use std::io::BufRead;
+use std::io::{BufRead, Write};
 use std::path::Path;
 
 use crate::attributes::{Attribute, AttributeData};
 use crate::error::Error;
 use crate::points::PointCloud;
 use crate::Result;
+
+use super::write::Encoder;
 
 /// Reads a text point file from `reader`; `path` is only used in error messages. With
 /// `need_normals`, a file whose first data line has fewer than six values is
@@ -143,4 +148,25 @@ pub(crate) fn read_text_points<R: BufRead>(
         attributes,
         scan_origins: Vec::new(),
     })
+}
+
+/// Writes a cloud as text, one point per line; numbers in their shortest exact form.
+pub(crate) fn write_text<W: Write>(out: &mut W, cloud: &PointCloud) -> std::io::Result<()> {
+    let with_normals = cloud.has_normals();
+    let colours = cloud.colors().filter(|_| with_normals);
+    let mut enc = Encoder::new(out);
+    for (i, p) in cloud.positions.iter().enumerate() {
+        write!(enc.buf, "{} {} {}", p[0], p[1], p[2])?;
+        if with_normals {
+            let n = cloud.normals[i];
+            write!(enc.buf, " {} {} {}", n[0], n[1], n[2])?;
+        }
+        if let Some(c) = &colours {
+            let [r, g, b, _] = c.unit(i).map(|x| (x * 255.0).round() as u8);
+            write!(enc.buf, " {r} {g} {b}")?;
+        }
+        enc.buf.push(b'\n');
+        enc.maybe_flush()?;
+    }
+    enc.finish()
 }

@@ -10,7 +10,7 @@ use crate::points::PointCloud;
 use crate::Result;
 
 use super::unfinished::Unfinished;
-use super::{glb, obj, stl, write_ply, MeshFormat, WriteOptions};
+use super::{glb, obj, off, stl, text, write_ply, CloudFormat, MeshFormat, WriteOptions};
 
 /// Encoded bytes collected before each `write_all`.
 pub(crate) const FLUSH_BYTES: usize = 1 << 20;
@@ -192,21 +192,33 @@ pub(crate) fn write_mesh_to(
     validate(name, mesh)?;
     check_format(name, format, mesh)?;
     let mut w = BufWriter::with_capacity(1 << 16, out);
-    let r = match format {
-        MeshFormat::Ply => write_ply::write_mesh(&mut w, mesh, opts.ascii),
-        MeshFormat::Obj => obj::write_obj(&mut w, mesh),
-        MeshFormat::Stl if opts.ascii => stl::write_ascii(&mut w, mesh),
-        MeshFormat::Stl => stl::write_binary(&mut w, mesh),
-        MeshFormat::Glb => glb::write_glb(&mut w, mesh),
-    };
-    r.and_then(|()| w.flush()).map_err(|e| io_err(name, e))
+    encode_mesh(&mut w, format, mesh, opts)
+        .and_then(|()| w.flush())
+        .map_err(|e| io_err(name, e))
+}
+
+/// The one place that maps a mesh format to its writer.
+fn encode_mesh<W: Write>(
+    w: &mut W,
+    format: MeshFormat,
+    mesh: &Mesh,
+    opts: &WriteOptions,
+) -> std::io::Result<()> {
+    match format {
+        MeshFormat::Ply => write_ply::write_mesh(w, mesh, opts.ascii),
+        MeshFormat::Obj => obj::write_obj(w, mesh),
+        MeshFormat::Stl if opts.ascii => stl::write_ascii(w, mesh),
+        MeshFormat::Stl => stl::write_binary(w, mesh),
+        MeshFormat::Off => off::write_off(w, mesh),
+        MeshFormat::Glb => glb::write_glb(w, mesh),
+    }
 }
 
 fn check_format(path: &Path, format: MeshFormat, mesh: &Mesh) -> Result<()> {
     match format {
         MeshFormat::Ply => write_ply::check_mesh_names(mesh).map_err(|m| output_err(path, m)),
         MeshFormat::Glb => glb::check_size(mesh).map_err(|m| output_err(path, m)),
-        MeshFormat::Obj | MeshFormat::Stl => Ok(()),
+        MeshFormat::Obj | MeshFormat::Stl | MeshFormat::Off => Ok(()),
     }
 }
 
@@ -255,19 +267,14 @@ pub(crate) fn write_atomically(
 }
 
 pub(crate) fn write_mesh(path: &Path, mesh: &Mesh, opts: &WriteOptions) -> Result<()> {
+    let format = MeshFormat::from_path(path)?;
     validate(path, mesh)?;
-    let format = MeshFormat::from_path(path);
     check_format(path, format, mesh)?;
-    write_atomically(path, |w| match format {
-        MeshFormat::Ply => write_ply::write_mesh(w, mesh, opts.ascii),
-        MeshFormat::Obj => obj::write_obj(w, mesh),
-        MeshFormat::Stl if opts.ascii => stl::write_ascii(w, mesh),
-        MeshFormat::Stl => stl::write_binary(w, mesh),
-        MeshFormat::Glb => glb::write_glb(w, mesh),
-    })
+    write_atomically(path, |w| encode_mesh(w, format, mesh, opts))
 }
 
 pub(crate) fn write_cloud(path: &Path, cloud: &PointCloud, opts: &WriteOptions) -> Result<()> {
+    let format = CloudFormat::for_output(path)?;
     let n = cloud.len();
     if !cloud.normals.is_empty() && cloud.normals.len() != n {
         return Err(output_err(
@@ -279,6 +286,9 @@ pub(crate) fn write_cloud(path: &Path, cloud: &PointCloud, opts: &WriteOptions) 
         ));
     }
     check_attributes(path, &cloud.attributes, n, "point cloud")?;
+    if format == CloudFormat::Text {
+        return write_atomically(path, |w| text::write_text(w, cloud));
+    }
     write_ply::check_cloud_names(cloud).map_err(|m| output_err(path, m))?;
     write_atomically(path, |w| write_ply::write_cloud(w, cloud, opts.ascii))
 }

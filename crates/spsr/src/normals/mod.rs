@@ -69,7 +69,7 @@
 //! reconstruction each round, until a round flips at most one normal in 10,000, or for
 //! `rounds` rounds; each normal flips at most once.
 
-mod estimate;
+pub(crate) mod estimate;
 pub(crate) mod graph;
 mod knn;
 mod orient;
@@ -479,3 +479,53 @@ fn check_len(n: usize) -> Result<()> {
     }
     Ok(())
 }
+
+/// Re-orients normals that disagree with their neighbours (issue 16): the normals are made
+/// consistent along the minimum spanning forest of the `k`-nearest-neighbour graph (as
+/// [`Orientation::Mst`]), then each connected piece takes the direction the clear majority
+/// (over 60 %) of its given normals had; a piece without a clear majority is turned outward
+/// (as [`Orientation::Mst`] does). Returns how many normals changed sign.
+pub(crate) fn make_consistent(positions: &[[f64; 3]], normals: &mut [[f64; 3]], k: usize) -> usize {
+    let given: Vec<[f64; 3]> = normals.to_vec();
+    let graph = orient::Graph::new(positions, normals, k);
+    let prop = orient::propagate(positions, normals, &graph);
+    let mut outward = normals.to_vec();
+    orient::outward(
+        positions,
+        &mut outward,
+        &graph,
+        &prop.component,
+        prop.components,
+    );
+    // Per piece: how many of its normals now point against the given ones.
+    let mut against = vec![0usize; prop.components];
+    let mut size = vec![0usize; prop.components];
+    for (i, &c) in prop.component.iter().enumerate() {
+        if c == u32::MAX {
+            continue;
+        }
+        size[c as usize] += 1;
+        if dot(given[i], normals[i]) < 0.0 {
+            against[c as usize] += 1;
+        }
+    }
+    let mut flipped = 0;
+    for (i, &c) in prop.component.iter().enumerate() {
+        if c == u32::MAX {
+            continue;
+        }
+        let share = against[c as usize] as f64 / size[c as usize] as f64;
+        if share > CLEAR_MAJORITY {
+            normals[i] = normals[i].map(|x| -x);
+        } else if share >= 1.0 - CLEAR_MAJORITY {
+            normals[i] = outward[i];
+        }
+        if dot(given[i], normals[i]) < 0.0 {
+            flipped += 1;
+        }
+    }
+    flipped
+}
+
+/// The share of a piece's given normals that decides its direction in [`make_consistent`].
+const CLEAR_MAJORITY: f64 = 0.6;

@@ -320,6 +320,8 @@ pub(crate) fn correct(
         point_weight: Some(0.0),
         boundary: crate::Boundary::Dirichlet,
         scale: GLOBAL_SCALE,
+        // The depth above is already chosen from the noise.
+        noise: crate::Noise::Off,
         ..crate::Params::default()
     };
     let offset: Vec<f64> = u

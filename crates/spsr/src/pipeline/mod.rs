@@ -5,12 +5,16 @@
 //! |---|---|---|---|
 //! | 1 preparing points | [`prepare`] | §3.1, §3.2, §3.4 | [`prepare::Prepared`] |
 //! | 2 density | [`density`] | §3.3, §3.5 | [`density::Sampled`] |
+//! | 2a orientation | [`orientation`] | (issue 16) | the samples' normals, made consistent |
+//! | 2b noise | [`noise`] | (issue 16) | the samples' depths, lowered |
 //! | 3 octree | [`tree`] | §3.6, §4.2 | [`tree::Refined`] |
 //! | 4 splatting | [`splat`] | §3.6 | [`splat::VectorField`] |
 //! | 5 clusters | [`system`] | §3.7 | [`system::Screening`] |
 //! | 6 solving | [`solve`] | §6, §7 | [`crate::solver::Solution`] |
 //! | 7 iso-value | [`iso`] | §1.5 | [`Implicit`] |
 //! | 8 extraction | [`extract`] | §9 | [`Mesh`] |
+//! | 9 fragments | [`fragments`] | (issue 16) | the [`Mesh`] without noise bubbles |
+//! | 10 checking the mesh | [`diagnose`] | — | [`diagnose::Diagnosis`] and its warning |
 
 use std::time::{Duration, Instant};
 
@@ -25,17 +29,23 @@ use crate::evaluate::Evaluator;
 use crate::octree::{Octree, DEPTH_OFFSET};
 use crate::solver::Solution;
 use crate::trim::{TrimParams, TrimStats};
-use crate::{resources, Error, Mesh, Params, PointCloud, Result};
+use crate::{resources, Error, Mesh, Noise, Params, PointCloud, Result};
 
 pub mod density;
+pub mod diagnose;
 pub mod extract;
+pub mod fragments;
 pub mod iso;
+pub mod noise;
+pub mod orientation;
 pub mod prepare;
 pub mod solve;
 pub mod splat;
 pub mod system;
 pub mod tree;
 
+use diagnose::{Diagnosis, NormalProbe};
+pub use noise::NoiseSummary;
 pub use prepare::Frame;
 
 /// The output of [`reconstruct`].
@@ -52,7 +62,8 @@ pub struct Reconstruction {
 pub struct Stats {
     /// Points given.
     pub points: usize,
-    /// Points dropped (non-finite values, zero-length normals or unusable weights).
+    /// Points dropped (non-finite values, zero-length normals, unusable weights, or far
+    /// outliers left out).
     pub dropped: usize,
     /// Samples after merging points that share a finest cell.
     pub samples: usize,
@@ -72,6 +83,11 @@ pub struct Stats {
     /// Peak resident memory of the process (bytes) at the end of each stage, where the
     /// platform reports it (Linux); same order as `stages`.
     pub peak_memory: Vec<Option<u64>>,
+    /// What the noise stage measured and changed (`None` with [`Noise::Off`]).
+    pub noise: Option<NoiseSummary>,
+    /// The checks of the result (stage 9): pieces, closedness, surface along the bounding
+    /// cube, normals against χ. A warning in `warnings` when they look wrong.
+    pub diagnosis: Diagnosis,
 }
 
 /// The solved implicit function χ and what extraction needs besides: the output of stages
@@ -118,7 +134,7 @@ pub fn reconstruct_with_progress(
     params: &Params,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<Reconstruction> {
-    reconstruct_input(Input::Borrowed(points), params, progress)
+    reconstruct_input(Input::Borrowed(points), params, None, progress).map(|(r, _)| r)
 }
 
 /// As [`reconstruct_with_progress`], taking the cloud by value: it is released as soon as
@@ -128,7 +144,7 @@ pub fn reconstruct_owned(
     params: &Params,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<Reconstruction> {
-    reconstruct_input(Input::Owned(points), params, progress)
+    reconstruct_input(Input::Owned(points), params, None, progress).map(|(r, _)| r)
 }
 
 /// Reconstructs, then trims the mesh where its density is low (ALGORITHM.md §10): the one
@@ -143,22 +159,46 @@ pub fn reconstruct_and_trim(
 ) -> Result<(Reconstruction, TrimStats)> {
     params.validate()?;
     trim.validate()?;
-    let with_density = Params {
-        density: true,
-        ..params.clone()
-    };
-    let mut out = reconstruct_owned(points, &with_density, progress)?;
-    let mut run = Run::new(progress);
-    let (mesh, trimmed) = run.stage("trimming", || crate::trim::trim(&out.mesh, trim))?;
-    out.mesh = mesh;
-    if !params.density {
-        out.mesh.density = None;
+    match reconstruct_input(Input::Owned(points), params, Some(trim), progress)? {
+        (out, Some(trimmed)) => Ok((out, trimmed)),
+        (_, None) => unreachable!("reconstruct_input trims when it is given trimming parameters"),
     }
-    let (stages, memory) = run.finish();
-    out.stats.stages.extend(stages);
-    out.stats.peak_memory.extend(memory);
-    Ok((out, trimmed))
 }
+
+/// The names [`reconstruct_with_progress`] (and [`reconstruct_and_trim`], with `trimming`)
+/// reports to its progress callback, in order: the stages, with the solver's steps after
+/// "solving". A front end shows them as `[k/N]`.
+pub fn stage_plan(params: &Params, trimming: bool) -> Vec<String> {
+    let base = params.base_depth().max(1).min(params.depth);
+    let solver = ["constraints".to_string(), "solving base depth".into()]
+        .into_iter()
+        .chain((base + 1..=params.depth).map(|d| format!("solving depth {d}")));
+    let adaptive = params.noise == Noise::Adaptive;
+    ["preparing points", "density"]
+        .iter()
+        .map(|s| s.to_string())
+        .chain((!params.keep_normals).then(|| ORIENTATION.to_string()))
+        .chain(adaptive.then(|| NOISE.to_string()))
+        .chain(
+            ["octree", "splatting", "clusters", "solving"]
+                .iter()
+                .map(|s| s.to_string()),
+        )
+        .chain(solver)
+        .chain(["iso-value", "extraction"].map(String::from))
+        .chain(adaptive.then(|| FRAGMENTS.to_string()))
+        .chain(trimming.then(|| "trimming".to_string()))
+        .chain(std::iter::once(CHECKING.to_string()))
+        .collect()
+}
+
+/// The name of stage 10.
+const CHECKING: &str = "checking the mesh";
+
+/// The names of the stages of issue 16.
+const ORIENTATION: &str = "orientation";
+const NOISE: &str = "noise";
+const FRAGMENTS: &str = "fragments";
 
 /// The points handed to the pipeline: an owned cloud is released as soon as its unit-cube
 /// copy exists, which lowers the peak memory by the cloud's size.
@@ -176,16 +216,57 @@ impl Input<'_> {
     }
 }
 
+/// Stages 1–9, with the trimming between extraction and the checks when `trim` is given.
 fn reconstruct_input(
     input: Input,
     params: &Params,
+    trim: Option<&TrimParams>,
     progress: &(dyn Fn(&str) + Sync),
-) -> Result<Reconstruction> {
+) -> Result<(Reconstruction, Option<TrimStats>)> {
     let mut run = Run::new(progress);
-    let (implicit, mut stats) = solve_implicit(input, params, &mut run)?;
-    let mesh = run.stage("extraction", || extract::extract(implicit, params))?;
+    // Trimming needs the per-vertex density, kept on the mesh only when asked for.
+    let solved = Params {
+        density: params.density || trim.is_some(),
+        ..params.clone()
+    };
+    let (implicit, mut stats) = solve_implicit(input, &solved, &mut run)?;
+    let frame = implicit.frame;
+    let mut mesh = run.stage("extraction", || extract::extract(implicit, &solved))?;
+    if params.noise == Noise::Adaptive {
+        let removed = run.stage(FRAGMENTS, || fragments::remove_fragments(&mut mesh));
+        if removed > 0 {
+            stats
+                .warnings
+                .push(Warning::FragmentsRemoved { pieces: removed });
+        }
+    }
+    let trimmed = match trim {
+        Some(t) => {
+            let (cut, trimmed) = run.stage("trimming", || crate::trim::trim(&mesh, t))?;
+            mesh = cut;
+            if !params.density {
+                mesh.density = None;
+            }
+            Some(trimmed)
+        }
+        None => None,
+    };
+    let contradicted = stats.diagnosis.contradicted_normals;
+    stats.diagnosis = run.stage(CHECKING, || Diagnosis {
+        trimmed: trim.is_some(),
+        ..Diagnosis::of(&mesh, frame, params.depth, contradicted)
+    });
+    // Far outliers coarsen every cell, so their warning already names the likely cause of a
+    // poor mesh.
+    if !stats
+        .warnings
+        .iter()
+        .any(|w| matches!(w, Warning::FarOutliers(_)))
+    {
+        stats.warnings.extend(stats.diagnosis.warning());
+    }
     (stats.stages, stats.peak_memory) = run.finish();
-    Ok(Reconstruction { mesh, stats })
+    Ok((Reconstruction { mesh, stats }, trimmed))
 }
 
 /// Stages 1–7: the implicit function χ and its iso-value, with the run's counts (the timings
@@ -213,7 +294,19 @@ pub(crate) fn solve_implicit(
         dropped,
         warnings,
     } = prepared;
-    let sampled = run.stage("density", || density::sample(points, carried, params));
+    let mut sampled = run.stage("density", || density::sample(points, carried, params));
+    let mut warnings = warnings;
+    if !params.keep_normals {
+        let flips = run.stage(ORIENTATION, || {
+            orientation::repair(&mut sampled.samples, params.depth)
+        });
+        warnings.extend(flips);
+    }
+    let noise = (params.noise == Noise::Adaptive).then(|| {
+        run.stage(NOISE, || {
+            noise::adapt(&sampled.samples, &mut sampled.depths, params.depth)
+        })
+    });
     let refined = run.stage("octree", || tree::build(&sampled, params, input_points))?;
     let field = run.stage("splatting", || splat::splat(&refined, &sampled, params))?;
     let density::Sampled {
@@ -229,7 +322,9 @@ pub(crate) fn solve_implicit(
         memory_estimate,
         ..
     } = refined;
-    // From here on only the samples' positions and weights are needed.
+    // From here on only the samples' positions and weights are needed, and a few normals to
+    // check χ against (stage 9).
+    let probe = NormalProbe::take(&samples);
     let samples_len = samples.len();
     let points = system::SamplePoints {
         positions: samples.iter().map(|s| s.pos).collect(),
@@ -257,6 +352,8 @@ pub(crate) fn solve_implicit(
     run.add_parts(&solution.timings);
     let eval = Evaluator::new(&tree, fem, &solution);
     let iso = run.stage("iso-value", || iso::iso_value(&eval, &points));
+    let contradicted_normals = probe.contradicted(&eval);
+    drop(probe);
     let stats = Stats {
         points: input_points,
         dropped,
@@ -269,6 +366,11 @@ pub(crate) fn solve_implicit(
         mean_sample_depth: field.mean_depth,
         warnings,
         memory_estimate,
+        noise,
+        diagnosis: Diagnosis {
+            contradicted_normals,
+            ..Diagnosis::default()
+        },
         ..Stats::default()
     };
     let implicit = Implicit {

@@ -88,7 +88,7 @@ pub fn prepare(points: &PointCloud, params: &Params) -> Result<Prepared> {
             required: MIN_POINTS,
         });
     }
-    let (frame, side) = bounding_cube(points, &valid, params.scale)?;
+    let (mut frame, side) = bounding_cube(points, &valid, params.scale)?;
     let mut warnings = Vec::new();
     if dropped > 0 {
         warnings.push(Warning::DroppedPoints {
@@ -96,9 +96,17 @@ pub fn prepare(points: &PointCloud, params: &Params) -> Result<Prepared> {
             total: points.len(),
         });
     }
+    let mut valid = valid;
     if let Some(w) = far_outliers(points, &valid, side, params.depth) {
-        warnings.push(Warning::FarOutliers(w));
+        if params.keep_outliers {
+            warnings.push(Warning::FarOutliers(w));
+        } else {
+            valid.retain(|&i| !w.is_far(points.positions[i]));
+            frame = bounding_cube(points, &valid, params.scale)?.0;
+            warnings.push(Warning::OutliersDropped(w));
+        }
     }
+    let dropped = points.len() - valid.len();
     let unit: Vec<UnitPoint> = valid
         .par_iter()
         .map(|&i| {
@@ -244,13 +252,9 @@ fn far_outliers(
     if robust <= 0.0 || side <= OUTLIER_RATIO * robust {
         return None;
     }
-    // Points far from the bulk: outside its box grown by its own size on every side.
     let far = valid
         .iter()
-        .filter(|&&i| {
-            let p = points.positions[i];
-            (0..3).any(|a| p[a] < lo[a] - robust || p[a] > hi[a] + robust)
-        })
+        .filter(|&&i| FarOutliers::far_from(lo, hi, robust, points.positions[i]))
         .count();
     let lost = (side / robust).log2().floor() as u32;
     let deeper = depth + lost;

@@ -777,11 +777,24 @@ fn formats_are_detected_by_magic_before_extension() {
     assert_eq!(CloudFormat::detect(&t).unwrap(), CloudFormat::Pcd);
     let t = write_file(dir.path(), "pts.dat", b"1 2 3 0 0 1\n");
     assert_eq!(CloudFormat::detect(&t).unwrap(), CloudFormat::Text);
-    assert_eq!(MeshFormat::from_path(Path::new("a.GLB")), MeshFormat::Glb);
-    assert_eq!(MeshFormat::from_path(Path::new("a.Stl")), MeshFormat::Stl);
-    assert_eq!(MeshFormat::from_path(Path::new("a.obj")), MeshFormat::Obj);
-    assert_eq!(MeshFormat::from_path(Path::new("a.mesh")), MeshFormat::Ply);
-    assert_eq!(MeshFormat::from_path(Path::new("mesh")), MeshFormat::Ply);
+    assert_eq!(
+        MeshFormat::from_path(Path::new("a.GLB")).unwrap(),
+        MeshFormat::Glb
+    );
+    assert_eq!(
+        MeshFormat::from_path(Path::new("a.Stl")).unwrap(),
+        MeshFormat::Stl
+    );
+    assert_eq!(
+        MeshFormat::from_path(Path::new("a.obj")).unwrap(),
+        MeshFormat::Obj
+    );
+    assert_eq!(
+        MeshFormat::from_path(Path::new("a.off")).unwrap(),
+        MeshFormat::Off
+    );
+    assert!(MeshFormat::from_path(Path::new("a.mesh")).is_err());
+    assert!(MeshFormat::from_path(Path::new("mesh")).is_err());
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1171,6 +1184,27 @@ fn write_fuzz_seeds() {
     let pm = dir("ply_mesh");
     write_mesh(&pm.join("ascii.ply"), &mesh, &WriteOptions { ascii: true }).unwrap();
     write_mesh(&pm.join("binary.ply"), &mesh, &WriteOptions::default()).unwrap();
+    let meshes = dir("mesh");
+    let coloured = octahedron([0.5, -1.0, 2.0]);
+    for (name, ascii) in [
+        ("octahedron.obj", false),
+        ("octahedron.off", false),
+        ("octahedron.glb", false),
+        ("binary.stl", false),
+        ("ascii.stl", true),
+    ] {
+        write_mesh(&meshes.join(name), &coloured, &WriteOptions { ascii }).unwrap();
+    }
+    write_file(
+        &meshes,
+        "polygons.obj",
+        b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\nf 1/1/1 2/1/1 3/1/1 4/1/1\nf -1//1 -2 -3/1\n",
+    );
+    write_file(
+        &meshes,
+        "polygons.off",
+        b"# comment\nSTCOFF\n4 1 4\n0 0 0 1 0 0 1 0 0\n1 0 0 0 1 0 1 1 0\n1 1 0 0 0 1 1 1 1\n0 1 0 1 1 1 1 0 1\n4 0 1 2 3 0.5 0.5 0.5\n",
+    );
     let text = dir("text");
     write_file(
         &text,

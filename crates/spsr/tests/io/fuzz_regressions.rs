@@ -38,6 +38,11 @@ fn ply_mesh_inputs() {
 }
 
 #[test]
+fn mesh_inputs() {
+    assert!(replay("mesh", harness::mesh) > 0);
+}
+
+#[test]
 fn text_inputs() {
     assert!(replay("text", harness::text) > 0);
 }

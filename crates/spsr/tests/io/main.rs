@@ -9,3 +9,4 @@ mod eval;
 mod formats;
 mod fuzz_regressions;
 mod io_roundtrip;
+mod mesh_formats;

@@ -182,11 +182,40 @@ fn normal_lengths_do_not_matter_without_confidence() {
 }
 
 #[test]
-fn one_outlier_a_million_units_away_is_reported_with_the_fix() {
-    let mut cloud = sphere(500, [0.0; 3], 1.0, 3);
+fn one_outlier_a_million_units_away_is_left_out_by_default() {
+    let clean = sphere(500, [0.0; 3], 1.0, 3);
+    let mut cloud = clean.clone();
     cloud.positions.push([1.0e6, 0.0, 0.0]);
     cloud.normals.push([1.0, 0.0, 0.0]);
     let out = reconstruct(&cloud, &at_depth(8)).unwrap();
+    let without = reconstruct(&clean, &at_depth(8)).unwrap();
+    assert_eq!(out.mesh.vertices, without.mesh.vertices);
+    assert_eq!(out.mesh.triangles, without.mesh.triangles);
+    let topo = out.mesh.topology();
+    assert!(topo.closed && topo.components == 1, "{topo:?}");
+    assert_eq!(out.stats.warnings.len(), 1, "{:?}", out.stats.warnings);
+    let Warning::OutliersDropped(o) = &out.stats.warnings[0] else {
+        panic!("{:?}", out.stats.warnings)
+    };
+    assert_eq!((o.far, o.total), (1, 501));
+    let text = out.stats.warnings[0].to_string();
+    assert!(
+        text.starts_with("left out 1 far outlier(s) of 501 points, kept the 500"),
+        "{text}"
+    );
+    assert_eq!(out.stats.dropped, 1);
+}
+
+#[test]
+fn one_outlier_a_million_units_away_is_reported_with_the_fix_when_kept() {
+    let mut cloud = sphere(500, [0.0; 3], 1.0, 3);
+    cloud.positions.push([1.0e6, 0.0, 0.0]);
+    cloud.normals.push([1.0, 0.0, 0.0]);
+    let keep = |depth| spsr::Params {
+        keep_outliers: true,
+        ..at_depth(depth)
+    };
+    let out = reconstruct(&cloud, &keep(8)).unwrap();
     assert_finite(&out.mesh);
     assert_eq!(out.stats.warnings.len(), 1, "{:?}", out.stats.warnings);
     let Warning::FarOutliers(o) = &out.stats.warnings[0] else {
@@ -207,7 +236,7 @@ fn one_outlier_a_million_units_away_is_reported_with_the_fix() {
     assert!(!text.contains("raise the depth"), "{text}");
     // A nearer outlier costs fewer depths, and a deeper run is a fix too.
     cloud.positions.last_mut().unwrap()[0] = 100.0;
-    let out = reconstruct(&cloud, &at_depth(8)).unwrap();
+    let out = reconstruct(&cloud, &keep(8)).unwrap();
     let Warning::FarOutliers(o) = &out.stats.warnings[0] else {
         panic!("{:?}", out.stats.warnings)
     };

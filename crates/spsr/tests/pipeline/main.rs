@@ -5,7 +5,9 @@
 mod common;
 
 mod attributes;
+mod diagnosis;
 mod hostile;
+mod noise;
 mod normals;
 mod properties;
 mod reconstruct;

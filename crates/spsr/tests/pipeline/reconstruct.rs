@@ -387,7 +387,11 @@ fn a_far_outlier_is_reported_with_the_fix() {
     let mut cloud = sphere(20_000, [0.0; 3], 1.0, 8);
     cloud.positions.push([1.0e6, 0.0, 0.0]);
     cloud.normals.push([1.0, 0.0, 0.0]);
-    let out = reconstruct(&cloud, &at_depth(6)).unwrap();
+    let keep = Params {
+        keep_outliers: true,
+        ..at_depth(6)
+    };
+    let out = reconstruct(&cloud, &keep).unwrap();
     assert_eq!(out.stats.warnings.len(), 1, "{:?}", out.stats.warnings);
     let w = out.stats.warnings[0].to_string();
     assert!(

@@ -1,0 +1,178 @@
+//! The noise adaptation (issue 16): measured noise, smoother surfaces where the points are
+//! noisy, unchanged surfaces where they are clean, and the removal of noise bubbles.
+
+use crate::common::{assert_closed_manifold, sphere, Rng};
+use spsr::attributes::{Attribute, AttributeData, ScalarType};
+use spsr::{Mesh, Noise, Params, PointCloud};
+
+/// A standard normal variate (Box–Muller).
+fn gauss(rng: &mut Rng) -> f64 {
+    let u = rng.next().max(1e-12);
+    let v = rng.next();
+    (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+}
+
+/// The unit sphere's points moved by Gaussian noise of `sigma` on every coordinate, normals
+/// tilted by noise of `tilt` on every component.
+fn noisy_sphere(n: usize, sigma: f64, tilt: f64, seed: u64) -> PointCloud {
+    let mut cloud = sphere(n, [0.0; 3], 1.0, seed);
+    let mut rng = Rng(seed ^ 0x9e37_79b9);
+    for (p, nrm) in cloud.positions.iter_mut().zip(&mut cloud.normals) {
+        for a in 0..3 {
+            p[a] += sigma * gauss(&mut rng);
+            nrm[a] += tilt * gauss(&mut rng);
+        }
+    }
+    cloud
+}
+
+/// Mean distance of the mesh's vertices from the unit sphere.
+fn radial_error(mesh: &Mesh) -> f64 {
+    let sum: f64 = mesh
+        .vertices
+        .iter()
+        .map(|v| ((v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt() - 1.0).abs())
+        .sum();
+    sum / mesh.vertices.len() as f64
+}
+
+fn params(noise: Noise) -> Params {
+    Params {
+        depth: 8,
+        noise,
+        ..Params::default()
+    }
+}
+
+#[test]
+fn noisy_points_give_a_smoother_single_surface() {
+    let sigma = 0.02;
+    let cloud = noisy_sphere(40_000, sigma, 0.15, 7);
+    let off = spsr::reconstruct(&cloud, &params(Noise::Off)).unwrap();
+    let on = spsr::reconstruct(&cloud, &params(Noise::Adaptive)).unwrap();
+    let topo = assert_closed_manifold(&on.mesh, "adaptive, noisy sphere");
+    assert_eq!(topo.components, 1);
+    let (e_off, e_on) = (radial_error(&off.mesh), radial_error(&on.mesh));
+    assert!(e_on < 0.8 * e_off, "adaptive {e_on} against off {e_off}");
+    // The measured noise follows the noise put in (unit-cube units: the cube's side is 1.1
+    // times the points' extent); the spread within the finer cells reads about half of it.
+    let summary = on.stats.noise.expect("the noise stage ran");
+    let width = 1.1 * (2.0 + 6.0 * sigma);
+    let measured = summary.median * width;
+    assert!(
+        (0.3 * sigma..sigma).contains(&measured),
+        "measured noise {measured}, put in {sigma}"
+    );
+    assert!(summary.adapted > 0.5, "{summary:?}");
+    assert!(off.stats.noise.is_none());
+}
+
+#[test]
+fn clean_points_keep_their_detail() {
+    let cloud = sphere(40_000, [0.0; 3], 1.0, 3);
+    let off = spsr::reconstruct(&cloud, &params(Noise::Off)).unwrap();
+    let on = spsr::reconstruct(&cloud, &params(Noise::Adaptive)).unwrap();
+    let summary = on.stats.noise.expect("the noise stage ran");
+    assert!(summary.adapted < 0.05, "{summary:?}");
+    let (e_off, e_on) = (radial_error(&off.mesh), radial_error(&on.mesh));
+    assert!(e_on <= 1.05 * e_off, "adaptive {e_on} against off {e_off}");
+}
+
+#[test]
+fn noise_adaptation_is_invariant_under_translation_and_scaling() {
+    let cloud = noisy_sphere(20_000, 0.02, 0.1, 11);
+    let a = spsr::reconstruct(&cloud, &params(Noise::Adaptive)).unwrap();
+    let mut moved = cloud.clone();
+    for p in &mut moved.positions {
+        *p = [p[0] * 250.0 + 1e3, p[1] * 250.0 - 7.0, p[2] * 250.0 + 3.5];
+    }
+    let b = spsr::reconstruct(&moved, &params(Noise::Adaptive)).unwrap();
+    let (ta, tb) = (a.mesh.triangles.len() as f64, b.mesh.triangles.len() as f64);
+    assert!((ta - tb).abs() <= 0.01 * ta, "{ta} against {tb} triangles");
+    let sa = a.stats.noise.unwrap();
+    let sb = b.stats.noise.unwrap();
+    assert!(
+        (sa.median - sb.median).abs() <= 1e-6 * sa.median,
+        "{sa:?} {sb:?}"
+    );
+    assert!((sa.adapted - sb.adapted).abs() <= 0.01, "{sa:?} {sb:?}");
+}
+
+/// Two tetrahedra, one 100 times smaller than the other, with a density and an attribute.
+fn two_pieces() -> Mesh {
+    let tet = |s: f64, o: f64| [[o, o, o], [o + s, o, o], [o, o + s, o], [o, o, o + s]];
+    let mut vertices: Vec<[f64; 3]> = tet(1.0, 0.0).to_vec();
+    vertices.extend(tet(0.01, 5.0));
+    let faces = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+    let mut triangles: Vec<[u32; 3]> = faces.to_vec();
+    // The small piece's vertices come first in the triangle list's second half.
+    triangles.extend(faces.iter().map(|t| t.map(|v| v + 4)));
+    Mesh {
+        vertices,
+        triangles,
+        density: Some((0..8).map(|i| i as f32).collect()),
+        normals: None,
+        attributes: vec![Attribute::new(
+            "quality",
+            AttributeData::from_f64(ScalarType::F32, (0..8).map(|i| 10.0 * i as f64)),
+        )],
+    }
+}
+
+#[test]
+fn pieces_and_their_areas() {
+    let mesh = two_pieces();
+    let (piece_of, areas) = mesh.pieces();
+    assert_eq!(piece_of, vec![0, 0, 0, 0, 1, 1, 1, 1]);
+    assert!((areas[0] / areas[1] - 1e4).abs() < 1e-6);
+    let keep: Vec<bool> = piece_of.iter().map(|&p| p == 1).collect();
+    let small = mesh.keep_triangles(&keep);
+    assert_eq!(small.vertices.len(), 4);
+    assert_eq!(small.vertices[0], [5.0, 5.0, 5.0]);
+    assert_eq!(small.density.as_deref(), Some(&[4.0, 5.0, 6.0, 7.0][..]));
+    assert_eq!(small.attributes[0].data.get(3), Some(70.0));
+    assert!(small.topology().closed);
+}
+
+#[test]
+fn every_second_normal_flipped_still_gives_one_closed_surface() {
+    let mut cloud = sphere(20_000, [0.0; 3], 1.0, 5);
+    for n in cloud.normals.iter_mut().skip(1).step_by(2) {
+        *n = n.map(|c| -c);
+    }
+    let out = spsr::reconstruct(&cloud, &params(Noise::Adaptive)).unwrap();
+    let topo = assert_closed_manifold(&out.mesh, "every second normal flipped");
+    assert_eq!(topo.components, 1);
+    assert!(out.mesh.signed_volume() > 0.0, "the surface faces outward");
+    let Some(spsr::Warning::NormalsReoriented {
+        flipped, samples, ..
+    }) = out
+        .stats
+        .warnings
+        .iter()
+        .find(|w| matches!(w, spsr::Warning::NormalsReoriented { .. }))
+    else {
+        panic!("{:?}", out.stats.warnings)
+    };
+    let share = *flipped as f64 / *samples as f64;
+    assert!((share - 0.5).abs() < 0.05, "{flipped} of {samples}");
+    // Kept as given, the surface falls apart.
+    let kept = Params {
+        keep_normals: true,
+        ..params(Noise::Adaptive)
+    };
+    let out = spsr::reconstruct(&cloud, &kept).unwrap();
+    assert!(!out.mesh.topology().closed || out.mesh.topology().components > 1);
+    assert!(!out
+        .stats
+        .warnings
+        .iter()
+        .any(|w| matches!(w, spsr::Warning::NormalsReoriented { .. })));
+}
+
+#[test]
+fn consistent_normals_are_left_alone() {
+    let cloud = noisy_sphere(20_000, 0.02, 0.2, 9);
+    let out = spsr::reconstruct(&cloud, &params(Noise::Adaptive)).unwrap();
+    assert!(out.stats.warnings.is_empty(), "{:?}", out.stats.warnings);
+}
