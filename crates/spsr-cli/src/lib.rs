@@ -63,6 +63,8 @@ pub struct Cli {
 
 /// The commands of `spsr`.
 #[derive(Debug, Subcommand)]
+// Parsed once per process, so the size of the largest variant costs nothing.
+#[allow(clippy::large_enum_variant)]
 pub enum Command {
     /// Reconstruct a mesh from an oriented point cloud.
     // INPUT may also be given as PoissonRecon's --in, which clap would show as `[INPUT]`.
