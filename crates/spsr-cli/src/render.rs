@@ -9,7 +9,7 @@ use clap::Args;
 use spsr::render::{ColorBy, Highlight, RenderOptions, View};
 
 use crate::args::CommonArgs;
-use crate::files::{check_output_arg, input_name, read_mesh_arg};
+use crate::files::{input_name, read_mesh_arg};
 use crate::{start_threads, usage, Failure};
 
 pub(crate) const RENDER_LONG_ABOUT: &str = "\
@@ -129,7 +129,7 @@ fn check_png_name(path: &Path) -> Result<(), Failure> {
 /// can be written and is not the input.
 pub(crate) fn check_picture_path(path: &Path, input: &Path) -> Result<(), Failure> {
     check_png_name(path)?;
-    check_output_arg(path, input).map_err(|e| Failure::from_spsr(e, input_name(input)))
+    spsr::io::check_output_path(path, input).map_err(|e| Failure::from_spsr(e, input_name(input)))
 }
 
 /// `spsr reconstruct --preview`: the default picture of the reconstructed mesh.
