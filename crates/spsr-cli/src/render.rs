@@ -27,13 +27,13 @@ the viridis colour map (dark purple for low, yellow for high) between its 2nd an
 percentiles (-v prints them). --highlight pieces paints every connected piece except the \
 largest in magenta: loose fragments and floating islands stand out.
 
-Input: a PLY mesh; `-` reads standard input. Output: a .png file, which appears only once \
-complete.";
+Input: a mesh in PLY, OBJ, STL, OFF or GLB (by its first bytes, else its extension); `-` reads \
+standard input. Output: a .png file, which appears only once complete.";
 
 /// Arguments of `spsr render`.
 #[derive(Debug, Args)]
 pub struct RenderArgs {
-    /// Mesh to draw (PLY); `-` reads standard input.
+    /// Mesh to draw: PLY, OBJ, STL, OFF or GLB; `-` reads standard input.
     #[arg(value_name = "MESH")]
     pub mesh: PathBuf,
 
