@@ -11,7 +11,8 @@ pub struct ThreadsArg {
     pub threads: Option<usize>,
 }
 
-/// The flags of every subcommand that writes a file: threads, the encoding, verbosity.
+/// The flags of every subcommand that writes a mesh or a cloud: threads, the encoding,
+/// verbosity.
 #[derive(Debug, Clone, Args)]
 pub struct CommonArgs {
     #[command(flatten)]

@@ -8,7 +8,7 @@ use std::time::Instant;
 use clap::Args;
 use spsr::render::{ColorBy, Highlight, RenderOptions, View};
 
-use crate::args::CommonArgs;
+use crate::args::ThreadsArg;
 use crate::files::{input_name, read_mesh_arg};
 use crate::{start_threads, usage, Failure};
 
@@ -61,7 +61,12 @@ pub struct RenderArgs {
     pub highlight: Option<Highlight>,
 
     #[command(flatten)]
-    pub common: CommonArgs,
+    pub threads: ThreadsArg,
+
+    /// Print to stderr the mesh's size, the range of the colour map, the number of pieces
+    /// and the time each step took [default: off]
+    #[arg(short, long)]
+    pub verbose: bool,
 }
 
 impl RenderArgs {
@@ -148,7 +153,7 @@ pub fn run_render(args: &RenderArgs) -> Result<(), Failure> {
     let opts = args.options();
     opts.validate().map_err(fail)?;
     check_picture_path(output, input)?;
-    start_threads(args.common.threads.threads)?;
+    start_threads(args.threads.threads)?;
 
     let t = Instant::now();
     let mesh = read_mesh_arg(input).map_err(fail)?;
@@ -159,7 +164,7 @@ pub fn run_render(args: &RenderArgs) -> Result<(), Failure> {
     let t = Instant::now();
     image.write_png(output).map_err(fail)?;
     let writing = t.elapsed();
-    if args.common.verbose {
+    if args.verbose {
         let mut err = std::io::stderr().lock();
         let _ = writeln!(
             err,

@@ -70,7 +70,7 @@
 //! `rounds` rounds; each normal flips at most once.
 
 pub(crate) mod estimate;
-pub(crate) mod graph;
+mod graph;
 mod knn;
 mod orient;
 

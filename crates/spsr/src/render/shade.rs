@@ -6,8 +6,7 @@ use rayon::prelude::*;
 use super::ColorBy;
 use crate::error::Error;
 use crate::mesh::Mesh;
-use crate::normals::graph::UnionFind;
-use crate::vec3::{cross, dot, norm, sub};
+use crate::vec3::{dot, norm};
 use crate::Result;
 
 /// Colour of the front of faces when nothing else colours them (a light blue-grey).
@@ -177,43 +176,19 @@ pub(crate) fn vertex_colors(
     }
 }
 
-/// Area of triangle `t` (0 when a vertex is not finite).
-fn area(mesh: &Mesh, t: [u32; 3]) -> f64 {
-    let [a, b, c] = t.map(|i| mesh.vertices[i as usize]);
-    let a = 0.5 * norm(cross(sub(b, a), sub(c, a)));
-    if a.is_finite() {
-        a
-    } else {
-        0.0
-    }
-}
-
-/// Which triangles lie outside the largest piece, and the number of pieces. Pieces are the
-/// connected components of triangles sharing a vertex (as [`Mesh::topology`] counts them);
-/// the largest has the largest area, the first in triangle order on a tie.
+/// Which triangles lie outside the largest piece, and the number of pieces. Pieces are
+/// [`Mesh::pieces`] (triangles sharing a vertex, as [`Mesh::topology`] counts them); the
+/// largest has the largest area, the first in triangle order on a tie.
 pub(crate) fn minor_pieces(mesh: &Mesh) -> (Vec<bool>, usize) {
-    let mut sets = UnionFind::new(mesh.vertices.len());
-    for t in &mesh.triangles {
-        sets.union(t[0], t[1]);
-        sets.union(t[0], t[2]);
-    }
-    let roots: Vec<u32> = mesh.triangles.iter().map(|t| sets.find(t[0])).collect();
-    let mut piece_area = vec![0.0f64; mesh.vertices.len()];
-    let mut pieces = 0;
-    for (t, &r) in mesh.triangles.iter().zip(&roots) {
-        if piece_area[r as usize] == 0.0 {
-            pieces += 1;
-        }
-        // Degenerate triangles still make their piece count.
-        piece_area[r as usize] += area(mesh, *t).max(f64::MIN_POSITIVE);
-    }
-    let mut largest = roots[0];
-    for &r in &roots {
-        if piece_area[r as usize] > piece_area[largest as usize] {
-            largest = r;
+    let (piece_of, areas) = mesh.pieces();
+    let mut largest = 0;
+    for (p, &a) in areas.iter().enumerate() {
+        if a > areas[largest] {
+            largest = p;
         }
     }
-    (roots.iter().map(|&r| r != largest).collect(), pieces)
+    let minor = piece_of.iter().map(|&p| p as usize != largest).collect();
+    (minor, areas.len())
 }
 
 /// The shaded colour of a face: `base` under a headlight looking along `forward`, with
