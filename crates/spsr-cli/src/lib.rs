@@ -28,7 +28,8 @@ pub use trim::{run_trim, TrimArgs};
 
 /// Exit codes of the `spsr` binary (also listed in `--help` and the README).
 pub mod exit {
-    /// The input data cannot be used: unreadable or malformed file, no normals, too few points.
+    /// The input data cannot be used: unreadable or malformed file, too few points, a
+    /// `--compare` reference without normals.
     pub const DATA: u8 = 1;
     /// Bad usage: bad flags or parameter values, or an output path that cannot be used.
     /// (clap exits with 2 on its own for command-line syntax errors.)
@@ -41,7 +42,8 @@ pub mod exit {
 const EXIT_CODES: &str = "\
 Exit codes:
   0  success
-  1  bad input data (unreadable or malformed file, no normals, too few or degenerate points)
+  1  bad input data (unreadable or malformed file, too few or degenerate points, a --compare
+     reference without normals)
   2  bad usage (unknown flag, invalid parameter value, unusable output path)
   3  resource limit (estimated memory above --max-memory or the available memory; worker
      threads could not be started)";

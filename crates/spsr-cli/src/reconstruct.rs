@@ -586,6 +586,27 @@ fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, Str
                 Source::Derived("2 × --degree".into())
             },
         ),
+        (
+            "noise",
+            match params.noise {
+                spsr::Noise::Adaptive => "adaptive",
+                spsr::Noise::Off => "off",
+            }
+            .to_string(),
+            if args.given("noise") {
+                Source::Flag
+            } else if args.samples_per_node.is_some() || args.point_weight.is_some() {
+                Source::Derived("--samples-per-node or --point-weight given".into())
+            } else {
+                Source::Default
+            },
+        ),
+        (
+            "keep_outliers",
+            on(params.keep_outliers),
+            src("keep_outliers"),
+        ),
+        ("keep_normals", on(params.keep_normals), src("keep_normals")),
         ("degree", params.degree.to_string(), src("degree")),
         (
             "boundary",
@@ -665,6 +686,46 @@ fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, Str
             src("estimate_normals"),
         ),
     ]);
+    // These three apply only when normals are estimated (no normals in the input, or
+    // --estimate-normals), which is known once the input is read.
+    let est = &args.estimation;
+    rows.push(match (est.orient, est.viewpoint) {
+        (Some(o), _) => (
+            "orient",
+            o.to_possible_value()
+                .map_or_else(String::new, |v| v.get_name().to_string()),
+            Source::Flag,
+        ),
+        (None, Some(_)) => (
+            "orient",
+            "viewpoint".into(),
+            Source::Derived("--viewpoint is given".into()),
+        ),
+        (None, None) => (
+            "orient",
+            "mst".into(),
+            Source::Derived("viewpoint instead when the file records scan positions".into()),
+        ),
+    });
+    rows.push(match est.viewpoint {
+        Some([x, y, z]) => ("viewpoint", format!("{x},{y},{z}"), Source::Flag),
+        None => ("viewpoint", "none".into(), Source::Default),
+    });
+    rows.push(match est.neighbours {
+        Some(k) => ("neighbours", k.to_string(), Source::Flag),
+        None => (
+            "neighbours",
+            "auto".into(),
+            Source::Derived("from the noise, 16 to 192".into()),
+        ),
+    });
+    rows.push((
+        "preview",
+        args.preview
+            .as_ref()
+            .map_or_else(|| "none".into(), |p| p.display().to_string()),
+        src("preview"),
+    ));
     rows.into_iter()
         .map(|(field, value, source)| (words::flag(field), value, source))
         .collect()
