@@ -18,7 +18,8 @@ pub struct CommonArgs {
     #[command(flatten)]
     pub threads: ThreadsArg,
 
-    /// Write ASCII PLY or STL instead of binary (no effect on .obj and .glb) [default: off]
+    /// Write ASCII PLY or STL instead of binary (.obj and .off are always text, .glb always
+    /// binary) [default: off]
     #[arg(long)]
     pub ascii: bool,
 
