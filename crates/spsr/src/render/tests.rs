@@ -482,6 +482,36 @@ fn a_vertex_that_is_not_finite_drops_its_triangles_only() {
     );
 }
 
+/// A triangle reaching a vertex at infinity must not take the largest piece's area away, or
+/// the whole surface would be highlighted instead of the fragment.
+#[test]
+fn a_vertex_that_is_not_finite_does_not_change_which_piece_is_largest() {
+    // The small box first, so that the sphere must win the comparison of areas.
+    let mut mesh = cuboid([2.0, -0.2, -0.2], [2.4, 0.2, 0.2]);
+    let ball = sphere([0.0; 3], 1.0, 64, 32);
+    let n = mesh.vertices.len() as u32;
+    mesh.vertices.extend(&ball.vertices);
+    mesh.triangles
+        .extend(ball.triangles.iter().map(|t| t.map(|i| i + n)));
+    mesh.vertices.push([f64::NAN, 0.0, 0.0]);
+    let nan = mesh.vertices.len() as u32 - 1;
+    mesh.triangles.push([n, n + 1, nan]);
+    let opts = RenderOptions {
+        view: View::Front,
+        width: 340,
+        height: 200,
+        highlight: Highlight::Pieces,
+        ..Default::default()
+    };
+    let camera = Camera::fit(&mesh.vertices, View::Front, 340, 200).unwrap();
+    let [sx, sy, _] = camera.project([2.2, 0.0, 0.2]);
+    let [bx, by, _] = camera.project([0.0, 0.0, 1.0]);
+    let image = render(&mesh, &opts).unwrap();
+    assert_eq!(image.pieces, Some(2));
+    assert!(has_hue(image.pixel(sx as u32, sy as u32), HIGHLIGHT));
+    assert!(has_hue(image.pixel(bx as u32, by as u32), FRONT));
+}
+
 #[test]
 fn names_parse_as_the_command_line_spells_them() {
     assert_eq!("ISO".parse::<View>().unwrap(), View::Iso);
