@@ -22,7 +22,8 @@ on the repository's own example/bunny.ply. Names like sphere_300k or torus_50k a
 on demand in either case.
 
 Results: bench/results/<name>.json (everything, including every single run), <name>.md (the
-table) and <name>-*.png (plots). `--plot-only RESULTS.json` redraws the plots and the table.
+table, and a thumbnail of every scored mesh drawn by `spsr render`, in <name>-thumbs/) and
+<name>-*.png (plots). `--plot-only RESULTS.json` redraws the plots and the table.
 """
 import argparse
 import datetime
@@ -493,6 +494,44 @@ def score(mesh, gt, args):
 # Environment and versions
 
 
+def thumbnail(mesh, png, args):
+    """A small picture of a scored mesh (`spsr render`, iso view, loose pieces in magenta);
+    None when it cannot be drawn, which does not stop the run."""
+    spsr = os.path.join(ROOT, "target", "release", "spsr")
+    os.makedirs(os.path.dirname(png), exist_ok=True)
+    cmd = [spsr, "render", mesh, "-o", png, "--size", "192x192", "--highlight", "pieces", "--threads", str(args.threads)]
+    try:
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    except (OSError, subprocess.TimeoutExpired) as e:
+        print(f"bench: no thumbnail of {os.path.basename(png)}: {e}", flush=True)
+        return None
+    if out.returncode != 0 or not os.path.exists(png):
+        print(f"bench: no thumbnail of {os.path.basename(png)}: {(out.stderr.strip().splitlines() or ['?'])[-1][:200]}", flush=True)
+        return None
+    return png
+
+
+def thumbnail_lines(res, path):
+    """The thumbnails section of the report: one row per case, one column per tool; empty
+    when no thumbnail exists next to the report."""
+    here = os.path.dirname(path)
+    shown = {(r["input"], r["depth"], r["tool"]): r["thumbnail"] for r in res["rows"]
+             if r.get("thumbnail") and os.path.exists(os.path.join(here, r["thumbnail"]))}
+    if not shown:
+        return []
+    tools = [t for t in TOOLS if any(k[2] == t for k in shown)]
+    cases = sorted({(k[0], k[1]) for k in shown}, key=lambda c: (res["inputs"][c[0]]["points"] or 0, c[0], c[1]))
+    lines = ["", "## Thumbnails", "",
+             "Each tool's mesh of the first repetition, drawn by `spsr render` (iso view; faces seen from behind in "
+             "terracotta, every piece but the largest in magenta).", "",
+             "| input | D | " + " | ".join(LABELS[t] for t in tools) + " |",
+             "|---|---|" + "---|" * len(tools)]
+    for n, d in cases:
+        cells = [f"![{t} {n} D{d}]({shown[(n, d, t)]})" if (n, d, t) in shown else "—" for t in tools]
+        lines.append(f"| {n} | {d} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def sh(cmd, cwd=ROOT):
     try:
         return subprocess.run(cmd, capture_output=True, text=True, cwd=cwd).stdout.strip()
@@ -591,6 +630,7 @@ def main():
     ap.add_argument("--out", default=os.path.join(BENCH, "results"))
     ap.add_argument("--name", default=None, help="results name [default: bench-DATE-TIME]")
     ap.add_argument("--keep-meshes", action="store_true")
+    ap.add_argument("--no-thumbnails", action="store_true", help="do not draw a thumbnail of each scored mesh")
     ap.add_argument("--no-build", action="store_true", help="use the binaries as they are")
     ap.add_argument("--plot-only", metavar="RESULTS_JSON", help="redraw the table and plots of an earlier run")
     args = ap.parse_args()
@@ -678,7 +718,8 @@ def main():
     name = args.name or start_time.strftime("bench-%Y-%m-%d-%H%M")
     print(f"bench: {len(cases)} cases x {len(args.tools)} tools x {args.reps} repetitions; work dir {work}", flush=True)
 
-    state = {(t, n, d): dict(runs=[], failed=None, score=None, given=None, fixed=None) for t in args.tools for n, d in cases}
+    state = {(t, n, d): dict(runs=[], failed=None, score=None, given=None, fixed=None, thumbnail=None) for t in args.tools for n, d in cases}
+    thumbs = os.path.join(args.out, name + "-thumbs")
 
     def skip_reason(tool, n, d):
         pts = resolved[n]["points"] or 0
@@ -743,6 +784,8 @@ def main():
                 print(f"  {tool:24s} {n} d{d} rep {rep}: {r['wall_s']:7.2f} s {r['peak_rss_mib']:8.0f} MiB", flush=True)
                 if s["score"] is None and inp["gt"]:
                     s["score"] = score(out, inp["gt"], args)
+                    if not args.no_thumbnails:
+                        s["thumbnail"] = thumbnail(out, os.path.join(thumbs, f"{tool}-{n}-d{d}.png"), args)
                 if not args.keep_meshes:
                     os.remove(out)
     end_time = datetime.datetime.now()
@@ -760,6 +803,8 @@ def main():
                        peak_rss_mib=statistics.median(rss), compute_s=statistics.median(comp) if comp else None)
             if s["score"]:
                 row["score"] = s["score"]
+            if s["thumbnail"]:
+                row["thumbnail"] = os.path.relpath(s["thumbnail"], args.out)
             if s["failed"]:
                 row["later_failure"] = s["failed"]
         else:
@@ -888,6 +933,7 @@ def write_markdown(res, path):
         lines += [f"- {r['label']} on {r['input']} at depth {r['depth']}: {r['failed']}" for r in failures]
     pngs = [os.path.basename(path)[:-3] + s for s in ("-points.png", "-depth.png", "-accuracy.png")]
     lines += ["", "## Plots", ""] + [f"![{x}]({x})" for x in pngs if os.path.exists(os.path.join(os.path.dirname(path), x))]
+    lines += thumbnail_lines(res, path)
     with open(path, "w") as f:
         f.write("\n".join(lines) + "\n")
 

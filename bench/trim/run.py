@@ -178,7 +178,7 @@ def main():
                 "bunny's units (its bounding-box diagonal is 0.250).\n\n")
         f.write(
             "Rows: spsr untrimmed (`--density`), `spsr trim --trim auto`, and `spsr trim` at "
-            f"median density − {args.conservative:g} (the conservative value the README suggests "
+            f"median density − {args.conservative:g} (the conservative value docs/trimming.md suggests "
             "for keeping the fill of large scanning gaps); Open3D untrimmed, and with the "
             "vertices below each quantile of its `densities` removed. `gt/bunny.ply` is open at "
             "the bottom, so closing surface there raises mesh→GT; `bunny_100k_hole` has no "

@@ -11,13 +11,15 @@ pub struct ThreadsArg {
     pub threads: Option<usize>,
 }
 
-/// The flags of every subcommand that writes a file: threads, the encoding, verbosity.
+/// The flags of every subcommand that writes a mesh or a cloud: threads, the encoding,
+/// verbosity.
 #[derive(Debug, Clone, Args)]
 pub struct CommonArgs {
     #[command(flatten)]
     pub threads: ThreadsArg,
 
-    /// Write ASCII PLY or STL instead of binary (no effect on .obj and .glb) [default: off]
+    /// Write ASCII PLY or STL instead of binary (.obj and .off are always text, .glb always
+    /// binary) [default: off]
     #[arg(long)]
     pub ascii: bool,
 

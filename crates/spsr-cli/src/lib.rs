@@ -15,6 +15,7 @@ mod normals;
 mod poissonrecon;
 mod progress;
 mod reconstruct;
+mod render;
 mod slabs;
 mod trim;
 pub mod words;
@@ -23,11 +24,13 @@ pub use eval::{run_eval, EvalArgs};
 pub use files::{check_output_arg, is_std_stream, read_cloud_arg, read_mesh_arg, write_mesh_arg};
 pub use normals::{NormalOptions, NormalsArgs, OrientArg};
 pub use reconstruct::{BoundaryArg, ReconstructArgs};
+pub use render::{run_render, RenderArgs};
 pub use trim::{run_trim, TrimArgs};
 
 /// Exit codes of the `spsr` binary (also listed in `--help` and the README).
 pub mod exit {
-    /// The input data cannot be used: unreadable or malformed file, no normals, too few points.
+    /// The input data cannot be used: unreadable or malformed file, too few points, a
+    /// `--compare` reference without normals.
     pub const DATA: u8 = 1;
     /// Bad usage: bad flags or parameter values, or an output path that cannot be used.
     /// (clap exits with 2 on its own for command-line syntax errors.)
@@ -40,7 +43,8 @@ pub mod exit {
 const EXIT_CODES: &str = "\
 Exit codes:
   0  success
-  1  bad input data (unreadable or malformed file, no normals, too few or degenerate points)
+  1  bad input data (unreadable or malformed file, too few or degenerate points, a --compare
+     reference without normals)
   2  bad usage (unknown flag, invalid parameter value, unusable output path)
   3  resource limit (estimated memory above --max-memory or the available memory; worker
      threads could not be started)";
@@ -82,6 +86,9 @@ pub enum Command {
     /// Estimate and orient normals for a point cloud without (trustworthy) normals.
     #[command(long_about = normals::NORMALS_LONG_ABOUT, after_help = EXIT_CODES)]
     Normals(NormalsArgs),
+    /// Draw a shaded picture of a mesh (PNG), from one side or four.
+    #[command(long_about = render::RENDER_LONG_ABOUT, after_help = EXIT_CODES)]
+    Render(RenderArgs),
 }
 
 /// A failed command: the error to print and the process exit code.
@@ -190,6 +197,7 @@ pub fn run(cli: &Cli) -> Result<(), Failure> {
         Command::Trim(args) => run_trim(args),
         Command::Eval(args) => run_eval(args),
         Command::Normals(args) => normals::run_normals(args),
+        Command::Render(args) => run_render(args),
     }
 }
 

@@ -359,8 +359,16 @@ fn read_reference(
     input: &Path,
     cloud: &spsr::PointCloud,
 ) -> Result<spsr::PointCloud, Failure> {
-    let refcloud =
-        spsr::io::read_points(reference).map_err(|e| Failure::from_spsr(e, reference))?;
+    let refcloud = spsr::io::read_cloud(reference).map_err(|e| Failure::from_spsr(e, reference))?;
+    if !refcloud.has_normals() {
+        return Err(Failure {
+            code: exit::DATA,
+            error: anyhow::anyhow!(
+                "{}: the reference has no normals (nx, ny, nz) to compare with",
+                reference.display()
+            ),
+        });
+    }
     let differ = |why: String| Failure {
         code: exit::DATA,
         error: anyhow::anyhow!(

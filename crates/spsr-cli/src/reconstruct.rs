@@ -322,6 +322,11 @@ pub struct ReconstructArgs {
     #[command(flatten)]
     pub estimation: NormalOptions,
 
+    /// Also write a picture of the mesh to this .png file (as `spsr render`: iso view,
+    /// 800x800) [default: none]
+    #[arg(long, value_name = "PNG")]
+    pub preview: Option<PathBuf>,
+
     /// The ids of the arguments given on the command line (filled by
     /// [`crate::try_parse_from`]), which `-v` reports as set by a flag.
     #[arg(skip)]
@@ -450,6 +455,9 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     }
     start_threads(args.common.threads.threads)?;
     check_output_arg(output, input).map_err(fail)?;
+    if let Some(p) = &args.preview {
+        crate::render::check_picture_path(p, input)?;
+    }
     if args.common.verbose {
         print_parameters(args, &params);
     }
@@ -502,7 +510,9 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
             (result, Some(stats))
         }
         None => match spsr::reconstruct_owned(cloud, &params, &|s| progress.stage(s)) {
-            Err(spsr::Error::ResourceLimit(short)) if args.slabs == Slabs::Auto => {
+            Err(spsr::Error::ResourceLimit(short))
+                if args.slabs == Slabs::Auto && slabs::can_help(&short) =>
+            {
                 drop(progress);
                 let k = slabs::enough(&short);
                 eprintln!(
@@ -565,6 +575,9 @@ fn finish(
     };
     write_mesh_arg(output, &result.mesh, &opts).map_err(fail)?;
     let writing = t.elapsed();
+    if let Some(p) = &args.preview {
+        crate::render::write_preview(&result.mesh, p, input)?;
+    }
     drop(progress);
 
     for w in &result.stats.warnings {
@@ -680,6 +693,27 @@ fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, Str
                 Source::Derived("2 × --degree".into())
             },
         ),
+        (
+            "noise",
+            match params.noise {
+                spsr::Noise::Adaptive => "adaptive",
+                spsr::Noise::Off => "off",
+            }
+            .to_string(),
+            if args.given("noise") {
+                Source::Flag
+            } else if args.samples_per_node.is_some() || args.point_weight.is_some() {
+                Source::Derived("--samples-per-node or --point-weight given".into())
+            } else {
+                Source::Default
+            },
+        ),
+        (
+            "keep_outliers",
+            on(params.keep_outliers),
+            src("keep_outliers"),
+        ),
+        ("keep_normals", on(params.keep_normals), src("keep_normals")),
         ("degree", params.degree.to_string(), src("degree")),
         (
             "boundary",
@@ -759,6 +793,46 @@ fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, Str
             src("estimate_normals"),
         ),
     ]);
+    // These three apply only when normals are estimated (no normals in the input, or
+    // --estimate-normals), which is known once the input is read.
+    let est = &args.estimation;
+    rows.push(match (est.orient, est.viewpoint) {
+        (Some(o), _) => (
+            "orient",
+            o.to_possible_value()
+                .map_or_else(String::new, |v| v.get_name().to_string()),
+            Source::Flag,
+        ),
+        (None, Some(_)) => (
+            "orient",
+            "viewpoint".into(),
+            Source::Derived("--viewpoint is given".into()),
+        ),
+        (None, None) => (
+            "orient",
+            "mst".into(),
+            Source::Derived("viewpoint instead when the file records scan positions".into()),
+        ),
+    });
+    rows.push(match est.viewpoint {
+        Some([x, y, z]) => ("viewpoint", format!("{x},{y},{z}"), Source::Flag),
+        None => ("viewpoint", "none".into(), Source::Default),
+    });
+    rows.push(match est.neighbours {
+        Some(k) => ("neighbours", k.to_string(), Source::Flag),
+        None => (
+            "neighbours",
+            "auto".into(),
+            Source::Derived("from the noise, 16 to 192".into()),
+        ),
+    });
+    rows.push((
+        "preview",
+        args.preview
+            .as_ref()
+            .map_or_else(|| "none".into(), |p| p.display().to_string()),
+        src("preview"),
+    ));
     rows.into_iter()
         .map(|(field, value, source)| (words::flag(field), value, source))
         .collect()

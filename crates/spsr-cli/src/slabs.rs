@@ -46,6 +46,12 @@ pub(crate) fn run_streamed(
     )
     .map_err(|e| Failure::from_spsr(e, input_name(input)))?;
     drop(progress);
+    if let Some(p) = &args.preview {
+        // The mesh was never whole in memory; the picture reads it back.
+        let mesh = spsr::io::read_mesh(&args.output)
+            .map_err(|e| Failure::from_spsr(e, input_name(input)))?;
+        crate::render::write_preview(&mesh, p, input)?;
+    }
     for w in &stats.warnings {
         eprintln!("spsr: warning: {}: {}", input.display(), words::warning(w));
     }
@@ -158,6 +164,15 @@ fn work_dir(given: Option<&Path>, output: &Path) -> PathBuf {
         _ => PathBuf::from("."),
     }
 }
+
+/// Whether slabs can bring a run over the limit under it: not below [`SLAB_FLOOR`], the
+/// memory a slab run needs whatever its slab count (the coarse levels, one slab's buffers).
+pub(crate) fn can_help(short: &spsr::MemoryShortfall) -> bool {
+    short.limit >= SLAB_FLOOR
+}
+
+/// See [`can_help`].
+const SLAB_FLOOR: u64 = 256 << 20;
 
 /// Slabs for a run whose one-piece estimate is over the limit: the estimate over the limit,
 /// doubled for the padding each slab reads and the coarse levels every slab holds.

@@ -83,7 +83,7 @@ mod tests {
 
     /// Every field the library names in an `InvalidParameter` error, with the flag that sets
     /// it. Each flag is checked to exist on some subcommand.
-    const FIELDS: [(&str, &str); 19] = [
+    const FIELDS: [(&str, &str); 22] = [
         ("depth", "--depth"),
         ("full_depth", "--full-depth"),
         ("samples_per_node", "--samples-per-node"),
@@ -103,6 +103,9 @@ mod tests {
         ("viewpoint", "--viewpoint"),
         ("target_error", "--target-error"),
         ("scan_origins", "the scan origins in the file"),
+        ("size", "--size"),
+        ("color", "--color"),
+        ("view", "--view"),
     ];
 
     #[test]

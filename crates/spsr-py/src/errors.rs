@@ -19,6 +19,7 @@ pub enum Call {
     Normals,
     Eval,
     Files,
+    Render,
 }
 
 /// The keyword of `spsr.<call>` that sets the library field `field`.

@@ -15,6 +15,7 @@
 //! | [`reconstruct`] | `spsr.reconstruct` |
 //! | [`mesh_ops`] | `spsr.trim`, `spsr.eval` |
 //! | [`normals`] | `spsr.estimate_normals` |
+//! | [`render`] | `spsr.render` |
 //! | [`files`] | reading and writing files |
 //! | [`cli`] | the `spsr` console script |
 
@@ -29,6 +30,7 @@ mod mesh_ops;
 mod normals;
 mod params;
 mod reconstruct;
+mod render;
 
 /// The native module of the `spsr` Python package.
 #[pymodule]
@@ -41,6 +43,7 @@ fn _spsr(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(files::write_mesh, m)?)?;
     m.add_function(wrap_pyfunction!(files::write_points, m)?)?;
     m.add_function(wrap_pyfunction!(normals::estimate_normals, m)?)?;
+    m.add_function(wrap_pyfunction!(render::render, m)?)?;
     m.add_function(wrap_pyfunction!(cli::cli_main, m)?)?;
     m.add_function(wrap_pyfunction!(params::defaults, m)?)?;
     m.add("MAX_DEPTH", spsr::MAX_DEPTH)?;

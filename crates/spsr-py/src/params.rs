@@ -162,6 +162,7 @@ pub fn defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     d.set_item("samples", eval.samples)?;
     d.set_item("seed", eval.seed)?;
     out.set_item("eval", d)?;
+    out.set_item("render", crate::render::render_defaults(py)?)?;
     Ok(out)
 }
 

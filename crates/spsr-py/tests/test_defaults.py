@@ -16,6 +16,7 @@ PYTHON_ONLY = {
     "trim": {"threads"},
     "estimate_normals": {"orient", "viewpoint", "scan_origins", "threads", "return_info"},
     "eval": {"reference", "sphere", "threads"},
+    "render": {"faces", "color", "highlight", "threads"},
 }
 
 # Keywords whose Python default is None, meaning "the library's default, adjusted": the
@@ -101,3 +102,4 @@ def test_defaults_match_the_documented_values():
     assert DEFAULTS["trim"] == {"threshold": "auto", "min_island_area": 0.001, "hole_area": 0.001}
     assert DEFAULTS["estimate_normals"] == {"neighbours": None}
     assert DEFAULTS["eval"] == {"samples": 1_000_000, "seed": 1}
+    assert DEFAULTS["render"] == {"view": "iso", "size": (800, 800)}

@@ -1,4 +1,4 @@
-"""The README's Open3D and trimesh examples, the command line the wheel installs, the stubs."""
+"""The Open3D and trimesh examples of docs/python.md, the command line the wheel installs, the stubs."""
 
 import inspect
 import os
@@ -18,7 +18,7 @@ SPHERE_VOLUME = 4.0 / 3.0 * np.pi * RADIUS**3
 def test_trimesh(sphere_mesh):
     trimesh = pytest.importorskip("trimesh")
     mesh = sphere_mesh
-    # As in the README: the arrays go straight in.
+    # As in docs/python.md: the arrays go straight in.
     tm = trimesh.Trimesh(vertices=mesh.vertices, faces=mesh.faces, process=False)
     assert tm.is_watertight and tm.is_winding_consistent
     assert tm.volume == pytest.approx(SPHERE_VOLUME, rel=0.02)  # positive: outward faces

@@ -30,6 +30,7 @@ mod octree;
 mod params;
 mod pipeline;
 pub mod points;
+pub mod render;
 mod resources;
 mod shared_slice;
 pub mod slabs;

@@ -222,7 +222,8 @@ impl Mesh {
 
     /// The pieces of the mesh: for each triangle the piece it belongs to (triangles sharing
     /// a vertex are in one piece, as [`Topology::components`] counts them), numbered in order
-    /// of their first triangle, and each piece's area.
+    /// of their first triangle, and each piece's area. A triangle with an index out of range
+    /// is in no piece (`u32::MAX`); one with a non-finite vertex adds no area to its piece.
     pub fn pieces(&self) -> (Vec<u32>, Vec<f64>) {
         let nv = self.vertices.len();
         let mut parent: Vec<u32> = (0..nv as u32).collect();
@@ -259,7 +260,10 @@ impl Mesh {
                     areas.push(0.0);
                 }
                 let [a, b, c] = t.map(|i| self.vertices[i as usize]);
-                areas[number[r] as usize] += 0.5 * norm(cross(sub(b, a), sub(c, a)));
+                let area = 0.5 * norm(cross(sub(b, a), sub(c, a)));
+                if area.is_finite() {
+                    areas[number[r] as usize] += area;
+                }
                 number[r]
             })
             .collect();

@@ -117,6 +117,15 @@ fn verbose_first_echoes_every_parameter_with_its_source() {
     assert_eq!(row("--boundary"), "neumann default");
     assert_eq!(row("--threads"), "2 flag");
     assert!(row("--max-memory").contains("derived: the memory available"));
+    assert_eq!(row("--noise"), "adaptive default");
+    assert_eq!(
+        row("--orient"),
+        "mst derived: viewpoint instead when the file records scan positions"
+    );
+    assert_eq!(
+        row("--neighbours"),
+        "auto derived: from the noise, 16 to 192"
+    );
     for flag in [
         "--degree",
         "--iters",
@@ -128,6 +137,12 @@ fn verbose_first_echoes_every_parameter_with_its_source() {
         "--two-level-splat",
         "--data-pull",
         "--no-attributes",
+        "--keep-outliers",
+        "--keep-normals",
+        "--ascii",
+        "--estimate-normals",
+        "--viewpoint",
+        "--preview",
     ] {
         row(flag);
     }
@@ -135,6 +150,41 @@ fn verbose_first_echoes_every_parameter_with_its_source() {
     let params = err.find("parameters:").unwrap();
     assert!(params < err.find("timings:").unwrap(), "{err}");
     assert!(err.contains("check       1 pieces, closed"), "{err}");
+}
+
+/// Tuning the samples per node by hand turns the noise adaptation off, and `-v` says why.
+#[test]
+fn verbose_says_why_the_noise_adaptation_is_off() {
+    let (_dir, _, out) = run(
+        &sphere(3000),
+        &[
+            "reconstruct",
+            "IN",
+            "-o",
+            "OUT",
+            "--depth",
+            "4",
+            "--samples-per-node",
+            "3",
+            "-v",
+        ],
+    );
+    let err = stderr(&out);
+    assert!(out.status.success(), "{err}");
+    let row = |flag: &str| {
+        err.lines()
+            .find(|l| l.split_whitespace().next() == Some(flag))
+            .unwrap_or_else(|| panic!("no {flag} in\n{err}"))
+            .split_whitespace()
+            .skip(1)
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    assert_eq!(
+        row("--noise"),
+        "off derived: --samples-per-node or --point-weight given"
+    );
+    assert_eq!(row("--samples-per-node"), "3 flag");
 }
 
 #[test]

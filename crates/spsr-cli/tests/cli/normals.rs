@@ -115,7 +115,15 @@ fn compare_reports_agreement_with_the_reference() {
     assert_fails(&out, DATA, &["other.ply", "same points"], &output);
     // A reference without normals too.
     let out = spsr(&["normals", s(&input), "--compare", s(&input)]);
-    assert_fails(&out, DATA, &["in.ply", "normals"], &output);
+    assert_fails(
+        &out,
+        DATA,
+        &[
+            "in.ply",
+            "the reference has no normals (nx, ny, nz) to compare with",
+        ],
+        &output,
+    );
 }
 
 #[test]

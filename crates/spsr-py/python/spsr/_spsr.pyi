@@ -75,6 +75,15 @@ def estimate_normals(
     scan_origins: Optional[Sequence[Tuple[int, Tuple[float, float, float]]]],
     threads: Optional[int],
 ) -> Dict[str, Any]: ...
+def render(
+    mesh: _MeshArgs,
+    view: str,
+    width: int,
+    height: int,
+    highlight: Optional[str],
+    color: Optional[str],
+    threads: Optional[int],
+) -> np.ndarray: ...
 def cli_main(argv: List[str]) -> int: ...
 
 # The library's defaults by function and keyword (tests/test_defaults.py checks the

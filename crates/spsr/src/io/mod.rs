@@ -487,6 +487,7 @@ pub fn write_mesh_to(
 }
 
 pub use unfinished::remove_unfinished_files;
+pub(crate) use write::write_atomically;
 
 /// Copies `input` into a temporary file (deleted afterwards, and by
 /// [`remove_unfinished_files`]) and reads it with `read`; errors name `name` instead of the

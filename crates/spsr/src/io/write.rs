@@ -224,7 +224,7 @@ fn check_format(path: &Path, format: MeshFormat, mesh: &Mesh) -> Result<()> {
 
 /// Writes `path` through a temporary file in the same directory, renamed into place once
 /// `write` has succeeded; on any error the temporary file is removed and `path` untouched.
-fn write_atomically(
+pub(crate) fn write_atomically(
     path: &Path,
     write: impl FnOnce(&mut BufWriter<tempfile::NamedTempFile>) -> std::io::Result<()>,
 ) -> Result<()> {

@@ -108,7 +108,7 @@ fn splat_depths(ds: f64, base: u32, depth: u32, params: &Params) -> Splat {
 
 // The memory model: peak resident memory ≈ BYTES_PER_NODE × octree nodes + BYTES_PER_POINT ×
 // input points + BASE_BYTES. Fitted to peak RSS measured with `/usr/bin/time -v` (2 threads)
-// and rounded up (README, "Hostile input, resource limits and interruption"): bunny_100k
+// and rounded up (docs/memory.md): bunny_100k
 // depth 8 and 10, sphere_200k depth 10, spot_1m depth 8 and 10 and bunny_1m depth 11 land
 // 5–46 % above it. Known gap: few points at a large depth (bunny_20k at depth 12 peaks 41 %
 // above the estimate), where the density estimator and the complete base level dominate.

@@ -134,6 +134,19 @@ fn pieces_and_their_areas() {
     assert!(small.topology().closed);
 }
 
+/// A vertex at infinity must not make its piece's area NaN, or the largest piece could no
+/// longer be told (the renderer's `--highlight pieces` picks it by area).
+#[test]
+fn a_non_finite_vertex_adds_no_area_to_its_piece() {
+    let mut mesh = two_pieces();
+    let finite = mesh.pieces().1;
+    mesh.vertices.push([f64::INFINITY, 0.0, 0.0]);
+    mesh.triangles.push([0, 1, 8]);
+    let (piece_of, areas) = mesh.pieces();
+    assert_eq!(piece_of[8], 0, "the triangle joins the large piece");
+    assert_eq!(areas, finite);
+}
+
 #[test]
 fn every_second_normal_flipped_still_gives_one_closed_surface() {
     let mut cloud = sphere(20_000, [0.0; 3], 1.0, 5);
