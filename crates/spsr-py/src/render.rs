@@ -12,8 +12,13 @@ use crate::errors::{invalid, py_err, Call};
 
 /// `view=`: a view name, in any case.
 fn view_arg(s: &str) -> PyResult<View> {
-    s.parse()
-        .map_err(|_| invalid("view", format!("'{s}'"), "one of 'front', 'side', 'top', 'iso', 'all'"))
+    s.parse().map_err(|_| {
+        invalid(
+            "view",
+            format!("'{s}'"),
+            "one of 'front', 'side', 'top', 'iso', 'all'",
+        )
+    })
 }
 
 /// `color=`: `None` (the mesh's colours when it has them), `"plain"`, `"density"` or
