@@ -364,20 +364,7 @@ pub fn for_each_cluster_sum(
         pending[t as usize].push((n, w, [w * p[0], w * p[1], w * p[2]]));
     }
     for t in (base_level as usize..nlev).rev() {
-        let mut entries = std::mem::take(&mut pending[t]);
-        entries.sort_by_key(|e| e.0);
-        let mut merged: Vec<ClusterSum> = Vec::new();
-        for (n, w, wp) in entries {
-            match merged.last_mut() {
-                Some(last) if last.0 == n => {
-                    last.1 += w;
-                    for a in 0..3 {
-                        last.2[a] += wp[a];
-                    }
-                }
-                _ => merged.push((n, w, wp)),
-            }
-        }
+        let merged = merge_cluster_sums(std::mem::take(&mut pending[t]));
         if t > base_level as usize {
             for &(n, w, wp) in &merged {
                 let p = tree.parent(t as u32, n);
@@ -386,6 +373,24 @@ pub fn for_each_cluster_sum(
         }
         f(t as u32, &merged);
     }
+}
+
+/// The sums of each node, added in the order given (the sort is stable), sorted by node.
+pub fn merge_cluster_sums(mut entries: Vec<ClusterSum>) -> Vec<ClusterSum> {
+    entries.sort_by_key(|e| e.0);
+    let mut merged: Vec<ClusterSum> = Vec::new();
+    for (n, w, wp) in entries {
+        match merged.last_mut() {
+            Some(last) if last.0 == n => {
+                last.1 += w;
+                for a in 0..3 {
+                    last.2[a] += wp[a];
+                }
+            }
+            _ => merged.push((n, w, wp)),
+        }
+    }
+    merged
 }
 
 /// One cluster's sums before it is finished: `(node, W, W·p)`.

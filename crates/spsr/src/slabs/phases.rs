@@ -30,7 +30,9 @@ use crate::pipeline::density::{self, Sampled};
 use crate::pipeline::prepare::Carried;
 use crate::pipeline::{extract, noise, splat, system, tree};
 use crate::solver::{self, Carry, Laps, Problem, Solution};
-use crate::system::{for_each_cluster_sum, level_clusters, ClusterSum, Clusters, DepthTables};
+use crate::system::{
+    for_each_cluster_sum, level_clusters, merge_cluster_sums, ClusterSum, Clusters, DepthTables,
+};
 use crate::{Noise, Params, Result};
 
 /// A screening cluster's sums from one slab: the node's key, `W`, `W·p`.
@@ -365,23 +367,11 @@ pub fn solve_coarse(parts: &[CoarsePart], plan: &Plan, params: &Params) -> Resul
     let alpha = params.alpha();
     let clusters: Vec<Clusters> = (0..nlev as u32)
         .map(|t| {
-            let mut entries = std::mem::take(&mut cluster_sums[t as usize]);
+            let entries = std::mem::take(&mut cluster_sums[t as usize]);
             if alpha <= 0.0 || entries.is_empty() {
                 return Clusters::default();
             }
-            entries.sort_by_key(|e| e.0);
-            let mut merged: Vec<ClusterSum> = Vec::new();
-            for (n, w, wp) in entries {
-                match merged.last_mut() {
-                    Some(last) if last.0 == n => {
-                        last.1 += w;
-                        for a in 0..3 {
-                            last.2[a] += wp[a];
-                        }
-                    }
-                    _ => merged.push((n, w, wp)),
-                }
-            }
+            let merged = merge_cluster_sums(entries);
             level_clusters(&tree, fem, t, &merged, alpha * mean_area)
         })
         .collect();
