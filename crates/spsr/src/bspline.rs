@@ -20,7 +20,9 @@
 //! domain, so degree 1 never needs folding work.
 
 /// Boundary condition on the faces of the unit cube (ALGORITHM.md §5.2).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
 pub enum Boundary {
     /// No condition: functions are cut off at the cube, index range extended.
     Free,
@@ -55,7 +57,9 @@ impl Boundary {
 
 /// Degree of the B-spline finite elements (ALGORITHM.md §5.1). Only these two are
 /// implemented, so an unsupported degree cannot be expressed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
 pub enum Degree {
     /// Piecewise-linear elements (PoissonRecon 18's default).
     #[default]

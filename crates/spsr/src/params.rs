@@ -9,7 +9,8 @@ use crate::{Error, Result};
 pub const MAX_DEPTH: u32 = 18;
 
 /// Parameters of [`crate::reconstruct`]. Build with `Params::default()` and change fields.
-#[derive(Debug, Clone, PartialEq)]
+/// (Serialisable, for the job file of a slab run as tasks: `slabs::job`.)
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Params {
     /// Maximum octree depth `D`; the finest cells are `1/2^D` of the bounding cube.
     /// Default 8, as PoissonRecon 6 and 18.
@@ -75,7 +76,7 @@ pub struct Params {
 }
 
 /// Whether the reconstruction adapts to the local noise of the points (issue 16).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 pub enum Noise {
     /// Measure the noise around every sample and splat it no finer than the noise allows
     /// (default).
@@ -108,7 +109,7 @@ impl Noise {
 }
 
 /// How much each point counts in the fit (ALGORITHM.md §3.4).
-#[derive(Debug, Clone, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 pub enum PointWeights {
     /// Every point weighs 1 (default).
     #[default]

@@ -24,6 +24,8 @@
 //! weights from a property. The orientation repair (stage 2a) and the far-outlier check are
 //! whole-cloud steps and are skipped.
 
+mod codec;
+pub mod job;
 mod output;
 pub mod phases;
 mod plan;
@@ -32,7 +34,7 @@ mod spill;
 use std::path::{Path, PathBuf};
 
 use crate::error::Warning;
-use crate::pipeline::prepare::{self, Bounds, MIN_POINTS};
+use crate::pipeline::prepare::{self, Bounds, Frame, MIN_POINTS};
 use crate::pipeline::{diagnose::Diagnosis, fragments, Reconstruction, Run, Stats};
 use crate::{io, Error, Noise, Params, PointCloud, PointWeights, Result};
 use output::MeshFiles;
@@ -115,10 +117,19 @@ impl WorkDir {
     }
 }
 
+impl WorkDir {
+    /// The folder, kept (for a job run as tasks, removed by `job::remove`).
+    fn keep(mut self) -> PathBuf {
+        std::mem::take(&mut self.0)
+    }
+}
+
 impl Drop for WorkDir {
     fn drop(&mut self) {
         // Removed before the guard unregisters it (fields drop after this).
-        let _ = std::fs::remove_dir_all(&self.0);
+        if !self.0.as_os_str().is_empty() {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
     }
 }
 
@@ -187,67 +198,18 @@ fn run(
     let work = WorkDir::new(&options.work_dir)?;
     let dir = work.0.as_path();
 
-    // Pass 1: the bounding cube of the usable points.
-    let mut bounds = Bounds::default();
-    let (mut input_points, mut usable_points) = (0usize, 0usize);
-    run.stage("reading points", || {
-        source.for_each(|cloud| {
-            check_cloud(cloud, params)?;
-            let weight_of = prepare::weights(cloud, &params.weights)?;
-            let usable = prepare::usable(cloud, &weight_of);
-            input_points += cloud.len();
-            usable_points += usable.len();
-            for &i in &usable {
-                bounds.add(cloud.positions[i]);
-            }
-            Ok(())
-        })
-    })?;
-    let dropped = input_points - usable_points;
-    if usable_points < MIN_POINTS {
-        return Err(Error::TooFewPoints {
-            usable: usable_points,
-            dropped,
-            required: MIN_POINTS,
-        });
-    }
-    let (frame, _) = bounds.cube(params.scale)?;
-
-    // Pass 2: the points in the unit cube, spilled per column.
-    let columns = 1usize << Plan::block_depth(params);
-    let counts = run.stage("spilling points", || {
-        let mut writer = ColumnWriter::new(dir, columns);
-        let n = columns as f64;
-        source.for_each(|cloud| {
-            let weight_of = prepare::weights(cloud, &params.weights)?;
-            for i in prepare::usable(cloud, &weight_of) {
-                let p =
-                    prepare::unit_point(frame, cloud.positions[i], cloud.normals[i], weight_of(i));
-                let c = ((p.0[0] * n).floor() as i64).clamp(0, columns as i64 - 1);
-                writer.push(c as usize, &p)?;
-            }
-            Ok(())
-        })?;
-        writer.finish()
-    })?;
+    let (found, frame) = run.stage("reading points", || bounds_pass(source, params))?;
+    let counts = run.stage("spilling points", || spill_pass(source, params, frame, dir))?;
     let plan = Plan::new(frame, params, counts, options.slabs);
     let k = plan.slabs.len();
 
     let smooth = if params.noise == Noise::Adaptive {
-        let mut histogram = vec![0u64; params.depth as usize + 1];
-        run.stage("noise", || -> Result<()> {
-            for s in 0..k {
-                let h = phases::noise_depths(dir, &plan, s, params)?;
-                for (a, b) in histogram.iter_mut().zip(h) {
-                    *a += b;
-                }
-            }
-            Ok(())
+        let histograms = run.stage("noise", || {
+            (0..k)
+                .map(|s| phases::noise_depths(dir, &plan, s, params))
+                .collect::<Result<Vec<_>>>()
         })?;
-        Some(crate::pipeline::noise::smoothing_depth(
-            &histogram,
-            params.depth,
-        ))
+        Some(smoothing_depth(&histograms, params))
     } else {
         None
     };
@@ -266,20 +228,9 @@ fn run(
             .map(|s| phases::solve(dir, &plan, s, params, smooth, &coarse))
             .collect::<Result<Vec<_>>>()
     })?;
-    let sums = solved.iter().fold([0.0; 2], |a, s| {
-        [a[0] + s.iso_sums[0], a[1] + s.iso_sums[1]]
-    });
-    let iso = sums[0] / sums[1];
+    let iso = iso_value(&solved);
     let mut sink = match output {
-        Some(_) => {
-            let cells = 1u32 << params.depth;
-            let planes = plan.slabs[1..]
-                .iter()
-                .map(|r| (r.start as u32) << (params.depth - plan.block_depth))
-                .filter(|&x| x < cells)
-                .collect();
-            Sink::Files(MeshFiles::new(dir, planes)?)
-        }
+        Some(_) => Sink::Files(MeshFiles::new(dir, face_planes(&plan, params))?),
         None => Sink::Memory(Vec::with_capacity(k)),
     };
     run.stage("extraction", || -> Result<()> {
@@ -300,22 +251,10 @@ fn run(
         Ok(())
     })?;
     let mut warnings = Vec::new();
-    if dropped > 0 {
-        warnings.push(Warning::DroppedPoints {
-            dropped,
-            total: input_points,
-        });
-    }
     let (mesh, written, diagnosis) = match (sink, output) {
         (Sink::Files(files), Some(path)) => {
             let written = run.stage("writing", || files.finish(path))?;
-            let diagnosis = Diagnosis {
-                pieces: written.pieces,
-                closed: written.open_edges == 0,
-                boundary_edges: written.open_edges as usize,
-                ..Diagnosis::default()
-            };
-            (None, Some(written), diagnosis)
+            (None, Some(written), written_diagnosis(&written))
         }
         (Sink::Memory(blocks), _) => {
             drop(work);
@@ -338,22 +277,163 @@ fn run(
         }
         (Sink::Files(_), None) => unreachable!("files only with an output"),
     };
-    warnings.extend(diagnosis.warning());
     let (stages, peak_memory) = run.finish();
     let stats = Stats {
-        points: input_points,
-        dropped,
-        samples,
-        iso_value: iso,
-        mean_sample_depth: coarse.mean_depth,
         stages,
-        warnings,
         peak_memory,
-        diagnosis,
-        slabs: k,
-        ..Stats::default()
+        ..slab_stats(
+            found,
+            samples,
+            iso,
+            coarse.mean_depth,
+            k,
+            diagnosis,
+            warnings,
+        )
     };
     Ok((mesh, stats, written))
+}
+
+/// What the first pass found: the points read and those left out as unusable.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Found {
+    pub points: usize,
+    pub dropped: usize,
+}
+
+/// Pass 1: the points' count and the bounding cube of the usable ones.
+fn bounds_pass(source: Source, params: &Params) -> Result<(Found, Frame)> {
+    let mut bounds = Bounds::default();
+    let (mut points, mut usable_points) = (0usize, 0usize);
+    source.for_each(|cloud| {
+        check_cloud(cloud, params)?;
+        let weight_of = prepare::weights(cloud, &params.weights)?;
+        let usable = prepare::usable(cloud, &weight_of);
+        points += cloud.len();
+        usable_points += usable.len();
+        for &i in &usable {
+            bounds.add(cloud.positions[i]);
+        }
+        Ok(())
+    })?;
+    let dropped = points - usable_points;
+    if usable_points < MIN_POINTS {
+        return Err(Error::TooFewPoints {
+            usable: usable_points,
+            dropped,
+            required: MIN_POINTS,
+        });
+    }
+    let (frame, _) = bounds.cube(params.scale)?;
+    Ok((Found { points, dropped }, frame))
+}
+
+/// Pass 2: the usable points in the unit cube, spilled per column into `dir`; the points per
+/// column.
+fn spill_pass(source: Source, params: &Params, frame: Frame, dir: &Path) -> Result<Vec<u64>> {
+    let columns = 1usize << Plan::block_depth(params);
+    let mut writer = ColumnWriter::new(dir, columns);
+    let n = columns as f64;
+    source.for_each(|cloud| {
+        let weight_of = prepare::weights(cloud, &params.weights)?;
+        for i in prepare::usable(cloud, &weight_of) {
+            let p = prepare::unit_point(frame, cloud.positions[i], cloud.normals[i], weight_of(i));
+            let c = ((p.0[0] * n).floor() as i64).clamp(0, columns as i64 - 1);
+            writer.push(c as usize, &p)?;
+        }
+        Ok(())
+    })?;
+    writer.finish()
+}
+
+/// Both passes over the input, for a job run as tasks.
+pub(crate) struct Spilled {
+    pub frame: Frame,
+    pub counts: Vec<u64>,
+    pub found: Found,
+}
+
+fn spill_points(source: Source, params: &Params, dir: &Path) -> Result<Spilled> {
+    let (found, frame) = bounds_pass(source, params)?;
+    let counts = spill_pass(source, params, frame, dir)?;
+    Ok(Spilled {
+        frame,
+        counts,
+        found,
+    })
+}
+
+/// The depth at which all slabs smooth the noise, from the slabs' histograms of measured
+/// depths.
+fn smoothing_depth(histograms: &[Vec<u64>], params: &Params) -> u32 {
+    let mut sum = vec![0u64; params.depth as usize + 1];
+    for h in histograms {
+        for (a, b) in sum.iter_mut().zip(h) {
+            *a += b;
+        }
+    }
+    crate::pipeline::noise::smoothing_depth(&sum, params.depth)
+}
+
+/// γ: the weighted mean of χ over all slabs' own samples (summed in slab order).
+fn iso_value(solved: &[phases::Solved]) -> f64 {
+    let sums = solved.iter().fold([0.0; 2], |a, s| {
+        [a[0] + s.iso_sums[0], a[1] + s.iso_sums[1]]
+    });
+    sums[0] / sums[1]
+}
+
+/// x of the faces between slabs, in cells of the finest depth.
+fn face_planes(plan: &Plan, params: &Params) -> Vec<u32> {
+    let cells = 1u32 << params.depth;
+    plan.slabs[1..]
+        .iter()
+        .map(|r| (r.start as u32) << (params.depth - plan.block_depth))
+        .filter(|&x| x < cells)
+        .collect()
+}
+
+/// The checks of a mesh written slab by slab: pieces and open edges.
+fn written_diagnosis(w: &Written) -> Diagnosis {
+    Diagnosis {
+        pieces: w.pieces,
+        closed: w.open_edges == 0,
+        boundary_edges: w.open_edges as usize,
+        ..Diagnosis::default()
+    }
+}
+
+/// The statistics of a slab run, stage timings and peak memory aside; `warnings` are those
+/// of the run's end (removed fragments).
+fn slab_stats(
+    found: Found,
+    samples: usize,
+    iso: f64,
+    mean_depth: f64,
+    slabs: usize,
+    diagnosis: Diagnosis,
+    warnings: Vec<Warning>,
+) -> Stats {
+    let dropped = (found.dropped > 0).then_some(Warning::DroppedPoints {
+        dropped: found.dropped,
+        total: found.points,
+    });
+    let warnings = dropped
+        .into_iter()
+        .chain(warnings)
+        .chain(diagnosis.warning())
+        .collect();
+    Stats {
+        points: found.points,
+        dropped: found.dropped,
+        samples,
+        iso_value: iso,
+        mean_sample_depth: mean_depth,
+        warnings,
+        diagnosis,
+        slabs,
+        ..Stats::default()
+    }
 }
 
 /// Where the slabs' meshes go.

@@ -16,7 +16,7 @@
 //!    are polygonised.
 
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Read, Write};
+use std::io::{BufReader, Read};
 use std::path::{Path, PathBuf};
 
 use super::plan::Plan;
@@ -311,19 +311,41 @@ fn find(tree: &Octree, t: u32, key: [u32; 3]) -> Option<u32> {
     (reached == t).then_some(n)
 }
 
-/// Phase 3 (coordinator): the coarse levels solved for the whole cloud from the slabs' parts.
-pub fn solve_coarse(parts: &[CoarsePart], plan: &Plan, params: &Params) -> Result<Coarse> {
+/// The coarse levels' tree: the closure of the nodes that the slabs' own samples refine (per
+/// slab, per tree depth below the coarse level, packed keys), and its own refined nodes.
+fn coarse_tree_of(
+    refined: &[&[Vec<u64>]],
+    plan: &Plan,
+    params: &Params,
+) -> (Octree, Vec<Vec<u64>>) {
     let tb = base_level(params);
     let tc = plan.coarse_level();
     let mut req = TreeRequest::new(tc);
-    for part in parts {
-        for (t, keys) in part.refined.iter().enumerate() {
+    for levels in refined {
+        for (t, keys) in levels.iter().enumerate() {
             req.refine_keys(t as u32, keys.iter().copied());
         }
     }
     let closed = req.close(tb - DEPTH_OFFSET, tb - DEPTH_OFFSET);
     let refined_keys = (0..tc).map(|t| closed.refined_keys(t)).collect();
-    let tree = Octree::materialize(closed);
+    (Octree::materialize(closed), refined_keys)
+}
+
+/// The coarse tree again from [`Coarse::refined`] (a closed request closes to itself).
+pub(crate) fn coarse_tree(
+    refined: &[Vec<u64>],
+    plan: &Plan,
+    params: &Params,
+) -> (Octree, Vec<Vec<u64>>) {
+    coarse_tree_of(&[refined], plan, params)
+}
+
+/// Phase 3 (coordinator): the coarse levels solved for the whole cloud from the slabs' parts.
+pub fn solve_coarse(parts: &[CoarsePart], plan: &Plan, params: &Params) -> Result<Coarse> {
+    let tb = base_level(params);
+    let tc = plan.coarse_level();
+    let refined: Vec<&[Vec<u64>]> = parts.iter().map(|p| p.refined.as_slice()).collect();
+    let (tree, refined_keys) = coarse_tree_of(&refined, plan, params);
     let sums = parts.iter().fold([0.0; 3], |acc, p| {
         [acc[0] + p.sums[0], acc[1] + p.sums[1], acc[2] + p.sums[2]]
     });
@@ -581,21 +603,18 @@ pub fn extract(
     Ok((blocks, missing))
 }
 
-/// Writes per-node values of the levels from `from` on.
+/// Writes per-node values of the levels from `from` on, atomically (a task that dies
+/// leaves no half file).
 fn write_levels(path: &Path, levels: &[Vec<f32>], from: u32) -> Result<()> {
-    let f = File::create(path).map_err(|e| io_err(path, e))?;
-    let mut w = BufWriter::new(f);
-    for x in &levels[from as usize..] {
-        w.write_all(&(x.len() as u64).to_le_bytes())
-            .map_err(|e| io_err(path, e))?;
-        for v in x {
-            w.write_all(&v.to_le_bytes()).map_err(|e| io_err(path, e))?;
+    crate::io::write_with(path, |w| {
+        for x in &levels[from as usize..] {
+            w.write_all(&(x.len() as u64).to_le_bytes())?;
+            for v in x {
+                w.write_all(&v.to_le_bytes())?;
+            }
         }
-    }
-    w.into_inner()
-        .map_err(|e| io_err(path, e.into_error()))?
-        .sync_all()
-        .map_err(|e| io_err(path, e))
+        Ok(())
+    })
 }
 
 /// Reads what [`write_levels`] wrote, checking each level's length against `tree`.

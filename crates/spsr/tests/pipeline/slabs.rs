@@ -132,3 +132,92 @@ fn slabs_written_as_they_come_match_the_mesh_in_memory() {
     // Only the mesh is left in the folder.
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
 }
+
+/// Runs every step of a job as the Python coordinator does, each slab task of a phase in
+/// `order`, and the tasks of `twice` run twice (as a scheduler does when a worker dies).
+fn run_job(
+    cloud: &PointCloud,
+    params: &Params,
+    k: usize,
+    root: &std::path::Path,
+    out: &std::path::Path,
+) -> slabs::Written {
+    use slabs::job;
+    let j = job::prepare(Source::Cloud(cloud), params, k, root).unwrap();
+    let order: Vec<usize> = (0..j.slabs).rev().collect();
+    let each = |task: fn(&std::path::Path, usize) -> spsr::Result<()>| {
+        for &s in &order {
+            task(&j.dir, s).unwrap();
+        }
+        // Idempotent: running a task again changes nothing.
+        task(&j.dir, 0).unwrap();
+    };
+    if j.noise {
+        each(job::noise);
+        job::smoothing(&j.dir).unwrap();
+    }
+    each(job::coarse);
+    job::solve_coarse(&j.dir).unwrap();
+    each(job::solve);
+    job::iso(&j.dir).unwrap();
+    each(job::extract);
+    let (_, written) = job::finish(&j.dir, out).unwrap();
+    job::remove(&j.dir).unwrap();
+    written
+}
+
+#[test]
+fn slab_tasks_give_the_bytes_of_the_one_process_run() {
+    let cloud = bunny();
+    let dir = tempfile::tempdir().unwrap();
+    for params in [
+        plain(7),
+        Params {
+            depth: 7,
+            attributes: false,
+            ..Params::default()
+        },
+    ] {
+        let options = SlabOptions {
+            slabs: 3,
+            work_dir: dir.path().to_path_buf(),
+        };
+        let one = dir.path().join("one.ply");
+        slabs::reconstruct_into(Source::Cloud(&cloud), &params, &options, &one, &|_| {}).unwrap();
+        let tasks = dir.path().join("tasks.ply");
+        let written = run_job(&cloud, &params, 3, dir.path(), &tasks);
+        assert_eq!((written.pieces, written.open_edges), (1, 0));
+        assert!(
+            std::fs::read(&one).unwrap() == std::fs::read(&tasks).unwrap(),
+            "{:?}: the tasks' mesh differs from the one-process run's",
+            params.noise
+        );
+        // Only the two meshes are left.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
+    }
+}
+
+#[test]
+fn slab_tasks_refuse_steps_out_of_order_and_foreign_folders() {
+    use slabs::job;
+    let cloud = torus(5_000, 1.0, 0.35, 3);
+    let dir = tempfile::tempdir().unwrap();
+    let j = job::prepare(Source::Cloud(&cloud), &plain(6), 2, dir.path()).unwrap();
+    // Extraction before the iso-value, a slab the job lacks, a solve before the coarse solve.
+    let e = job::extract(&j.dir, 0).unwrap_err().to_string();
+    assert!(e.contains("iso"), "{e}");
+    assert!(job::coarse(&j.dir, j.slabs).is_err());
+    assert!(job::solve(&j.dir, 0).is_err());
+    // A damaged file is an error naming it, not a panic.
+    job::coarse(&j.dir, 0).unwrap();
+    let part = j.dir.join("slab-0000.coarse");
+    let bytes = std::fs::read(&part).unwrap();
+    std::fs::write(&part, &bytes[..bytes.len() / 2]).unwrap();
+    job::coarse(&j.dir, 1).unwrap();
+    let e = job::solve_coarse(&j.dir).unwrap_err().to_string();
+    assert!(e.contains("slab-0000.coarse"), "{e}");
+    // Only a job folder is removed.
+    assert!(job::remove(dir.path()).is_err());
+    job::remove(&j.dir).unwrap();
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+}

@@ -1,0 +1,342 @@
+//! A slab run as separate tasks, for a cluster (the Python package's `spsr.distributed` runs
+//! them on Dask): every step reads and writes files in one job folder that all the machines
+//! can reach, so a task needs nothing but the folder and its slab's number.
+//!
+//! The coordinator calls [`prepare`] (the two passes over the input: bounding cube and spill
+//! files), then runs the slab tasks of each phase (in any order, anywhere, as often as a
+//! scheduler likes) and its own steps between them:
+//!
+//! | step | who | reads | writes |
+//! |---|---|---|---|
+//! | [`prepare`] | coordinator | the input files | `job.json`, the column files |
+//! | [`noise`] (adaptive noise only) | slab task | columns | `slab-s.noise` |
+//! | [`smoothing`] | coordinator | every `slab-s.noise` | the smoothing depth in `job.json` |
+//! | [`coarse`] | slab task | columns | `slab-s.coarse`, `slab-s.constraints` |
+//! | [`solve_coarse`] | coordinator | every `slab-s.coarse` | `coarse` |
+//! | [`solve`] | slab task | columns, `coarse`, `slab-s.constraints` | `slab-s.solution`, `slab-s.solved` |
+//! | [`iso`] | coordinator | every `slab-s.solved` | the iso-value in `job.json` |
+//! | [`extract`] | slab task | columns, `coarse`, `slab-s.solution`, the neighbours' `.solved` | `slab-s.part` |
+//! | [`finish`] | coordinator | every `slab-s.part` | the output mesh |
+//!
+//! The tasks are pure functions of their inputs and write every file atomically (to a
+//! temporary name, renamed when complete), so a task that dies half-way leaves nothing behind
+//! and can simply be run again; the mesh is the same bytes as the one-process run of
+//! [`super::reconstruct_into`] with the same slab count.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use super::codec::{load, save, CoarseRecord, Histogram};
+use super::output::MeshFiles;
+use super::phases::{self, Coarse, CoarsePart, Solved};
+use super::{spill_points, Found, Plan, Source, Spilled, WorkDir, Written};
+use crate::extract::Part;
+use crate::pipeline::{prepare::Frame, Stats};
+use crate::{Error, Noise, Params, Result};
+
+/// What [`prepare`] made: the job folder and its slabs.
+#[derive(Debug, Clone)]
+pub struct Job {
+    /// The job folder (inside the work folder given to [`prepare`]); [`remove`] deletes it.
+    pub dir: PathBuf,
+    /// The slabs (fewer than asked when fewer columns hold points).
+    pub slabs: usize,
+    /// Whether the noise phase runs ([`noise`], then [`smoothing`]).
+    pub noise: bool,
+}
+
+/// The job's description, shared by every task.
+#[derive(Serialize, Deserialize)]
+struct JobFile {
+    /// The format of the job folder (a task refuses another).
+    version: u32,
+    params: Params,
+    origin: [f64; 3],
+    width: f64,
+    counts: Vec<u64>,
+    slabs_wanted: usize,
+    points: usize,
+    dropped: usize,
+    /// The depth at which the noise is smoothed, once [`smoothing`] has run.
+    smooth: Option<u32>,
+    /// The iso-value, once [`iso`] has run.
+    iso: Option<f64>,
+}
+
+const VERSION: u32 = 1;
+
+impl JobFile {
+    fn read(dir: &Path) -> Result<JobFile> {
+        let path = dir.join("job.json");
+        let text = std::fs::read(&path).map_err(|e| super::spill::io_err(&path, e))?;
+        let job: JobFile = serde_json::from_slice(&text).map_err(|e| Error::Parse {
+            path: path.clone(),
+            message: format!("not a slab job's description ({e})"),
+        })?;
+        if job.version != VERSION {
+            return Err(Error::Parse {
+                path,
+                message: format!(
+                    "a slab job of format {} (this spsr reads format {VERSION})",
+                    job.version
+                ),
+            });
+        }
+        Ok(job)
+    }
+
+    fn write(&self, dir: &Path) -> Result<()> {
+        let text = serde_json::to_vec_pretty(self).expect("plain data");
+        crate::io::write_with(&dir.join("job.json"), |w| w.write_all(&text))
+    }
+
+    fn plan(&self) -> Plan {
+        let frame = Frame {
+            origin: self.origin,
+            width: self.width,
+        };
+        Plan::new(frame, &self.params, self.counts.clone(), self.slabs_wanted)
+    }
+
+    /// The smoothing depth, required once the noise phase is due.
+    fn smooth(&self) -> Result<Option<u32>> {
+        match (self.params.noise, self.smooth) {
+            (Noise::Adaptive, None) => Err(out_of_order("smoothing")),
+            (_, s) => Ok(s),
+        }
+    }
+
+    fn slab(&self, s: usize) -> Result<Plan> {
+        let plan = self.plan();
+        if s >= plan.slabs.len() {
+            return Err(Error::invalid(
+                "slab",
+                s,
+                format!("below the job's {} slabs", plan.slabs.len()),
+            ));
+        }
+        Ok(plan)
+    }
+}
+
+fn out_of_order(step: &str) -> Error {
+    Error::invalid(
+        "job step",
+        "run out of order",
+        format!("after the coordinator's `{step}` step"),
+    )
+}
+
+fn slab_file(dir: &Path, s: usize, kind: &str) -> PathBuf {
+    dir.join(format!("slab-{s:04}.{kind}"))
+}
+
+/// Reads the points of `source` (two passes: the bounding cube, then the spill files) into a
+/// new job folder inside `work_dir`, cut into at most `slabs` slabs.
+pub fn prepare(source: Source, params: &Params, slabs: usize, work_dir: &Path) -> Result<Job> {
+    params.validate()?;
+    super::check_supported(params)?;
+    if slabs == 0 {
+        return Err(Error::invalid("slabs", 0, "at least 1"));
+    }
+    let work = WorkDir::new(work_dir)?;
+    let Spilled {
+        frame,
+        counts,
+        found,
+    } = spill_points(source, params, &work.0)?;
+    let job = JobFile {
+        version: VERSION,
+        params: params.clone(),
+        origin: frame.origin,
+        width: frame.width,
+        counts,
+        slabs_wanted: slabs,
+        points: found.points,
+        dropped: found.dropped,
+        smooth: None,
+        iso: None,
+    };
+    let k = job.plan().slabs.len();
+    job.write(&work.0)?;
+    Ok(Job {
+        dir: work.keep(),
+        slabs: k,
+        noise: params.noise == Noise::Adaptive,
+    })
+}
+
+/// Slab task: the histogram of the depths at which the slab's noise was measured.
+pub fn noise(dir: &Path, s: usize) -> Result<()> {
+    let job = JobFile::read(dir)?;
+    let plan = job.slab(s)?;
+    let h = phases::noise_depths(dir, &plan, s, &job.params)?;
+    save(&slab_file(dir, s, "noise"), &Histogram(h))
+}
+
+/// Coordinator: the depth at which all slabs smooth the noise, from the slabs' histograms.
+pub fn smoothing(dir: &Path) -> Result<()> {
+    let mut job = JobFile::read(dir)?;
+    let k = job.plan().slabs.len();
+    let histograms = (0..k)
+        .map(|s| load::<Histogram>(&slab_file(dir, s, "noise")).map(|h| h.0))
+        .collect::<Result<Vec<_>>>()?;
+    job.smooth = Some(super::smoothing_depth(&histograms, &job.params));
+    job.write(dir)
+}
+
+/// Slab task: what the slab's own samples add to the coarse levels.
+pub fn coarse(dir: &Path, s: usize) -> Result<()> {
+    let job = JobFile::read(dir)?;
+    let plan = job.slab(s)?;
+    let part = phases::coarse(dir, &plan, s, &job.params, job.smooth()?)?;
+    save(&slab_file(dir, s, "coarse"), &part)
+}
+
+/// Coordinator: the coarse levels solved for the whole cloud.
+pub fn solve_coarse(dir: &Path) -> Result<()> {
+    let job = JobFile::read(dir)?;
+    let plan = job.plan();
+    let parts = (0..plan.slabs.len())
+        .map(|s| load::<CoarsePart>(&slab_file(dir, s, "coarse")))
+        .collect::<Result<Vec<_>>>()?;
+    let samples = parts.iter().map(|p| p.samples as u64).sum();
+    let c = phases::solve_coarse(&parts, &plan, &job.params)?;
+    let record = CoarseRecord {
+        refined: c.refined,
+        x: c.solution.x,
+        p: c.solution.p,
+        base_level: c.solution.base_level,
+        carry: c.carry,
+        mean_area: c.mean_area,
+        mean_depth: c.mean_depth,
+        samples,
+    };
+    save(&dir.join("coarse"), &record)
+}
+
+/// The coarse solve written by [`solve_coarse`], with its tree rebuilt, and the samples.
+fn read_coarse(dir: &Path, plan: &Plan, params: &Params) -> Result<(Coarse, u64)> {
+    let r: CoarseRecord = load(&dir.join("coarse"))?;
+    let tree = phases::coarse_tree(&r.refined, plan, params).0;
+    let levels_ok = r.x.len() == tree.levels.len()
+        && r.x
+            .iter()
+            .zip(&tree.levels)
+            .all(|(x, l)| x.is_empty() || x.len() == l.len());
+    if !levels_ok {
+        return Err(Error::Parse {
+            path: dir.join("coarse"),
+            message: "the coarse solution does not fit the coarse tree".into(),
+        });
+    }
+    let coarse = Coarse {
+        tree,
+        refined: r.refined,
+        solution: crate::solver::Solution {
+            x: r.x,
+            p: r.p,
+            base_level: r.base_level,
+            timings: Vec::new(),
+        },
+        carry: r.carry,
+        mean_area: r.mean_area,
+        mean_depth: r.mean_depth,
+    };
+    Ok((coarse, r.samples))
+}
+
+/// Slab task: the slab's finer levels, its share of the iso-value and its face bands.
+pub fn solve(dir: &Path, s: usize) -> Result<()> {
+    let job = JobFile::read(dir)?;
+    let plan = job.slab(s)?;
+    let (coarse, _) = read_coarse(dir, &plan, &job.params)?;
+    let solved = phases::solve(dir, &plan, s, &job.params, job.smooth()?, &coarse)?;
+    save(&slab_file(dir, s, "solved"), &solved)
+}
+
+/// Coordinator: the iso-value from all slabs' shares.
+pub fn iso(dir: &Path) -> Result<()> {
+    let mut job = JobFile::read(dir)?;
+    let k = job.plan().slabs.len();
+    let solved = (0..k)
+        .map(|s| load::<Solved>(&slab_file(dir, s, "solved")))
+        .collect::<Result<Vec<_>>>()?;
+    job.iso = Some(super::iso_value(&solved));
+    job.write(dir)
+}
+
+/// Slab task: the slab's part of the mesh.
+pub fn extract(dir: &Path, s: usize) -> Result<()> {
+    let job = JobFile::read(dir)?;
+    let plan = job.slab(s)?;
+    let iso = job.iso.ok_or_else(|| out_of_order("iso"))?;
+    let k = plan.slabs.len();
+    let (coarse, _) = read_coarse(dir, &plan, &job.params)?;
+    let neighbour = |n: Option<usize>, face: usize| -> Result<Vec<_>> {
+        match n {
+            Some(n) => {
+                let mut solved: Solved = load(&slab_file(dir, n, "solved"))?;
+                Ok(std::mem::take(&mut solved.faces[face]))
+            }
+            None => Ok(Vec::new()),
+        }
+    };
+    let before = neighbour(s.checked_sub(1), 1)?;
+    let after = neighbour((s + 1 < k).then_some(s + 1), 0)?;
+    let smooth = job.smooth()?;
+    let (blocks, _) = phases::extract(
+        dir,
+        &plan,
+        s,
+        &job.params,
+        smooth,
+        &coarse,
+        iso,
+        [&before, &after],
+    )?;
+    save(&slab_file(dir, s, "part"), &blocks.into_part())
+}
+
+/// Coordinator: the slabs' parts stitched into one mesh, written to `output` (binary PLY),
+/// with the run's statistics (no stage timings: the tasks ran elsewhere).
+pub fn finish(dir: &Path, output: &Path) -> Result<(Stats, Written)> {
+    let job = JobFile::read(dir)?;
+    let plan = job.plan();
+    let iso = job.iso.ok_or_else(|| out_of_order("iso"))?;
+    let (coarse, samples) = read_coarse(dir, &plan, &job.params)?;
+    let mut files = MeshFiles::new(dir, super::face_planes(&plan, &job.params))?;
+    for s in 0..plan.slabs.len() {
+        let part: Part = load(&slab_file(dir, s, "part"))?;
+        files.add(part, plan.frame)?;
+    }
+    let written = files.finish(output)?;
+    let found = Found {
+        points: job.points,
+        dropped: job.dropped,
+    };
+    let stats = super::slab_stats(
+        found,
+        samples as usize,
+        iso,
+        coarse.mean_depth,
+        plan.slabs.len(),
+        super::written_diagnosis(&written),
+        Vec::new(),
+    );
+    Ok((stats, written))
+}
+
+/// Deletes the job folder (after [`finish`], or to give up).
+pub fn remove(dir: &Path) -> Result<()> {
+    // Only a folder that holds a job: never a folder the caller pointed at by mistake.
+    if !dir.join("job.json").is_file() {
+        return Err(Error::invalid(
+            "job folder",
+            dir.display().to_string(),
+            "a folder made by slabs::job::prepare (it has a job.json)",
+        ));
+    }
+    std::fs::remove_dir_all(dir).map_err(|e| super::spill::io_err(dir, e))
+}
