@@ -25,6 +25,7 @@ pub use files::{check_output_arg, is_std_stream, read_cloud_arg, read_mesh_arg, 
 pub use normals::{NormalOptions, NormalsArgs, OrientArg};
 pub use reconstruct::{BoundaryArg, ReconstructArgs};
 pub use render::{run_render, RenderArgs};
+pub use slabs::{cluster_run, ClusterRun};
 pub use trim::{run_trim, TrimArgs};
 
 /// Exit codes of the `spsr` binary (also listed in `--help` and the README).

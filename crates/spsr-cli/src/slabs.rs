@@ -180,3 +180,56 @@ pub(crate) fn enough(short: &spsr::MemoryShortfall) -> usize {
     let ratio = short.estimate as f64 / short.limit.max(1) as f64;
     ((2.0 * ratio).ceil() as usize).clamp(2, 64)
 }
+
+/// A slab run on a cluster (`python -m spsr.distributed`), from `spsr reconstruct`'s flags:
+/// the same parameters as the command line's, so that both front ends share one description.
+#[derive(Debug)]
+pub struct ClusterRun {
+    /// The input files (tiles), read as one cloud.
+    pub inputs: Vec<PathBuf>,
+    /// The mesh to write (binary PLY).
+    pub output: PathBuf,
+    /// `--slabs K`, or `None` for `auto` (the coordinator picks a count for its workers).
+    pub slabs: Option<usize>,
+    /// The folder for the job's files (`--work-dir`, else the output's folder).
+    pub work_dir: PathBuf,
+    /// The reconstruction's parameters, checked.
+    pub params: spsr::Params,
+}
+
+/// Parses `argv` (program name first, then `reconstruct`'s arguments) for a run on a cluster;
+/// `Err(Ok(_))` is clap's (usage or `--help`), `Err(Err(_))` a refusal with its exit code.
+pub fn cluster_run(argv: &[String]) -> Result<ClusterRun, Result<clap::Error, Failure>> {
+    let mut full = vec![argv.first().cloned().unwrap_or_else(|| "spsr".into())];
+    full.push("reconstruct".into());
+    full.extend(argv.iter().skip(1).cloned());
+    let cli = crate::try_parse_from(&full).map_err(Ok)?;
+    let crate::Command::Reconstruct(args) = cli.command else {
+        unreachable!("parsed as reconstruct")
+    };
+    let refuse = |m: &str| Err(Err(usage(m.into())));
+    if !streams(&args) {
+        return refuse(
+            "a cluster run writes binary PLY: give an output file ending in .ply (not -), \
+             without --ascii",
+        );
+    }
+    if args.preview.is_some() {
+        return refuse("--preview is not supported on a cluster; run `spsr render` on the mesh");
+    }
+    let (inputs, options) = check(&args, args.trim.is_some()).map_err(Err)?;
+    let params = args.params();
+    params
+        .validate()
+        .map_err(|e| Err(Failure::from_spsr(e, input_name(args.input()))))?;
+    Ok(ClusterRun {
+        inputs,
+        output: args.output.clone(),
+        slabs: match args.slabs {
+            crate::reconstruct::Slabs::Auto => None,
+            crate::reconstruct::Slabs::Count(k) => Some(k),
+        },
+        work_dir: options.work_dir,
+        params,
+    })
+}

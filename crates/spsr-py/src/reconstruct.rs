@@ -54,6 +54,81 @@ pub fn reconstruct<'py>(
     keep_outliers: bool,
     keep_normals: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
+    // Parameters first, before any array is converted.
+    let params = reconstruct_params(
+        py,
+        depth,
+        full_depth,
+        samples_per_node,
+        point_weight,
+        degree,
+        boundary,
+        scale,
+        iters,
+        confidence,
+        density,
+        linear_fit,
+        max_memory,
+        two_level_splat,
+        attributes,
+        data_pull,
+        vertex_normals,
+        confidence_property,
+        noise,
+        keep_outliers,
+        keep_normals,
+    )?;
+    let trim = match threshold_arg(&trim, "trim")? {
+        None => None,
+        Some(t) => Some(trim_params(
+            py,
+            t,
+            min_island_area,
+            hole_area,
+            Call::Reconstruct,
+        )?),
+    };
+    let threads = threads_arg(threads)?;
+    let cloud = cloud_in(py, &points, Some(&normals), columns, Call::Reconstruct)?;
+    let (result, trimmed) = run_detached(py, threads, move |progress| match &trim {
+        None => spsr::reconstruct_owned(cloud, &params, progress).map(|r| (r, None)),
+        Some(t) => {
+            spsr::reconstruct_and_trim(cloud, &params, t, progress).map(|(r, s)| (r, Some(s)))
+        }
+    })?
+    .map_err(py_err(py, Call::Reconstruct))?;
+    let stats = stats_out(py, &result.stats, trimmed.as_ref())?;
+    let out = mesh_out(py, result.mesh)?;
+    out.set_item("stats", stats)?;
+    Ok(out)
+}
+
+/// The library's parameters from `spsr.reconstruct`'s keywords (those that are `Params`
+/// fields), checked by the library; shared with `spsr.distributed` (`slabs.rs`).
+#[allow(clippy::too_many_arguments)]
+pub fn reconstruct_params(
+    py: Python<'_>,
+    depth: i64,
+    full_depth: Option<i64>,
+    samples_per_node: Option<f64>,
+    point_weight: Option<f64>,
+    degree: i64,
+    boundary: &str,
+    scale: f64,
+    iters: i64,
+    confidence: bool,
+    density: bool,
+    linear_fit: bool,
+    max_memory: Option<i64>,
+    two_level_splat: bool,
+    attributes: bool,
+    data_pull: f64,
+    vertex_normals: bool,
+    confidence_property: Option<String>,
+    noise: Option<&str>,
+    keep_outliers: bool,
+    keep_normals: bool,
+) -> PyResult<Params> {
     let given_noise = match noise {
         None => None,
         Some(name) => Some(
@@ -61,7 +136,6 @@ pub fn reconstruct<'py>(
                 .ok_or_else(|| invalid("noise", format!("'{name}'"), "'adaptive' or 'off'"))?,
         ),
     };
-    // Parameters first, before any array is converted.
     let params = Params {
         depth: int_arg(depth),
         // As the command line: the library's 5, or the depth when that is smaller.
@@ -97,29 +171,7 @@ pub fn reconstruct<'py>(
     params
         .validate()
         .map_err(|e| errors::to_py_err(py, shown_as_given(e, &given), Call::Reconstruct))?;
-    let trim = match threshold_arg(&trim, "trim")? {
-        None => None,
-        Some(t) => Some(trim_params(
-            py,
-            t,
-            min_island_area,
-            hole_area,
-            Call::Reconstruct,
-        )?),
-    };
-    let threads = threads_arg(threads)?;
-    let cloud = cloud_in(py, &points, Some(&normals), columns, Call::Reconstruct)?;
-    let (result, trimmed) = run_detached(py, threads, move |progress| match &trim {
-        None => spsr::reconstruct_owned(cloud, &params, progress).map(|r| (r, None)),
-        Some(t) => {
-            spsr::reconstruct_and_trim(cloud, &params, t, progress).map(|(r, s)| (r, Some(s)))
-        }
-    })?
-    .map_err(py_err(py, Call::Reconstruct))?;
-    let stats = stats_out(py, &result.stats, trimmed.as_ref())?;
-    let out = mesh_out(py, result.mesh)?;
-    out.set_item("stats", stats)?;
-    Ok(out)
+    Ok(params)
 }
 
 /// `Mesh.stats` of a reconstruction: counts, timings, warnings (in Python's words) and the
