@@ -195,6 +195,10 @@ pub struct ClusterRun {
     pub work_dir: PathBuf,
     /// The reconstruction's parameters, checked.
     pub params: spsr::Params,
+    /// `--threads`: the threads of each task (`None`: all the worker's cores).
+    pub threads: Option<usize>,
+    /// `-v`: print the run's figures.
+    pub verbose: bool,
 }
 
 /// Parses `argv` (program name first, then `reconstruct`'s arguments) for a run on a cluster;
@@ -231,5 +235,7 @@ pub fn cluster_run(argv: &[String]) -> Result<ClusterRun, Result<clap::Error, Fa
         },
         work_dir: options.work_dir,
         params,
+        threads: args.common.threads.threads,
+        verbose: args.common.verbose,
     })
 }

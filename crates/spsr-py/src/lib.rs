@@ -18,6 +18,7 @@
 //! | [`render`] | `spsr.render` |
 //! | [`files`] | reading and writing files |
 //! | [`cli`] | the `spsr` console script |
+//! | [`slabs`] | the steps of a slab run on a cluster (`spsr.distributed`) |
 
 use pyo3::prelude::*;
 
@@ -31,6 +32,7 @@ mod normals;
 mod params;
 mod reconstruct;
 mod render;
+mod slabs;
 
 /// The native module of the `spsr` Python package.
 #[pymodule]
@@ -46,6 +48,12 @@ fn _spsr(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render::render, m)?)?;
     m.add_function(wrap_pyfunction!(cli::cli_main, m)?)?;
     m.add_function(wrap_pyfunction!(params::defaults, m)?)?;
+    m.add_function(wrap_pyfunction!(slabs::slab_params, m)?)?;
+    m.add_function(wrap_pyfunction!(slabs::slab_args, m)?)?;
+    m.add_function(wrap_pyfunction!(slabs::slab_prepare, m)?)?;
+    m.add_function(wrap_pyfunction!(slabs::slab_step, m)?)?;
+    m.add_function(wrap_pyfunction!(slabs::slab_finish, m)?)?;
+    m.add_function(wrap_pyfunction!(slabs::slab_remove, m)?)?;
     m.add("MAX_DEPTH", spsr::MAX_DEPTH)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

@@ -183,19 +183,29 @@ fn check_command_lines(file: &str, text: &str) -> usize {
         let code = line.split(" #").next().unwrap_or(line);
         for part in code.split('|') {
             let words: Vec<&str> = part.split_whitespace().collect();
-            let Some(at) = words.iter().position(|w| *w == "spsr") else {
-                continue;
-            };
-            let Some(&name) = words.get(at + 1) else {
-                continue;
-            };
+            // `python -m spsr.distributed` takes reconstruct's flags and two of its own.
+            let (name, args, own): (&str, usize, &[&str]) =
+                match words.iter().position(|w| *w == "spsr.distributed") {
+                    Some(at) => ("reconstruct", at + 1, &["--scheduler", "--workers"]),
+                    None => {
+                        let Some(at) = words.iter().position(|w| *w == "spsr") else {
+                            continue;
+                        };
+                        let Some(&name) = words.get(at + 1) else {
+                            continue;
+                        };
+                        (name, at + 2, &[])
+                    }
+                };
             if !COMMANDS.contains(&name) {
                 continue;
             }
             let accepted = accepted_flags(name);
-            for flag in flags_in(&words[at + 2..].join(" ")) {
+            for flag in flags_in(&words[args..].join(" ")) {
                 assert!(
-                    accepted.contains(&flag) || EVERYWHERE.contains(&flag.as_str()),
+                    accepted.contains(&flag)
+                        || EVERYWHERE.contains(&flag.as_str())
+                        || own.contains(&flag.as_str()),
                     "{file}: `{}` uses {flag}, which spsr {name} does not have",
                     line.trim()
                 );

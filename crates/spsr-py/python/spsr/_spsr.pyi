@@ -1,6 +1,6 @@
 # Type stubs of the native module `spsr._spsr` (src/). Private: use the functions of
 # the `spsr` package, which check and convert their arguments before calling these.
-from typing import Any, Dict, List, Optional, Sequence, Tuple
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -89,3 +89,37 @@ def cli_main(argv: List[str]) -> int: ...
 # The library's defaults by function and keyword (tests/test_defaults.py checks the
 # signatures of the `spsr` functions against them).
 def _defaults() -> Dict[str, Dict[str, Any]]: ...
+
+# The steps of a slab run on a cluster (spsr.distributed).
+def slab_params(
+    *,
+    depth: int,
+    full_depth: Optional[int],
+    samples_per_node: Optional[float],
+    point_weight: Optional[float],
+    degree: int,
+    boundary: str,
+    scale: float,
+    iters: int,
+    confidence: bool,
+    density: bool,
+    linear_fit: bool,
+    max_memory: Optional[int],
+    two_level_splat: bool,
+    attributes: bool,
+    data_pull: float,
+    vertex_normals: bool,
+    confidence_property: Optional[str],
+    noise: Optional[str],
+    keep_outliers: bool,
+    keep_normals: bool,
+) -> str: ...
+def slab_args(argv: List[str]) -> Union[int, Dict[str, Any]]: ...
+def slab_prepare(
+    inputs: List[str], work_dir: str, slabs: int, params: str, threads: Optional[int] = None
+) -> Tuple[str, int, bool]: ...
+def slab_step(
+    step: str, dir: str, slab: Optional[int] = None, threads: Optional[int] = None
+) -> None: ...
+def slab_finish(dir: str, output: str) -> Dict[str, Any]: ...
+def slab_remove(dir: str) -> None: ...
