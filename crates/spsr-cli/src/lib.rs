@@ -37,7 +37,8 @@ pub mod exit {
     /// (clap exits with 2 on its own for command-line syntax errors.)
     pub const USAGE: u8 = 2;
     /// A resource limit: the run would need more memory than allowed (`--max-memory`, or the
-    /// memory the machine has available), or the worker threads could not be started.
+    /// memory the machine has available), the disk is full, or the worker threads could not
+    /// be started.
     pub const RESOURCE: u8 = 3;
 }
 
@@ -47,8 +48,8 @@ Exit codes:
   1  bad input data (unreadable or malformed file, too few or degenerate points, a --compare
      reference without normals)
   2  bad usage (unknown flag, invalid parameter value, unusable output path)
-  3  resource limit (estimated memory above --max-memory or the available memory; worker
-     threads could not be started)";
+  3  resource limit (estimated memory above --max-memory or the available memory; a full
+     disk; worker threads could not be started)";
 
 /// Command-line arguments of `spsr`.
 #[derive(Debug, Parser)]
@@ -107,6 +108,7 @@ impl Failure {
     fn from_spsr(e: spsr::Error, input: &Path) -> Self {
         use spsr::Error as E;
         let code = match &e {
+            E::Io { source, .. } if words::disk_full(source) => exit::RESOURCE,
             E::Io { path, .. } if path == input => exit::DATA,
             E::Io { .. } | E::InvalidParameter { .. } | E::Output { .. } => exit::USAGE,
             E::Parse { .. }

@@ -32,8 +32,23 @@ pub fn error(e: &Error) -> Option<String> {
         Error::MissingDensity => Some(
             "the mesh has no per-vertex density; reconstruct it with --density to get one".into(),
         ),
+        Error::Io { path, source } if disk_full(source) => Some(format!(
+            "{}: {source}: the disk (or the space allowed) is full; free some space, or put \
+             the output elsewhere and the spill files of --slabs on a larger disk with \
+             --work-dir",
+            path.display()
+        )),
         _ => None,
     }
+}
+
+/// Whether a write failed for lack of space: a full disk, a quota, a file-size limit.
+pub fn disk_full(e: &std::io::Error) -> bool {
+    use std::io::ErrorKind as K;
+    matches!(
+        e.kind(),
+        K::StorageFull | K::QuotaExceeded | K::FileTooLarge
+    )
 }
 
 fn shortfall(m: &MemoryShortfall) -> String {

@@ -6,6 +6,9 @@ use std::path::Path;
 
 use crate::common::{assert_fails, s, sphere, spsr, stderr, stdout, USAGE};
 
+/// Exit code of a resource limit (memory, a full disk).
+const RESOURCE: i32 = 3;
+
 /// Writes points as `x y z nx ny nz` lines.
 fn write_xyz(path: &Path, points: &[([f64; 3], [f64; 3])]) {
     let text: String = points
@@ -147,4 +150,52 @@ fn slab_runs_fail_cleanly() {
     assert_fails(&run, USAGE, &["standard input"], &out);
     let run = spsr(&["reconstruct", &a, "-o", s(&out), "--slabs", "0"]);
     assert_fails(&run, USAGE, &["auto"], &out);
+}
+
+/// A disk that fills up during the run, at each kind of file the run writes (the spill files,
+/// the phases' records, the mesh's pieces, the output): simulated by a file-size limit
+/// (`ulimit -f`, which fails writes as a full disk does, without privileges). Each run fails
+/// with the limit named and advice, leaves no output and removes its spill files.
+#[test]
+#[cfg(unix)]
+fn a_full_disk_fails_cleanly_at_every_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let (whole, _, _) = sphere_files(dir.path());
+    let out = dir.path().join("out.ply");
+    let work = dir.path().join("work");
+    fs::create_dir(&work).unwrap();
+    let mut failures = std::collections::BTreeSet::new();
+    // Limits in 512-byte blocks (POSIX sh), from below the first spill file to above all.
+    for blocks in [4, 16, 64, 128, 256, 512, 1024, 100_000] {
+        let run = std::process::Command::new("sh")
+            .arg("-c")
+            .arg(format!(
+                "trap '' XFSZ; ulimit -f {blocks}; exec \"$0\" \"$@\""
+            ))
+            .arg(env!("CARGO_BIN_EXE_spsr"))
+            .args(["reconstruct", &whole, "-o", s(&out), "--slabs", "2"])
+            .args(["--work-dir", s(&work), "--depth", "6"])
+            .output()
+            .unwrap();
+        assert_eq!(fs::read_dir(&work).unwrap().count(), 0, "spill files left");
+        if run.status.success() {
+            assert!(out.exists());
+            fs::remove_file(&out).unwrap();
+            continue;
+        }
+        assert_fails(&run, RESOURCE, &["too large", "--work-dir"], &out);
+        // Which file it was: the name after the job folder.
+        let err = stderr(&run);
+        let file = err
+            .split("spsr-slabs-")
+            .nth(1)
+            .and_then(|t| t.split(['/', ':']).nth(1));
+        failures.insert(file.map_or("output".to_string(), |f| {
+            f.split('-').next().unwrap().to_string()
+        }));
+    }
+    assert!(
+        failures.len() >= 3,
+        "the limits met too few steps: {failures:?}"
+    );
 }

@@ -246,10 +246,28 @@ pub(crate) fn read_las(
     file_len: u64,
     need_normals: bool,
 ) -> Result<PointCloud> {
+    let mut whole = None;
+    read_las_chunks(path, reader, file_len, need_normals, usize::MAX, &mut |c| {
+        whole = Some(c);
+        Ok(())
+    })?;
+    Ok(whole.unwrap_or_default())
+}
+
+/// Reads the points in clouds of about `chunk` points (a multiple of the decoder's chunk,
+/// the last one shorter), handed to `emit` in file order.
+pub(crate) fn read_las_chunks(
+    path: &Path,
+    reader: BufReader<File>,
+    file_len: u64,
+    need_normals: bool,
+    chunk: usize,
+    emit: &mut dyn FnMut(PointCloud) -> Result<()>,
+) -> Result<()> {
     // The `las` and `laz` crates validate what they read, but a decoder fed garbage is the
     // kind of code that may still hit an unforeseen panic; turn one into an error.
     match catch_unwind(AssertUnwindSafe(|| {
-        read(path, reader, file_len, need_normals)
+        read(path, reader, file_len, need_normals, chunk, emit)
     })) {
         Ok(r) => r,
         Err(panic) => {
@@ -271,7 +289,9 @@ fn read(
     reader: BufReader<File>,
     file_len: u64,
     need_normals: bool,
-) -> Result<PointCloud> {
+    chunk: usize,
+    emit: &mut dyn FnMut(PointCloud) -> Result<()>,
+) -> Result<()> {
     let mut las = Reader::new(reader).map_err(|e| las_err(path, e, None))?;
     let header = las.header().clone();
     let format = *header.point_format();
@@ -293,7 +313,7 @@ fn read(
     } else {
         file_len / record_len.max(1) as u64 + 1
     };
-    let cap = total.min(fits).min(usize::MAX as u64) as usize;
+    let cap = total.min(fits).min(chunk as u64).min(usize::MAX as u64) as usize;
     let mut positions: Vec<[f64; 3]> = Vec::with_capacity(cap);
     let mut normals: Vec<[f64; 3]> = Vec::with_capacity(if has_normals { cap } else { 0 });
     let col =
@@ -389,11 +409,26 @@ fn read(
             }
         }
         done += got;
+        if positions.len() >= chunk {
+            let fresh = attributes
+                .iter()
+                .map(|a| Attribute::new(a.name.clone(), AttributeData::new(a.data.scalar_type())))
+                .collect();
+            emit(PointCloud {
+                positions: std::mem::take(&mut positions),
+                normals: std::mem::take(&mut normals),
+                attributes: std::mem::replace(&mut attributes, fresh),
+                scan_origins: Vec::new(),
+            })?;
+        }
     }
-    Ok(PointCloud {
-        positions,
-        normals,
-        attributes,
-        scan_origins: Vec::new(),
-    })
+    if !positions.is_empty() || done == 0 {
+        emit(PointCloud {
+            positions,
+            normals,
+            attributes,
+            scan_origins: Vec::new(),
+        })?;
+    }
+    Ok(())
 }

@@ -375,6 +375,37 @@ pub fn read_points(path: &Path) -> Result<PointCloud> {
     read_cloud_as(path, true)
 }
 
+/// Reads an oriented point cloud as [`read_points`] does, but hands it to `emit` in clouds of
+/// at most `chunk` points, in file order, so that a file larger than memory can be passed
+/// over: PLY, text and LAS/LAZ are read chunk by chunk (LAS/LAZ in whole decoder chunks of
+/// 65,536 points, so its chunks may be up to that much longer); E57, PCD and mesh files are
+/// read whole and handed over as one cloud. An empty file gives one empty cloud. Each chunk's
+/// scan origins count its points from its own first (the origin in force at its start comes
+/// first). Whether a text file's colours are bytes is decided per chunk. Slab runs read their
+/// inputs so.
+///
+/// # Errors
+/// As [`read_points`], as soon as the chunk with the fault is reached (earlier chunks have
+/// been handed over); an error from `emit` stops the reading and is returned;
+/// [`Error::InvalidParameter`] for a `chunk` of 0.
+pub fn read_points_chunks(
+    path: &Path,
+    chunk: usize,
+    emit: &mut dyn FnMut(PointCloud) -> Result<()>,
+) -> Result<()> {
+    if chunk == 0 {
+        return Err(Error::invalid("chunk", 0, "at least 1 point"));
+    }
+    let (mut reader, len) = open(path)?;
+    let head = reader.fill_buf().map_err(|e| io_err(path, e))?;
+    match CloudFormat::choose(path, head) {
+        CloudFormat::Ply => read_ply::read_cloud_chunks(path, reader, len, true, chunk, emit),
+        CloudFormat::Text => text::read_text_chunks(reader, path, true, chunk, emit),
+        CloudFormat::Las => las_file::read_las_chunks(path, reader, len, true, chunk, emit),
+        _ => emit(read_points(path)?),
+    }
+}
+
 /// Reads a triangle mesh: PLY, OBJ, STL, OFF or GLB, chosen by the file's first bytes, then
 /// by its extension ([`MeshFormat::detect`]). Polygons are fan-triangulated; faces with
 /// fewer than three vertices are skipped.

@@ -130,6 +130,25 @@ pub(crate) fn read_cloud<R: BufRead>(
     len: u64,
     need_normals: bool,
 ) -> Result<PointCloud> {
+    let mut whole = None;
+    read_cloud_chunks(path, reader, len, need_normals, usize::MAX, &mut |c| {
+        whole = Some(c);
+        Ok(())
+    })?;
+    Ok(whole.unwrap_or_default())
+}
+
+/// Reads the points in clouds of at most `chunk` points (the last one shorter, none for an
+/// empty file), handed to `emit` in file order; each chunk's scan origins count its points
+/// from its own first.
+pub(crate) fn read_cloud_chunks<R: BufRead>(
+    path: &Path,
+    reader: R,
+    len: u64,
+    need_normals: bool,
+    chunk: usize,
+    emit: &mut dyn FnMut(PointCloud) -> Result<()>,
+) -> Result<()> {
     let mut ply = PlyReader::new(reader, path, len)?;
     let (vi, xyz) = vertex_xyz(path, &ply)?;
     let el = &ply.header.elements[vi];
@@ -139,38 +158,98 @@ pub(crate) fn read_cloud<R: BufRead>(
             path: path.to_path_buf(),
         });
     }
-    let cap = ply.capacity_hint(vi);
+    let cap = ply.capacity_hint(vi).min(chunk);
     let mut skip = xyz.to_vec();
     skip.extend(nxyz.iter().flatten());
-    let mut extras = extra_scalars(el, &skip, cap);
+    let extras = extra_scalars(el, &skip, 0);
     let mut wanted = skip.clone();
     wanted.extend(extras.iter().map(|(p, _)| *p));
+    let columns: Vec<(String, ScalarType)> = extras
+        .iter()
+        .map(|(_, a)| (a.name.clone(), a.data.scalar_type()))
+        .collect();
+    let mut out = Chunk::new(cap, nxyz.is_some(), &columns);
     let nn = if nxyz.is_some() { 6 } else { 3 };
-    let mut positions = Vec::with_capacity(cap);
-    let mut normals = Vec::with_capacity(if nxyz.is_some() { cap } else { 0 });
     let origins = scan_origins(&ply);
+    let mut first = 0usize;
     for i in 0..=vi {
         if i < vi {
             ply.read_element(i, &[], None, |_, _, _| Ok(()))?;
         } else {
             ply.read_element(i, &wanted, None, |_, v, _| {
-                positions.push([v[0], v[1], v[2]]);
+                out.positions.push([v[0], v[1], v[2]]);
                 if nn == 6 {
-                    normals.push([v[3], v[4], v[5]]);
+                    out.normals.push([v[3], v[4], v[5]]);
                 }
-                for ((_, a), &x) in extras.iter_mut().zip(&v[nn..]) {
+                for (a, &x) in out.attributes.iter_mut().zip(&v[nn..]) {
                     a.data.push_f64(x);
+                }
+                if out.positions.len() == chunk {
+                    let full = std::mem::replace(&mut out, Chunk::new(cap, nn == 6, &columns));
+                    let n = full.positions.len();
+                    emit(full.into_cloud(&origins, first, false))?;
+                    first += n;
                 }
                 Ok(())
             })?;
         }
     }
-    Ok(PointCloud {
-        positions,
-        normals,
-        attributes: extras.into_iter().map(|(_, a)| a).collect(),
-        scan_origins: origins,
-    })
+    if !out.positions.is_empty() || first == 0 {
+        emit(out.into_cloud(&origins, first, first == 0))?;
+    }
+    Ok(())
+}
+
+/// The points of one chunk, as they are read.
+struct Chunk {
+    positions: Vec<[f64; 3]>,
+    normals: Vec<[f64; 3]>,
+    attributes: Vec<Attribute>,
+}
+
+impl Chunk {
+    fn new(cap: usize, normals: bool, columns: &[(String, ScalarType)]) -> Chunk {
+        Chunk {
+            positions: Vec::with_capacity(cap),
+            normals: Vec::with_capacity(if normals { cap } else { 0 }),
+            attributes: columns
+                .iter()
+                .map(|(name, ty)| {
+                    Attribute::new(name.clone(), AttributeData::with_capacity(*ty, cap))
+                })
+                .collect(),
+        }
+    }
+
+    /// The chunk as a cloud whose first point is the file's point `first`; the scan origin in
+    /// force there starts it. The `whole` file keeps its origins as they are.
+    fn into_cloud(self, origins: &[ScanOrigin], first: usize, whole: bool) -> PointCloud {
+        if whole {
+            return PointCloud {
+                positions: self.positions,
+                normals: self.normals,
+                attributes: self.attributes,
+                scan_origins: origins.to_vec(),
+            };
+        }
+        let end = first + self.positions.len();
+        let in_force = origins.iter().rposition(|o| o.first_point <= first);
+        let scan_origins = origins
+            .iter()
+            .enumerate()
+            .filter(|&(k, o)| Some(k) == in_force || (o.first_point > first && o.first_point < end))
+            .map(|(_, o)| ScanOrigin {
+                first_point: o.first_point.saturating_sub(first),
+                origin: o.origin,
+            })
+            .collect();
+        PointCloud {
+            positions: self.positions,
+            normals: self.normals,
+            attributes: self.attributes,
+            scan_origins,
+        }
+    }
 }
 
 pub(crate) fn read_mesh<R: BufRead>(path: &Path, reader: R, len: u64) -> Result<Mesh> {

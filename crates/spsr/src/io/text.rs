@@ -31,10 +31,27 @@ use super::write::Encoder;
 /// `need_normals`, a file whose first data line has fewer than six values is
 /// [`Error::MissingNormals`].
 pub(crate) fn read_text_points<R: BufRead>(
-    mut reader: R,
+    reader: R,
     path: &Path,
     need_normals: bool,
 ) -> Result<PointCloud> {
+    let mut whole = None;
+    read_text_chunks(reader, path, need_normals, usize::MAX, &mut |c| {
+        whole = Some(c);
+        Ok(())
+    })?;
+    Ok(whole.unwrap_or_default())
+}
+
+/// Reads the points in clouds of at most `chunk` points, handed to `emit` in file order.
+/// Whether colours are bytes is decided per chunk (the whole file, when it is one chunk).
+pub(crate) fn read_text_chunks<R: BufRead>(
+    mut reader: R,
+    path: &Path,
+    need_normals: bool,
+    chunk: usize,
+    emit: &mut dyn FnMut(PointCloud) -> Result<()>,
+) -> Result<()> {
     let parse_err = |message: String| Error::Parse {
         path: path.to_path_buf(),
         message,
@@ -43,6 +60,7 @@ pub(crate) fn read_text_points<R: BufRead>(
     let mut normals = Vec::new();
     let mut colors: [Vec<f32>; 3] = Default::default();
     let mut colors_are_bytes = true;
+    let mut emitted = false;
     let mut raw = Vec::new();
     let mut line = 0usize;
     // Values per point: 3, 6 or 9; 0 until the first data line.
@@ -130,9 +148,32 @@ pub(crate) fn read_text_points<R: BufRead>(
                 colors[k].push(c as f32);
             }
         }
+        if positions.len() == chunk {
+            emit(cloud(
+                std::mem::take(&mut positions),
+                std::mem::take(&mut normals),
+                std::mem::take(&mut colors),
+                colors_are_bytes,
+            ))?;
+            emitted = true;
+            colors_are_bytes = true;
+        }
     }
+    if !positions.is_empty() || !emitted {
+        emit(cloud(positions, normals, colors, colors_are_bytes))?;
+    }
+    Ok(())
+}
+
+/// The points read, as a cloud; colours become `red green blue` in bytes or floats.
+fn cloud(
+    positions: Vec<[f64; 3]>,
+    normals: Vec<[f64; 3]>,
+    colors: [Vec<f32>; 3],
+    colors_are_bytes: bool,
+) -> PointCloud {
     let mut attributes = Vec::new();
-    if layout == 9 {
+    if !colors[0].is_empty() {
         for (name, c) in ["red", "green", "blue"].into_iter().zip(colors) {
             let data = if colors_are_bytes {
                 AttributeData::U8(c.into_iter().map(|v| v as u8).collect())
@@ -142,12 +183,12 @@ pub(crate) fn read_text_points<R: BufRead>(
             attributes.push(Attribute::new(name, data));
         }
     }
-    Ok(PointCloud {
+    PointCloud {
         positions,
         normals,
         attributes,
         scan_origins: Vec::new(),
-    })
+    }
 }
 
 /// Writes a cloud as text, one point per line; numbers in their shortest exact form.

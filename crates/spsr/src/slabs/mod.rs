@@ -58,7 +58,7 @@ impl Source<'_> {
         match self {
             Source::Files(paths) => {
                 for p in *paths {
-                    f(&io::read_points(p)?)?;
+                    io::read_points_chunks(p, READ_CHUNK, &mut |chunk| f(&chunk))?;
                 }
                 Ok(())
             }
@@ -66,6 +66,10 @@ impl Source<'_> {
         }
     }
 }
+
+/// Points read at a time from an input file (48 MiB of positions and normals): the files are
+/// streamed, never whole in memory (except the formats `io::read_points_chunks` reads whole).
+const READ_CHUNK: usize = 1 << 20;
 
 /// How a slab run is cut and where it spills.
 #[derive(Debug, Clone)]

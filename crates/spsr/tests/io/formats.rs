@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 
 use spsr::attributes::{Attribute, AttributeData, ScalarType};
 use spsr::io::{
-    read_cloud, read_mesh, read_points, write_cloud, write_mesh, CloudFormat, MeshFormat,
-    WriteOptions,
+    read_cloud, read_mesh, read_points, read_points_chunks, write_cloud, write_mesh, CloudFormat,
+    MeshFormat, WriteOptions,
 };
 use spsr::{Error, Mesh, PointCloud, ScanOrigin};
 
@@ -110,6 +110,91 @@ fn ply_clouds_round_trip_with_attributes_types_and_scan_origins() {
         // And read_points accepts it.
         assert_eq!(read_points(&p).unwrap().len(), 10);
     }
+}
+
+/// The chunks of `read_points_chunks`, and their concatenation.
+fn chunks(path: &Path, chunk: usize) -> (Vec<usize>, PointCloud) {
+    let mut sizes = Vec::new();
+    let mut all: Option<PointCloud> = None;
+    read_points_chunks(path, chunk, &mut |c| {
+        sizes.push(c.len());
+        match &mut all {
+            None => all = Some(c),
+            Some(a) => a.append(c).unwrap(),
+        }
+        Ok(())
+    })
+    .unwrap();
+    (sizes, all.unwrap())
+}
+
+#[test]
+fn chunked_reading_gives_the_whole_file_in_order() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cloud = sample_cloud(23);
+    cloud.scan_origins.push(ScanOrigin {
+        first_point: 12,
+        origin: [5.0, 6.0, 7.0],
+    });
+    for (name, ascii) in [("c.ply", false), ("a.ply", true), ("c.xyz", false)] {
+        let p = dir.path().join(name);
+        write_cloud(&p, &cloud, &WriteOptions { ascii }).unwrap();
+        let whole = read_points(&p).unwrap();
+        let (sizes, joined) = chunks(&p, 5);
+        assert_eq!(sizes, [5, 5, 5, 5, 3], "{name}");
+        let same = |x: f64, y: f64| x == y || (x.is_nan() && y.is_nan());
+        for (a, b) in joined.positions.iter().zip(&whole.positions) {
+            assert!((0..3).all(|k| same(a[k], b[k])), "{name}");
+        }
+        assert_eq!(joined.normals, whole.normals, "{name}");
+        if name.ends_with("ply") {
+            assert_eq!(joined.attributes, whole.attributes, "{name}");
+        }
+        let (sizes, one) = chunks(&p, 1000);
+        assert_eq!(sizes, [23]);
+        same_cloud(&one, &whole);
+    }
+    // Scan origins, counted from each chunk's first point: the one in force, then any new.
+    let p = dir.path().join("c.ply");
+    let mut origins = Vec::new();
+    read_points_chunks(&p, 5, &mut |c| {
+        origins.push(
+            c.scan_origins
+                .iter()
+                .map(|o| (o.first_point, o.origin[0]))
+                .collect::<Vec<_>>(),
+        );
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(
+        origins,
+        [
+            vec![(0, 0.1), (4, -1.0)],
+            vec![(0, -1.0)],
+            vec![(0, -1.0), (2, 5.0)],
+            vec![(0, 5.0)],
+            vec![(0, 5.0)],
+        ]
+    );
+    // LAS/LAZ: whole decoder chunks.
+    let p = dir.path().join("scan.laz");
+    let pos = write_las(&p, 70_000, true);
+    let (sizes, joined) = chunks(&p, 1000);
+    assert_eq!(sizes, [65_536, 4_464]);
+    assert_eq!(joined.len(), pos.len());
+    same_cloud(&joined, &read_points(&p).unwrap());
+    // Errors: a chunk of 0; an error of the callback stops the reading.
+    assert!(matches!(
+        read_points_chunks(&p, 0, &mut |_| Ok(())),
+        Err(Error::InvalidParameter { .. })
+    ));
+    let mut calls = 0;
+    let r = read_points_chunks(&dir.path().join("c.ply"), 5, &mut |_| {
+        calls += 1;
+        Err(Error::invalid("stop", 1, "nothing"))
+    });
+    assert!(r.is_err() && calls == 1);
 }
 
 #[test]
