@@ -511,10 +511,10 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
         }
         None => match spsr::reconstruct_owned(cloud, &params, &|s| progress.stage(s)) {
             Err(spsr::Error::ResourceLimit(short))
-                if args.slabs == Slabs::Auto && slabs::can_help(&short) =>
+                if args.slabs == Slabs::Auto && slabs::can_help(&short, &params) =>
             {
                 drop(progress);
-                let k = slabs::enough(&short);
+                let k = slabs::enough(&short, &params);
                 eprintln!(
                     "spsr: note: the run needs about {} in one piece, over the limit of {}; \
                      running it in {k} slabs (--slabs)",

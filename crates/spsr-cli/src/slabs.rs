@@ -165,20 +165,28 @@ fn work_dir(given: Option<&Path>, output: &Path) -> PathBuf {
     }
 }
 
-/// Whether slabs can bring a run over the limit under it: not below [`SLAB_FLOOR`], the
-/// memory a slab run needs whatever its slab count (the coarse levels, one slab's buffers).
-pub(crate) fn can_help(short: &spsr::MemoryShortfall) -> bool {
-    short.limit >= SLAB_FLOOR
+/// Whether slabs can bring a run over the limit under it: not below [`SLAB_FLOOR`] (the
+/// coarse levels, one slab's buffers) nor below the complete levels down to the full depth,
+/// which every slab holds over the whole cube (`spsr::slabs::memory_floor`).
+pub(crate) fn can_help(short: &spsr::MemoryShortfall, params: &spsr::Params) -> bool {
+    short.limit >= SLAB_FLOOR && short.limit > floor(params).saturating_add(SLAB_FLOOR / 2)
 }
 
 /// See [`can_help`].
 const SLAB_FLOOR: u64 = 256 << 20;
 
-/// Slabs for a run whose one-piece estimate is over the limit: the estimate over the limit,
-/// doubled for the padding each slab reads and the coarse levels every slab holds.
-pub(crate) fn enough(short: &spsr::MemoryShortfall) -> usize {
-    let ratio = short.estimate as f64 / short.limit.max(1) as f64;
-    ((2.0 * ratio).ceil() as usize).clamp(2, 64)
+fn floor(params: &spsr::Params) -> u64 {
+    spsr::slabs::memory_floor(params)
+}
+
+/// Slabs for a run whose one-piece estimate is over the limit: what is over the floor that
+/// every slab holds, over what the limit leaves above it, doubled for the padding each slab
+/// reads and the coarse levels every slab holds.
+pub(crate) fn enough(short: &spsr::MemoryShortfall, params: &spsr::Params) -> usize {
+    let f = floor(params);
+    let over = short.estimate.saturating_sub(f) as f64;
+    let room = short.limit.saturating_sub(f).max(1) as f64;
+    ((2.0 * over / room).ceil() as usize).clamp(2, 64)
 }
 
 /// A slab run on a cluster (`python -m spsr.distributed`), from `spsr reconstruct`'s flags:
@@ -238,4 +246,39 @@ pub fn cluster_run(argv: &[String]) -> Result<ClusterRun, Result<clap::Error, Fa
         threads: args.common.threads.threads,
         verbose: args.common.verbose,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn short(estimate_mib: u64, limit_mib: u64) -> spsr::MemoryShortfall {
+        spsr::MemoryShortfall {
+            estimate: estimate_mib << 20,
+            limit: limit_mib << 20,
+            source: spsr::MemoryLimit::Requested,
+            nodes: 0,
+            depth: 10,
+            suggested_depth: None,
+        }
+    }
+
+    #[test]
+    fn slabs_are_offered_only_where_they_can_fit() {
+        let params = spsr::Params::default();
+        // The default full depth (5) leaves almost all of the limit to the slabs.
+        assert!(can_help(&short(470, 280), &params));
+        assert_eq!(enough(&short(470, 280), &params), 4);
+        assert_eq!(enough(&short(100_000, 1024), &params), 64);
+        // Below the floor of a slab run, or a full depth whose complete levels alone
+        // (70 bytes × 19 M nodes at depth 8) are over the limit: the one-piece error stands.
+        assert!(!can_help(&short(470, 200), &params));
+        let deep = spsr::Params {
+            full_depth: 8,
+            ..params
+        };
+        assert!(!can_help(&short(1660, 1024), &deep));
+        assert!(can_help(&short(4000, 3000), &deep));
+        assert!(enough(&short(4000, 3000), &deep) >= 2);
+    }
 }

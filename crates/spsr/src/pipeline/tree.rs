@@ -122,6 +122,14 @@ const BYTES_PER_POINT: u64 = 80;
 /// The program, thread stacks, read and write buffers.
 const BASE_BYTES: u64 = 32 << 20;
 
+/// The memory of a complete tree down to `depth` (every cell of the unit cube at every depth,
+/// as the levels up to the full depth are) with the program's base: what any part of a run
+/// holds, however the cloud is cut.
+pub fn full_grid_bytes(depth: u32) -> u64 {
+    let nodes: u64 = (0..=depth.min(20)).map(|d| 1u64 << (3 * d)).sum();
+    BYTES_PER_NODE.saturating_mul(nodes) + BASE_BYTES
+}
+
 /// Refuses a run whose estimated peak memory exceeds the limit. The suggested depth is the
 /// deepest whose levels of this tree fit: a shallower run keeps the same coarse levels.
 fn check_memory(level_counts: &[usize], points: usize, params: &Params) -> Result<u64> {

@@ -71,6 +71,13 @@ impl Source<'_> {
 /// streamed, never whole in memory (except the formats `io::read_points_chunks` reads whole).
 const READ_CHUNK: usize = 1 << 20;
 
+/// The memory every slab needs whatever the slab count: its tree holds the complete levels
+/// down to the full depth over the whole cube (so that the slabs' trees agree there), and the
+/// coarse levels. A limit below it cannot be met by cutting the run into more slabs.
+pub fn memory_floor(params: &Params) -> u64 {
+    crate::pipeline::tree::full_grid_bytes(params.base_depth())
+}
+
 /// How a slab run is cut and where it spills.
 #[derive(Debug, Clone)]
 pub struct SlabOptions {
