@@ -544,15 +544,7 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
 /// Reads the inputs as one cloud: the tiles' points one after another. Tiles must have the
 /// same properties.
 fn read_clouds(inputs: &[PathBuf]) -> spsr::Result<spsr::PointCloud> {
-    let mut cloud = read_cloud_arg(&inputs[0])?;
-    for path in &inputs[1..] {
-        let tile = read_cloud_arg(path)?;
-        cloud.append(tile).map_err(|message| spsr::Error::Parse {
-            path: path.clone(),
-            message,
-        })?;
-    }
-    Ok(cloud)
+    spsr::io::read_tiles(inputs, read_cloud_arg)
 }
 
 /// Writes the mesh, the warnings, `-v`'s details and the summary line.

@@ -9,13 +9,16 @@ use crate::arrays::{attributes_out, cloud_in, mesh_in, mesh_out, rows_out, MeshA
 use crate::detach::run_detached;
 use crate::errors::{py_err, Call};
 
-/// Reads a point cloud of any supported format (mesh files give their vertices): a dict with `positions`, `normals` (or
-/// None), `attributes` (a list of (name, array)) and `scan_origins` (a list of (first point,
+/// Reads a point cloud of any supported format (mesh files give their vertices), from one
+/// file or several (tiles, one cloud): a dict with `positions`, `normals` (or None),
+/// `attributes` (a list of (name, array)) and `scan_origins` (a list of (first point,
 /// (x, y, z))).
 #[pyfunction]
-pub fn read_cloud(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyDict>> {
-    let cloud = run_detached(py, None, move |_| spsr::io::read_cloud(&path))?
-        .map_err(py_err(py, Call::Files))?;
+pub fn read_cloud(py: Python<'_>, paths: Vec<PathBuf>) -> PyResult<Bound<'_, PyDict>> {
+    let cloud = run_detached(py, None, move |_| {
+        spsr::io::read_tiles(&paths, spsr::io::read_cloud)
+    })?
+    .map_err(py_err(py, Call::Files))?;
     let d = PyDict::new(py);
     let has_normals = cloud.has_normals();
     d.set_item("positions", rows_out(py, cloud.positions)?)?;

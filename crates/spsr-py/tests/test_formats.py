@@ -50,3 +50,21 @@ def test_text_clouds_round_trip(tmp_path):
     cloud = spsr.read_points(path)
     np.testing.assert_array_equal(cloud.points, points)
     np.testing.assert_array_equal(cloud.normals, normals)
+
+
+def test_tiles_are_read_as_one_cloud(tmp_path):
+    rng = np.random.default_rng(3)
+    points = rng.normal(size=(300, 3))
+    normals = points / np.linalg.norm(points, axis=1, keepdims=True)
+    a, b, c = tmp_path / "a.ply", tmp_path / "b.xyz", tmp_path / "c.ply"
+    spsr.write_points(a, points[:100], normals=normals[:100])
+    spsr.write_points(b, points[100:], normals=normals[100:])
+    cloud = spsr.read_points([a, str(b)])
+    np.testing.assert_array_equal(cloud.points, points)
+    np.testing.assert_array_equal(cloud.normals, normals)
+    # A tile without normals among tiles with normals: an error naming it.
+    spsr.write_points(c, points[:10])
+    with pytest.raises(spsr.FileFormatError, match="c.ply"):
+        spsr.read_points([a, c])
+    with pytest.raises(ValueError, match="no files"):
+        spsr.read_points([])

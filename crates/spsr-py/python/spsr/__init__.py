@@ -953,10 +953,12 @@ def render(
     return _spsr.render(m._native(), view, width, height, highlight, color, threads)
 
 
-def read_points(path: PathLike) -> PointCloud:
+def read_points(path: Union[PathLike, Sequence[PathLike]]) -> PointCloud:
     """Read a point cloud: PLY, text (``.xyz``, ``.txt``, ``.csv``, ...), LAS/LAZ, E57 or PCD,
     or the vertices of a mesh file (OBJ, OFF, STL, GLB; with their normals where the file
-    has one per vertex).
+    has one per vertex). A list of paths is read as one cloud (the tiles of a survey, as
+    ``spsr reconstruct`` reads several inputs): their points one after another; the tiles
+    must all have normals or none, and the same attributes.
 
     The format is recognised by the file's first bytes, else by its extension; anything
     else is read as text.
@@ -973,7 +975,13 @@ def read_points(path: PathLike) -> PointCloud:
     FileFormatError
         The file is malformed (the message names what is wrong and where).
     """
-    d = _spsr.read_cloud(os.fspath(path))
+    if isinstance(path, (str, bytes, os.PathLike)):
+        paths = [os.fspath(path)]
+    else:
+        paths = [os.fspath(p) for p in path]
+        if not paths:
+            raise ValueError("read_points: no files given")
+    d = _spsr.read_cloud(paths)
     cloud = PointCloud.__new__(PointCloud)
     cloud.points = d["positions"]
     cloud.normals = d["normals"]

@@ -365,6 +365,31 @@ pub fn read_cloud(path: &Path) -> Result<PointCloud> {
     read_cloud_as(path, false)
 }
 
+/// Reads several files as one cloud (tiles of one survey): their points one after another,
+/// each file read by `read` (e.g. [`read_cloud`]). The tiles must all have normals or none, and
+/// the same attributes; the first tile's scan origins are kept.
+///
+/// # Errors
+/// The first error of `read`; [`Error::Parse`] naming the tile whose properties differ from
+/// the first's; [`Error::InvalidParameter`] for an empty list.
+pub fn read_tiles<P: AsRef<Path>>(
+    paths: &[P],
+    mut read: impl FnMut(&Path) -> Result<PointCloud>,
+) -> Result<PointCloud> {
+    let Some((first, rest)) = paths.split_first() else {
+        return Err(Error::invalid("inputs", "none", "at least one file"));
+    };
+    let mut cloud = read(first.as_ref())?;
+    for path in rest {
+        let path = path.as_ref();
+        cloud.append(read(path)?).map_err(|message| Error::Parse {
+            path: path.to_path_buf(),
+            message,
+        })?;
+    }
+    Ok(cloud)
+}
+
 /// Reads an oriented point cloud: [`read_cloud`], but a file without normals is an error
 /// (reported from the header, before the points are read).
 ///
