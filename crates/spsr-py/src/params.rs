@@ -62,6 +62,88 @@ pub fn weights_arg(confidence: bool, property: Option<String>) -> PointWeights {
     }
 }
 
+/// The keywords of `spsr.reconstruct` that are the method's parameters (the `Params`
+/// fields), passed by the Python layer as one dict: the one description of them on the
+/// native side, shared by `reconstruct` and `spsr.distributed` (`slab_params`).
+#[derive(FromPyObject)]
+#[pyo3(from_item_all)]
+pub struct MethodKeywords {
+    depth: i64,
+    full_depth: Option<i64>,
+    samples_per_node: Option<f64>,
+    point_weight: Option<f64>,
+    degree: i64,
+    boundary: String,
+    scale: f64,
+    iters: i64,
+    confidence: bool,
+    density: bool,
+    linear_fit: bool,
+    max_memory: Option<i64>,
+    two_level_splat: bool,
+    attributes: bool,
+    data_pull: f64,
+    vertex_normals: bool,
+    confidence_property: Option<String>,
+    noise: Option<String>,
+    keep_outliers: bool,
+    keep_normals: bool,
+}
+
+impl MethodKeywords {
+    /// The library's parameters, checked by the library (errors in Python's words).
+    pub fn params(self, py: Python<'_>) -> PyResult<Params> {
+        let given_noise = match &self.noise {
+            None => None,
+            Some(name) => Some(
+                spsr::Noise::from_name(name)
+                    .ok_or_else(|| invalid("noise", format!("'{name}'"), "'adaptive' or 'off'"))?,
+            ),
+        };
+        let params = Params {
+            depth: int_arg(self.depth),
+            // As the command line: the library's 5, or the depth when that is smaller.
+            full_depth: self.full_depth.map_or(
+                Params::default().full_depth.min(int_arg(self.depth)),
+                int_arg,
+            ),
+            samples_per_node: self
+                .samples_per_node
+                .unwrap_or(Params::default().samples_per_node),
+            point_weight: self.point_weight,
+            degree: degree_arg(self.degree)?,
+            boundary: boundary_arg(&self.boundary)?,
+            scale: self.scale,
+            iters: int_arg(self.iters),
+            weights: weights_arg(self.confidence, self.confidence_property),
+            density: self.density,
+            linear_fit: self.linear_fit,
+            // A negative size becomes 0, which the library refuses.
+            max_memory: self.max_memory.map(|m| u64::try_from(m).unwrap_or(0)),
+            two_level_splat: self.two_level_splat,
+            attributes: self.attributes,
+            data_pull: self.data_pull,
+            normals: self.vertex_normals,
+            noise: spsr::Noise::unless_tuned(
+                given_noise,
+                self.samples_per_node.is_some() || self.point_weight.is_some(),
+            ),
+            keep_outliers: self.keep_outliers,
+            keep_normals: self.keep_normals,
+        };
+        let given = [
+            ("depth", Some(self.depth)),
+            ("full_depth", self.full_depth),
+            ("iters", Some(self.iters)),
+            ("max_memory", self.max_memory),
+        ];
+        params.validate().map_err(|e| {
+            crate::errors::to_py_err(py, shown_as_given(e, &given), Call::Reconstruct)
+        })?;
+        Ok(params)
+    }
+}
+
 /// An integer keyword as the library's `u32`. A value that type cannot hold (a negative
 /// one) becomes `u32::MAX`, which every such field rejects; [`shown_as_given`] then puts the
 /// value given back into the message.

@@ -4,24 +4,19 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use spsr::trim::TrimStats;
-use spsr::{Params, Stats};
+use spsr::Stats;
 
 use crate::arrays::{cloud_in, mesh_out};
 use crate::detach::{run_detached, threads_arg};
-use crate::errors::{self, invalid, py_err, Call};
+use crate::errors::{self, py_err, Call};
 use crate::mesh_ops::trim_stats_out;
-use crate::params::{
-    boundary_arg, degree_arg, int_arg, shown_as_given, threshold_arg, trim_params, weights_arg,
-};
+use crate::params::{threshold_arg, trim_params, MethodKeywords};
 
 /// Reconstructs a mesh; see `spsr.reconstruct` for the arguments (the Python layer passes
-/// every keyword, with its default).
+/// every keyword, with its default; the method's as one dict, `params`).
 #[pyfunction]
 #[pyo3(signature = (
-    points, normals, columns, *, depth, full_depth, samples_per_node, point_weight, degree,
-    boundary, scale, iters, confidence, density, linear_fit, max_memory, two_level_splat,
-    attributes, data_pull, vertex_normals, confidence_property, threads, trim,
-    min_island_area, hole_area, noise, keep_outliers, keep_normals
+    points, normals, columns, *, params, threads, trim, min_island_area, hole_area
 ))]
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct<'py>(
@@ -29,55 +24,14 @@ pub fn reconstruct<'py>(
     points: Bound<'py, PyAny>,
     normals: Bound<'py, PyAny>,
     columns: Vec<(String, Bound<'py, PyAny>)>,
-    depth: i64,
-    full_depth: Option<i64>,
-    samples_per_node: Option<f64>,
-    point_weight: Option<f64>,
-    degree: i64,
-    boundary: &str,
-    scale: f64,
-    iters: i64,
-    confidence: bool,
-    density: bool,
-    linear_fit: bool,
-    max_memory: Option<i64>,
-    two_level_splat: bool,
-    attributes: bool,
-    data_pull: f64,
-    vertex_normals: bool,
-    confidence_property: Option<String>,
+    params: MethodKeywords,
     threads: Option<i64>,
     trim: Bound<'py, PyAny>,
     min_island_area: f64,
     hole_area: f64,
-    noise: Option<&str>,
-    keep_outliers: bool,
-    keep_normals: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     // Parameters first, before any array is converted.
-    let params = reconstruct_params(
-        py,
-        depth,
-        full_depth,
-        samples_per_node,
-        point_weight,
-        degree,
-        boundary,
-        scale,
-        iters,
-        confidence,
-        density,
-        linear_fit,
-        max_memory,
-        two_level_splat,
-        attributes,
-        data_pull,
-        vertex_normals,
-        confidence_property,
-        noise,
-        keep_outliers,
-        keep_normals,
-    )?;
+    let params = params.params(py)?;
     let trim = match threshold_arg(&trim, "trim")? {
         None => None,
         Some(t) => Some(trim_params(
@@ -101,77 +55,6 @@ pub fn reconstruct<'py>(
     let out = mesh_out(py, result.mesh)?;
     out.set_item("stats", stats)?;
     Ok(out)
-}
-
-/// The library's parameters from `spsr.reconstruct`'s keywords (those that are `Params`
-/// fields), checked by the library; shared with `spsr.distributed` (`slabs.rs`).
-#[allow(clippy::too_many_arguments)]
-pub fn reconstruct_params(
-    py: Python<'_>,
-    depth: i64,
-    full_depth: Option<i64>,
-    samples_per_node: Option<f64>,
-    point_weight: Option<f64>,
-    degree: i64,
-    boundary: &str,
-    scale: f64,
-    iters: i64,
-    confidence: bool,
-    density: bool,
-    linear_fit: bool,
-    max_memory: Option<i64>,
-    two_level_splat: bool,
-    attributes: bool,
-    data_pull: f64,
-    vertex_normals: bool,
-    confidence_property: Option<String>,
-    noise: Option<&str>,
-    keep_outliers: bool,
-    keep_normals: bool,
-) -> PyResult<Params> {
-    let given_noise = match noise {
-        None => None,
-        Some(name) => Some(
-            spsr::Noise::from_name(name)
-                .ok_or_else(|| invalid("noise", format!("'{name}'"), "'adaptive' or 'off'"))?,
-        ),
-    };
-    let params = Params {
-        depth: int_arg(depth),
-        // As the command line: the library's 5, or the depth when that is smaller.
-        full_depth: full_depth.map_or(Params::default().full_depth.min(int_arg(depth)), int_arg),
-        samples_per_node: samples_per_node.unwrap_or(Params::default().samples_per_node),
-        point_weight,
-        degree: degree_arg(degree)?,
-        boundary: boundary_arg(boundary)?,
-        scale,
-        iters: int_arg(iters),
-        weights: weights_arg(confidence, confidence_property),
-        density,
-        linear_fit,
-        // A negative size becomes 0, which the library refuses.
-        max_memory: max_memory.map(|m| u64::try_from(m).unwrap_or(0)),
-        two_level_splat,
-        attributes,
-        data_pull,
-        normals: vertex_normals,
-        noise: spsr::Noise::unless_tuned(
-            given_noise,
-            samples_per_node.is_some() || point_weight.is_some(),
-        ),
-        keep_outliers,
-        keep_normals,
-    };
-    let given = [
-        ("depth", Some(depth)),
-        ("full_depth", full_depth),
-        ("iters", Some(iters)),
-        ("max_memory", max_memory),
-    ];
-    params
-        .validate()
-        .map_err(|e| errors::to_py_err(py, shown_as_given(e, &given), Call::Reconstruct))?;
-    Ok(params)
 }
 
 /// `Mesh.stats` of a reconstruction: counts, timings, warnings (in Python's words) and the

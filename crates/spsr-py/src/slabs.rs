@@ -13,64 +13,13 @@ use spsr::Params;
 
 use crate::detach::{run_detached, threads_arg};
 use crate::errors::{self, py_err, value_error, Call};
-use crate::reconstruct::reconstruct_params;
+use crate::params::MethodKeywords;
 
-/// The parameters of `spsr.reconstruct`'s keywords as the job's JSON (the form `job.json`
-/// keeps them in), checked.
+/// The parameters of `spsr.reconstruct`'s method keywords (one dict) as the job's JSON (the
+/// form `job.json` keeps them in), checked.
 #[pyfunction]
-#[pyo3(signature = (
-    *, depth, full_depth, samples_per_node, point_weight, degree, boundary, scale, iters,
-    confidence, density, linear_fit, max_memory, two_level_splat, attributes, data_pull,
-    vertex_normals, confidence_property, noise, keep_outliers, keep_normals
-))]
-#[allow(clippy::too_many_arguments)]
-pub fn slab_params(
-    py: Python<'_>,
-    depth: i64,
-    full_depth: Option<i64>,
-    samples_per_node: Option<f64>,
-    point_weight: Option<f64>,
-    degree: i64,
-    boundary: &str,
-    scale: f64,
-    iters: i64,
-    confidence: bool,
-    density: bool,
-    linear_fit: bool,
-    max_memory: Option<i64>,
-    two_level_splat: bool,
-    attributes: bool,
-    data_pull: f64,
-    vertex_normals: bool,
-    confidence_property: Option<String>,
-    noise: Option<&str>,
-    keep_outliers: bool,
-    keep_normals: bool,
-) -> PyResult<String> {
-    let params = reconstruct_params(
-        py,
-        depth,
-        full_depth,
-        samples_per_node,
-        point_weight,
-        degree,
-        boundary,
-        scale,
-        iters,
-        confidence,
-        density,
-        linear_fit,
-        max_memory,
-        two_level_splat,
-        attributes,
-        data_pull,
-        vertex_normals,
-        confidence_property,
-        noise,
-        keep_outliers,
-        keep_normals,
-    )?;
-    params_json(&params)
+pub fn slab_params(py: Python<'_>, params: MethodKeywords) -> PyResult<String> {
+    params_json(&params.params(py)?)
 }
 
 fn params_json(params: &Params) -> PyResult<String> {

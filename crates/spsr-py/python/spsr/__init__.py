@@ -470,6 +470,14 @@ def _parse_size(size: Union[int, str, None]) -> Optional[int]:
         raise TypeError("max_memory must be a number of bytes or a size such as '8G'") from None
 
 
+def _method_keywords(**params: Any) -> Dict[str, Any]:
+    """The method's keywords of :func:`reconstruct` (its parameters, as opposed to the
+    data, the trimming and the threads) as the native side takes them: one dict, with
+    ``max_memory`` in bytes. :mod:`spsr.distributed` passes the same."""
+    params["max_memory"] = _parse_size(params.get("max_memory"))
+    return params
+
+
 def reconstruct(
     points: Union[ArrayLike, PointCloud],
     normals: Optional[ArrayLike] = None,
@@ -652,26 +660,28 @@ def reconstruct(
         positions,
         normal_rows,
         columns,
-        depth=depth,
-        full_depth=full_depth,
-        samples_per_node=samples_per_node,
-        point_weight=point_weight,
-        noise=noise,
-        keep_outliers=keep_outliers,
-        keep_normals=keep_normals,
-        degree=degree,
-        boundary=boundary,
-        scale=scale,
-        iters=iters,
-        confidence=confidence,
-        density=density,
-        linear_fit=linear_fit,
-        max_memory=_parse_size(max_memory),
-        two_level_splat=two_level_splat,
-        attributes=attributes,
-        data_pull=data_pull,
-        vertex_normals=vertex_normals,
-        confidence_property=confidence_property,
+        params=_method_keywords(
+            depth=depth,
+            full_depth=full_depth,
+            samples_per_node=samples_per_node,
+            point_weight=point_weight,
+            noise=noise,
+            keep_outliers=keep_outliers,
+            keep_normals=keep_normals,
+            degree=degree,
+            boundary=boundary,
+            scale=scale,
+            iters=iters,
+            confidence=confidence,
+            density=density,
+            linear_fit=linear_fit,
+            max_memory=max_memory,
+            two_level_splat=two_level_splat,
+            attributes=attributes,
+            data_pull=data_pull,
+            vertex_normals=vertex_normals,
+            confidence_property=confidence_property,
+        ),
         threads=threads,
         trim=trim,
         min_island_area=min_island_area,

@@ -11,35 +11,20 @@ _Columns = Sequence[Tuple[str, np.ndarray]]
 # (vertices, faces, normals, density, columns)
 _MeshArgs = Tuple[np.ndarray, np.ndarray, Optional[np.ndarray], Optional[np.ndarray], _Columns]
 
+# `params`: the method's keywords of spsr.reconstruct (depth, full_depth, samples_per_node,
+# point_weight, degree, boundary, scale, iters, confidence, density, linear_fit, max_memory
+# in bytes, two_level_splat, attributes, data_pull, vertex_normals, confidence_property,
+# noise, keep_outliers, keep_normals), every one given.
 def reconstruct(
     points: np.ndarray,
     normals: np.ndarray,
     columns: _Columns,
     *,
-    depth: int,
-    full_depth: Optional[int],
-    samples_per_node: Optional[float],
-    point_weight: Optional[float],
-    degree: int,
-    boundary: str,
-    scale: float,
-    iters: int,
-    confidence: bool,
-    density: bool,
-    linear_fit: bool,
-    max_memory: Optional[int],
-    two_level_splat: bool,
-    attributes: bool,
-    data_pull: float,
-    vertex_normals: bool,
-    confidence_property: Optional[str],
+    params: Dict[str, Any],
     threads: Optional[int],
     trim: Optional[object],
     min_island_area: float,
     hole_area: float,
-    noise: Optional[str],
-    keep_outliers: bool,
-    keep_normals: bool,
 ) -> Dict[str, Any]: ...
 def trim(
     mesh: _MeshArgs,
@@ -91,29 +76,7 @@ def cli_main(argv: List[str]) -> int: ...
 def _defaults() -> Dict[str, Dict[str, Any]]: ...
 
 # The steps of a slab run on a cluster (spsr.distributed).
-def slab_params(
-    *,
-    depth: int,
-    full_depth: Optional[int],
-    samples_per_node: Optional[float],
-    point_weight: Optional[float],
-    degree: int,
-    boundary: str,
-    scale: float,
-    iters: int,
-    confidence: bool,
-    density: bool,
-    linear_fit: bool,
-    max_memory: Optional[int],
-    two_level_splat: bool,
-    attributes: bool,
-    data_pull: float,
-    vertex_normals: bool,
-    confidence_property: Optional[str],
-    noise: Optional[str],
-    keep_outliers: bool,
-    keep_normals: bool,
-) -> str: ...
+def slab_params(params: Dict[str, Any]) -> str: ...
 def slab_args(argv: List[str]) -> Union[int, Dict[str, Any]]: ...
 def slab_prepare(
     inputs: List[str], work_dir: str, slabs: int, params: str, threads: Optional[int] = None

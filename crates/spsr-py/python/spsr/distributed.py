@@ -47,7 +47,7 @@ import uuid
 import warnings
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
-from . import FileFormatError, _parse_size, _spsr
+from . import FileFormatError, _method_keywords, _spsr
 from . import reconstruct as _reconstruct
 
 __all__ = ["reconstruct", "main"]
@@ -99,8 +99,7 @@ def _params_json(params: Dict[str, Any]) -> str:
         if name not in kw:
             raise TypeError(f"reconstruct() got an unexpected keyword argument '{name}'")
         kw[name] = value
-    kw["max_memory"] = _parse_size(kw["max_memory"])
-    return _spsr.slab_params(**kw)
+    return _spsr.slab_params(_method_keywords(**kw))
 
 
 def _paths(inputs: Union[PathLike, Sequence[PathLike]]) -> List[str]:
