@@ -90,6 +90,9 @@ pub struct Stats {
     pub diagnosis: Diagnosis,
     /// Slabs the run was cut into (`crate::slabs`); 0 for a run in one piece.
     pub slabs: usize,
+    /// The solver's residuals per depth and per cycle, with
+    /// [`Params::report_residuals`](crate::Params::report_residuals).
+    pub solve: Option<crate::SolveReport>,
 }
 
 /// The solved implicit function χ and what extraction needs besides: the output of stages
@@ -347,9 +350,10 @@ pub(crate) fn solve_implicit(
         )
     });
     let system::Screening { clusters, data } = screening;
-    let solution = run.stage("solving", || {
+    let mut solution = run.stage("solving", || {
         solve::solve(&tree, fem, &clusters, field.v, params, run.progress)
     });
+    let solve_report = solution.report.take();
     drop(clusters);
     run.add_parts(&solution.timings);
     let eval = Evaluator::new(&tree, fem, &solution);
@@ -373,6 +377,7 @@ pub(crate) fn solve_implicit(
             contradicted_normals,
             ..Diagnosis::default()
         },
+        solve: solve_report,
         ..Stats::default()
     };
     let implicit = Implicit {
