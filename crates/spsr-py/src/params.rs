@@ -186,6 +186,8 @@ fn reconstruct_defaults<'py>(py: Python<'py>, trim: &TrimParams) -> PyResult<Bou
     d.set_item("boundary", boundary_name(p.boundary))?;
     d.set_item("scale", p.scale)?;
     d.set_item("iters", p.iters)?;
+    d.set_item("solver", p.solver.name())?;
+    d.set_item("cycles", p.cycles)?;
     d.set_item("confidence", p.weights == PointWeights::NormalLength)?;
     let property = match &p.weights {
         PointWeights::Property(name) => Some(name.as_str()),

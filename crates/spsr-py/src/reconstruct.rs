@@ -21,7 +21,7 @@ use crate::params::{
     points, normals, columns, *, depth, full_depth, samples_per_node, point_weight, degree,
     boundary, scale, iters, confidence, density, linear_fit, max_memory, two_level_splat,
     attributes, data_pull, vertex_normals, confidence_property, threads, trim,
-    min_island_area, hole_area, noise, keep_outliers, keep_normals
+    min_island_area, hole_area, noise, keep_outliers, keep_normals, solver, cycles
 ))]
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct<'py>(
@@ -53,6 +53,8 @@ pub fn reconstruct<'py>(
     noise: Option<&str>,
     keep_outliers: bool,
     keep_normals: bool,
+    solver: &str,
+    cycles: i64,
 ) -> PyResult<Bound<'py, PyDict>> {
     // Parameters first, before any array is converted.
     let params = reconstruct_params(
@@ -77,6 +79,8 @@ pub fn reconstruct<'py>(
         noise,
         keep_outliers,
         keep_normals,
+        solver,
+        cycles,
     )?;
     let trim = match threshold_arg(&trim, "trim")? {
         None => None,
@@ -128,7 +132,16 @@ pub fn reconstruct_params(
     noise: Option<&str>,
     keep_outliers: bool,
     keep_normals: bool,
+    solver: &str,
+    cycles: i64,
 ) -> PyResult<Params> {
+    let solver = spsr::Solver::from_name(solver).ok_or_else(|| {
+        invalid(
+            "solver",
+            format!("'{solver}'"),
+            "'cascadic', 'vcycle' or 'wcycle'",
+        )
+    })?;
     let given_noise = match noise {
         None => None,
         Some(name) => Some(
@@ -161,11 +174,15 @@ pub fn reconstruct_params(
         ),
         keep_outliers,
         keep_normals,
+        solver,
+        cycles: int_arg(cycles),
+        report_residuals: false,
     };
     let given = [
         ("depth", Some(depth)),
         ("full_depth", full_depth),
         ("iters", Some(iters)),
+        ("cycles", Some(cycles)),
         ("max_memory", max_memory),
     ];
     params

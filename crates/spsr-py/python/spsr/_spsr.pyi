@@ -40,6 +40,8 @@ def reconstruct(
     noise: Optional[str],
     keep_outliers: bool,
     keep_normals: bool,
+    solver: str,
+    cycles: int,
 ) -> Dict[str, Any]: ...
 def trim(
     mesh: _MeshArgs,
