@@ -889,16 +889,29 @@ impl<'a> BaseSystem<'a> {
 
     /// Conjugate gradients from zero to a relative residual of 1e-7.
     fn solve(&self, b: &[f64]) -> Vec<f64> {
+        self.solve_to(b, 1e-7)
+    }
+
+    /// Conjugate gradients from zero to a relative residual of `tol`.
+    fn solve_to(&self, b: &[f64], tol: f64) -> Vec<f64> {
         match &self.matrix {
-            Some(a) => conjugate_gradients(|x| a.apply(x), &self.diag, b, &self.valid, 3000, 1e-7),
+            Some(a) => conjugate_gradients(|x| a.apply(x), &self.diag, b, &self.valid, 3000, tol),
             None => conjugate_gradients(
                 |x| self.op.apply(x, &self.valid),
                 &self.diag,
                 b,
                 &self.valid,
                 3000,
-                1e-7,
+                tol,
             ),
+        }
+    }
+
+    /// `A x`.
+    fn apply(&self, x: &[f64]) -> Vec<f64> {
+        match &self.matrix {
+            Some(a) => a.apply(x),
+            None => self.op.apply(x, &self.valid),
         }
     }
 }

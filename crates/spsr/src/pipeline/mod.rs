@@ -177,7 +177,14 @@ pub fn stage_plan(params: &Params, trimming: bool) -> Vec<String> {
     let base = params.base_depth().max(1).min(params.depth);
     let solver = ["constraints".to_string(), "solving base depth".into()]
         .into_iter()
-        .chain((base + 1..=params.depth).map(|d| format!("solving depth {d}")));
+        .chain((base + 1..=params.depth).map(|d| format!("solving depth {d}")))
+        // Each further cycle of the solver (`solver::cycles`), when there are depths above
+        // the base to cycle over.
+        .chain(
+            (2..=params.cycles)
+                .filter(|_| base < params.depth)
+                .map(|k| format!("solver cycle {k}")),
+        );
     let adaptive = params.noise == Noise::Adaptive;
     ["preparing points", "density"]
         .iter()

@@ -464,19 +464,23 @@ fn one_cascadic_cycle_with_residuals_is_the_cascade_bit_for_bit() {
 }
 
 #[test]
-fn v_cycles_lower_the_residual_with_every_cycle() {
+fn every_cycle_lowers_the_residual_and_every_relaxation_its_depths() {
     for (what, f) in fixtures() {
         for solver in [Solver::VCycle, Solver::WCycle, Solver::Cascadic] {
             let s = solve(
                 &Problem {
                     solver,
-                    cycles: 4,
+                    cycles: 3,
                     report: true,
                     ..f.problem()
                 },
                 f.v.clone(),
             );
             let r = s.report.expect("asked for");
+            assert_eq!(r.after_cycle.len(), 3, "{what} {solver:?}");
+            for d in &r.depths {
+                assert!(d.after < 0.1 * d.before, "{what} {solver:?}: {d:?}");
+            }
             for k in 1..r.after_cycle.len() {
                 assert!(
                     r.after_cycle[k] < r.after_cycle[k - 1],

@@ -251,8 +251,7 @@ fn slabs_refuse_solver_cycles_with_the_field_named() {
             },
             &|_| {},
         )
-        .err()
-        .expect("refused");
+        .expect_err("refused");
         match err {
             spsr::Error::InvalidParameter { field: f, .. } => assert_eq!(f, field),
             other => panic!("{field}: {other:?}"),
