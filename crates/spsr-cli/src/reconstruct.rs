@@ -200,6 +200,23 @@ pub struct ReconstructArgs {
     )]
     pub iters: u32,
 
+    /// Shape of the solver's cycles over the depths: cascadic (coarse to fine, as
+    /// PoissonRecon), vcycle (also relaxing each depth going down and passing its residual to
+    /// the coarser depths) or wcycle (as vcycle, visiting the coarser depths twice). spsr's own
+    #[arg(long, value_enum, value_name = "SHAPE", default_value = spsr::Params::default().solver.name())]
+    pub solver: SolverArg,
+
+    /// Solver cycles; the first is the cascade, each further one passes the finer depths'
+    /// solution back to the coarser ones and relaxes every depth again (--iters sweeps per
+    /// depth, twice per depth for vcycle). spsr's own
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = spsr::Params::default().cycles,
+        allow_negative_numbers = true
+    )]
+    pub cycles: u32,
+
     /// Use each normal's length as the point's confidence weight. Off by default, as PoissonRecon
     /// 18 [default: off]
     #[arg(long)]
@@ -397,6 +414,13 @@ impl ReconstructArgs {
             noise: self.noise(),
             keep_outliers: self.keep_outliers,
             keep_normals: self.keep_normals,
+            solver: match self.solver {
+                SolverArg::Cascadic => spsr::Solver::Cascadic,
+                SolverArg::Vcycle => spsr::Solver::VCycle,
+                SolverArg::Wcycle => spsr::Solver::WCycle,
+            },
+            cycles: self.cycles,
+            report_residuals: self.common.verbose,
         }
     }
 
@@ -409,6 +433,17 @@ impl ReconstructArgs {
         let tuned = self.samples_per_node.is_some() || self.point_weight.is_some();
         spsr::Noise::unless_tuned(given, tuned)
     }
+}
+
+/// `--solver`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum SolverArg {
+    /// Coarse to fine (PoissonRecon's cascade).
+    Cascadic,
+    /// V-cycles.
+    Vcycle,
+    /// W-cycles.
+    Wcycle,
 }
 
 /// `--noise`.
@@ -720,6 +755,8 @@ fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, Str
         ),
         ("scale", params.scale.to_string(), src("scale")),
         ("iters", params.iters.to_string(), src("iters")),
+        ("solver", params.solver.name().to_string(), src("solver")),
+        ("cycles", params.cycles.to_string(), src("cycles")),
         ("confidence", on(args.confidence), src("confidence")),
         (
             "confidence_property",
@@ -906,4 +943,47 @@ fn print_details(
         }
     }
     let _ = writeln!(err, "  {:<32} {:>9.3} s", "total", total.as_secs_f64());
+    if let Some(report) = &stats.solve {
+        print_solve_report(&mut err, report);
+    }
+}
+
+/// The solver's residuals (`-v`): each depth's relative residual before and after each
+/// relaxation, and the whole system's after each cycle.
+fn print_solve_report(err: &mut impl std::io::Write, report: &spsr::SolveReport) {
+    let _ = writeln!(
+        err,
+        "solver      {}, {} sweeps per relaxation; relative residual per depth (before -> after):",
+        report.solver.name(),
+        report.iters
+    );
+    let mut cycle = 0;
+    for (k, r) in report.depths.iter().enumerate() {
+        if r.cycle != cycle {
+            cycle = r.cycle;
+            let _ = write!(err, "  cycle {cycle}:");
+        }
+        let _ = write!(
+            err,
+            " {}{} {:.1e}->{:.1e}",
+            r.depth,
+            match r.phase {
+                "down" => "v",
+                "up" => "^",
+                _ => "=",
+            },
+            r.before,
+            r.after
+        );
+        if report.depths.get(k + 1).is_none_or(|n| n.cycle != cycle) {
+            let k = (cycle - 1) as usize;
+            let _ = writeln!(
+                err,
+                "\n    whole system after cycle {cycle}: {:.3e} (work {:.3e} sweeps x nodes, {:.3} s)",
+                report.after_cycle.get(k).copied().unwrap_or(f64::NAN),
+                report.work.get(k).copied().unwrap_or(f64::NAN),
+                report.seconds.get(k).copied().unwrap_or(f64::NAN),
+            );
+        }
+    }
 }

@@ -88,11 +88,20 @@ pub struct MethodKeywords {
     noise: Option<String>,
     keep_outliers: bool,
     keep_normals: bool,
+    solver: String,
+    cycles: i64,
 }
 
 impl MethodKeywords {
     /// The library's parameters, checked by the library (errors in Python's words).
     pub fn params(self, py: Python<'_>) -> PyResult<Params> {
+        let solver = spsr::Solver::from_name(&self.solver).ok_or_else(|| {
+            invalid(
+                "solver",
+                format!("'{}'", self.solver),
+                "'cascadic', 'vcycle' or 'wcycle'",
+            )
+        })?;
         let given_noise = match &self.noise {
             None => None,
             Some(name) => Some(
@@ -130,11 +139,15 @@ impl MethodKeywords {
             ),
             keep_outliers: self.keep_outliers,
             keep_normals: self.keep_normals,
+            solver,
+            cycles: int_arg(self.cycles),
+            report_residuals: false,
         };
         let given = [
             ("depth", Some(self.depth)),
             ("full_depth", self.full_depth),
             ("iters", Some(self.iters)),
+            ("cycles", Some(self.cycles)),
             ("max_memory", self.max_memory),
         ];
         params.validate().map_err(|e| {
@@ -268,6 +281,8 @@ fn reconstruct_defaults<'py>(py: Python<'py>, trim: &TrimParams) -> PyResult<Bou
     d.set_item("boundary", boundary_name(p.boundary))?;
     d.set_item("scale", p.scale)?;
     d.set_item("iters", p.iters)?;
+    d.set_item("solver", p.solver.name())?;
+    d.set_item("cycles", p.cycles)?;
     d.set_item("confidence", p.weights == PointWeights::NormalLength)?;
     let property = match &p.weights {
         PointWeights::Property(name) => Some(name.as_str()),

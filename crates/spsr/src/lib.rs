@@ -42,7 +42,7 @@ mod vec3;
 pub use bspline::{Boundary, Degree};
 pub use error::{gib, Error, FarOutliers, MemoryLimit, MemoryShortfall, Remedy, Result, Warning};
 pub use mesh::Mesh;
-pub use params::{Noise, Params, PointWeights, MAX_DEPTH};
+pub use params::{Noise, Params, PointWeights, Solver, MAX_DEPTH};
 pub use pipeline::diagnose::{self, Diagnosis};
 pub use pipeline::{
     reconstruct, reconstruct_and_trim, reconstruct_owned, reconstruct_with_progress, stage_plan,
@@ -50,3 +50,4 @@ pub use pipeline::{
 };
 pub use points::{PointCloud, ScanOrigin};
 pub use resources::{memory_budget, peak_rss};
+pub use solver::{DepthResidual, SolveReport};

@@ -73,6 +73,55 @@ pub struct Params {
     /// Keep the normals as given even when many contradict their neighbours. Default off:
     /// such normals are made consistent, with a warning.
     pub keep_normals: bool,
+    /// Shape of the solver's cycles over the depths (ALGORITHM.md §7.1, §7.4). Default
+    /// cascadic, as PoissonRecon 18.
+    pub solver: Solver,
+    /// Cycles of the solver; the first is always the coarse-to-fine cascade. Default 1 (the
+    /// cascade alone, as PoissonRecon 18).
+    pub cycles: u32,
+    /// Measure the solver's residuals, per depth and per cycle, into
+    /// [`crate::Stats::solve`] (what the command line's `-v` prints). Costs about one
+    /// more sweep per depth and cycle; the mesh is the same. Default off.
+    pub report_residuals: bool,
+}
+
+/// The shape of the solver's cycles over the depths (issue 18). Each cycle relaxes every depth
+/// with [`Params::iters`] Gauss–Seidel sweeps; they differ in what happens going down.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+pub enum Solver {
+    /// Coarse to fine only: after the first, each cycle first passes the finer depths'
+    /// solution into the coarser depths' constraints (no relaxation going down), then
+    /// relaxes the depths coarse to fine (default; with one cycle, PoissonRecon 18's cascade).
+    #[default]
+    Cascadic,
+    /// V-cycles: going down, each depth is relaxed and the finer depths' residual restricted
+    /// into the coarser depths' constraints; then the base is solved and the depths relaxed
+    /// coarse to fine.
+    VCycle,
+    /// W-cycles: as V-cycles, but every depth above the base's next visits the coarser ones
+    /// twice.
+    WCycle,
+}
+
+impl Solver {
+    /// The solver named `cascadic`, `vcycle` or `wcycle`.
+    pub fn from_name(name: &str) -> Option<Solver> {
+        match name {
+            "cascadic" => Some(Solver::Cascadic),
+            "vcycle" => Some(Solver::VCycle),
+            "wcycle" => Some(Solver::WCycle),
+            _ => None,
+        }
+    }
+
+    /// The name [`Solver::from_name`] reads.
+    pub fn name(self) -> &'static str {
+        match self {
+            Solver::Cascadic => "cascadic",
+            Solver::VCycle => "vcycle",
+            Solver::WCycle => "wcycle",
+        }
+    }
 }
 
 /// Whether the reconstruction adapts to the local noise of the points (issue 16).
@@ -143,6 +192,9 @@ impl Default for Params {
             noise: Noise::Adaptive,
             keep_outliers: false,
             keep_normals: false,
+            solver: Solver::Cascadic,
+            cycles: 1,
+            report_residuals: false,
         }
     }
 }
@@ -230,6 +282,13 @@ impl Params {
                 "iters",
                 self.iters,
                 "an integer from 1 to 10000",
+            ));
+        }
+        if self.cycles == 0 || self.cycles > 100 {
+            return Err(Error::invalid(
+                "cycles",
+                self.cycles,
+                "an integer from 1 to 100",
             ));
         }
         Ok(())

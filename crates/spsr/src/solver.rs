@@ -13,6 +13,10 @@ use crate::bspline::Basis;
 use crate::octree::{func_index, neighbor_in, window_index, Level, Octree, DEPTH_OFFSET, NONE};
 use crate::shared_slice::SharedSlice;
 use crate::system::{cluster_offsets, divergence_constraints, prolong, Clusters, DepthTables};
+use crate::Solver;
+
+mod cycles;
+pub use cycles::{DepthResidual, SolveReport};
 
 /// The screening target τ at the samples (PR18 convention: χ ≈ 1 inside, 0 outside).
 pub const TAU: f64 = 0.5;
@@ -29,6 +33,8 @@ pub struct Solution {
     pub base_level: u32,
     /// Wall time of each part of the solve.
     pub timings: Vec<(String, std::time::Duration, Option<u64>)>,
+    /// The residuals of the solve, when [`Problem::report`] asked for them.
+    pub report: Option<SolveReport>,
 }
 
 /// Everything the solver reads.
@@ -47,6 +53,13 @@ pub struct Problem<'a> {
     pub iters: u32,
     /// Whether constants are in the kernel (Neumann/free boundary without screening).
     pub singular: bool,
+    /// Shape of the cycles over the depths.
+    pub solver: Solver,
+    /// Cycles (the first is the cascade).
+    pub cycles: u32,
+    /// Whether to measure the residuals (costs about one more sweep per depth and cycle;
+    /// does not change the solution).
+    pub report: bool,
     /// Called with a stage name at each level.
     pub progress: &'a (dyn Fn(&str) + Sync),
 }
@@ -64,6 +77,8 @@ struct Op<'a> {
     win: Vec<(usize, [i64; 3])>,
     /// Offsets of cells whose clusters touch a function.
     cwin: Vec<usize>,
+    /// Whether constants are in the system's kernel.
+    singular: bool,
 }
 
 impl<'a> Op<'a> {
@@ -99,6 +114,7 @@ impl<'a> Op<'a> {
             degree: p.fem.degree.get(),
             win,
             cwin,
+            singular: p.singular,
         }
     }
 
@@ -150,20 +166,28 @@ impl<'a> Op<'a> {
     /// Adds to `s` the coupling of function `i` (node `n`, above the base) with the coarser
     /// levels: `− Σ_q A_iq pc_q + ∫∇B_i·V_q` over the parent-window functions `q`, from the
     /// cumulative coarser solution `pc` and the cumulative coarser V `vc` on the parent level.
+    /// `SOL` and `VEC` choose the terms: the coarser solution's, the coarser V's, or both.
     #[inline]
-    fn add_coarse_coupling(&self, s: f64, n: u32, i: [i64; 3], pc: &[f64], vc: &[[f32; 3]]) -> f64 {
+    fn add_coarse_coupling<const SOL: bool, const VEC: bool>(
+        &self,
+        s: f64,
+        n: u32,
+        i: [i64; 3],
+        pc: &[f64],
+        vc: &[[f32; 3]],
+    ) -> f64 {
         let par = self.level.brood_parent[(n >> 3) as usize];
         if self.tab.is_interior(i) {
-            self.add_interior_coupling(s, i, par, pc, vc)
+            self.add_interior_coupling::<SOL, VEC>(s, i, par, pc, vc)
         } else {
-            self.add_boundary_coupling(s, i, par, pc, vc)
+            self.add_boundary_coupling::<SOL, VEC>(s, i, par, pc, vc)
         }
     }
 
     /// [`Op::add_coarse_coupling`] for an interior function: the precomputed parent stencils
     /// of its child position, over their nonzero entries.
     #[inline]
-    fn add_interior_coupling(
+    fn add_interior_coupling<const SOL: bool, const VEC: bool>(
         &self,
         mut s: f64,
         i: [i64; 3],
@@ -182,18 +206,22 @@ impl<'a> Op<'a> {
             if q == NONE {
                 continue;
             }
-            s -= ps[w] * pc[q as usize];
-            let v = vc[q as usize];
-            s += f64::from(v[0]) * pv[0][w]
-                + f64::from(v[1]) * pv[1][w]
-                + f64::from(v[2]) * pv[2][w];
+            if SOL {
+                s -= ps[w] * pc[q as usize];
+            }
+            if VEC {
+                let v = vc[q as usize];
+                s += f64::from(v[0]) * pv[0][w]
+                    + f64::from(v[1]) * pv[1][w]
+                    + f64::from(v[2]) * pv[2][w];
+            }
         }
         s
     }
 
     /// [`Op::add_coarse_coupling`] for a function near the boundary: the parent window's
     /// entries from the 1-D mass, stiffness and V tables.
-    fn add_boundary_coupling(
+    fn add_boundary_coupling<const SOL: bool, const VEC: bool>(
         &self,
         mut s: f64,
         i: [i64; 3],
@@ -221,14 +249,14 @@ impl<'a> Op<'a> {
             if q == NONE {
                 continue;
             }
-            let xq = pc[q as usize];
+            let xq = if SOL { pc[q as usize] } else { 0.0 };
             if xq != 0.0 {
                 let k = ps[0][ox] * pm[1][oy] * pm[2][oz]
                     + pm[0][ox] * ps[1][oy] * pm[2][oz]
                     + pm[0][ox] * pm[1][oy] * ps[2][oz];
                 s -= k * xq;
             }
-            let v = vc[q as usize];
+            let v = if VEC { vc[q as usize] } else { [0.0; 3] };
             if v != [0.0; 3] {
                 let v = v.map(f64::from);
                 s += v[0] * vd[0][ox] * vm[1][oy] * vm[2][oz]
@@ -365,7 +393,7 @@ impl<'a> Op<'a> {
     /// block the node colours one after the other: a block's data is read once per sweep
     /// rather than once per node colour. The order depends only on the tree, so the result
     /// does not depend on the thread count.
-    fn gauss_seidel(&self, r: &[f32], x: &mut [f32], iters: u32) {
+    fn gauss_seidel<R: Copy + Into<f64> + Sync>(&self, r: &[R], x: &mut [f32], iters: u32) {
         let blocks = self.colour_blocks();
         let m = i64::from(self.degree) + 1;
         let node_colours = (m * m * m) as u32;
@@ -392,7 +420,7 @@ impl<'a> Op<'a> {
                                 }
                                 // SAFETY: only this block's task touches the coefficients
                                 // and cluster values within two nodes of its nodes (above).
-                                unsafe { self.relax(n, i, f64::from(r[n as usize]), &xs, &cs) };
+                                unsafe { self.relax(n, i, r[n as usize].into(), &xs, &cs) };
                             }
                         }
                     }
@@ -672,7 +700,11 @@ pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
     // The finest level's V has entered the constraints; the cascade only prolongs coarser V.
     v[nlev - 1] = Vec::new();
     laps.lap("divergence constraints".into());
-    cascade(p, tcons, v, None, false, laps).0
+    if p.solver == Solver::Cascadic && p.cycles <= 1 && !p.report {
+        cascade(p, tcons, v, None, false, laps).0
+    } else {
+        cycles::solve(p, tcons, v, laps)
+    }
 }
 
 /// What a level hands to the next finer one in the cascade: the cumulative solution and the
@@ -708,6 +740,7 @@ pub fn cascade(
         p: vec![Vec::new(); nlev],
         base_level: p.base_level,
         timings: Vec::new(),
+        report: None,
     };
     // The cumulative solution of the previous level, kept in full precision for the cascade;
     // the stored copies (for evaluation) are single precision.
@@ -806,24 +839,80 @@ pub fn constraints(p: &Problem, v: &[Vec<[f32; 3]>], lowest: u32) -> Vec<Vec<f32
 /// solved by Jacobi-preconditioned conjugate gradients. `tcons` are the level's divergence
 /// constraints.
 fn solve_base(p: &Problem, tcons: Vec<f32>) -> Vec<f64> {
-    let op = Op::new(p, p.base_level);
-    let valid: Vec<bool> = (0..op.level.len() as u32)
-        .map(|n| op.tab.range.contains(op.index(n)))
-        .collect();
-    let mut b: Vec<f64> = tcons.iter().map(|&x| f64::from(x)).collect();
-    drop(tcons);
-    add_screening_targets(&op, &mut b);
-    if p.singular {
-        remove_mean(&mut b, &valid);
+    let base = BaseSystem::new(p);
+    let b = base.right_hand_side(tcons);
+    base.solve(&b)
+}
+
+/// The base level's system, ready to be solved for any right-hand side.
+struct BaseSystem<'a> {
+    op: Op<'a>,
+    valid: Vec<bool>,
+    diag: Vec<f32>,
+    /// The assembled matrix; `None` for a base level solved matrix-free.
+    matrix: Option<FixedRows>,
+}
+
+impl<'a> BaseSystem<'a> {
+    fn new(p: &'a Problem) -> Self {
+        let op = Op::new(p, p.base_level);
+        let valid: Vec<bool> = (0..op.level.len() as u32)
+            .map(|n| op.tab.range.contains(op.index(n)))
+            .collect();
+        // A base level of up to 2^18 nodes (depth 5: 46,656) is assembled once; larger ones
+        // (a deep --full-depth) are applied matrix-free to bound memory.
+        let diag = op.diagonal();
+        let matrix = (op.level.len() <= 1 << 18).then(|| op.assemble(&valid));
+        BaseSystem {
+            op,
+            valid,
+            diag,
+            matrix,
+        }
     }
-    // A base level of up to 2^18 nodes (depth 5: 46,656) is assembled once; larger ones
-    // (a deep --full-depth) are applied matrix-free to bound memory.
-    let diag = op.diagonal();
-    if op.level.len() <= 1 << 18 {
-        let a = op.assemble(&valid);
-        conjugate_gradients(|x| a.apply(x), &diag, &b, &valid, 3000, 1e-7)
-    } else {
-        conjugate_gradients(|x| op.apply(x, &valid), &diag, &b, &valid, 3000, 1e-7)
+
+    /// The divergence constraints plus the screening targets, made consistent when the
+    /// system is singular.
+    fn right_hand_side(&self, tcons: Vec<f32>) -> Vec<f64> {
+        let mut b: Vec<f64> = tcons.iter().map(|&x| f64::from(x)).collect();
+        drop(tcons);
+        add_screening_targets(&self.op, &mut b);
+        if self.singular() {
+            remove_mean(&mut b, &self.valid);
+        }
+        b
+    }
+
+    fn singular(&self) -> bool {
+        self.op.singular
+    }
+
+    /// Conjugate gradients from zero to a relative residual of 1e-7.
+    fn solve(&self, b: &[f64]) -> Vec<f64> {
+        self.solve_to(b, 1e-7)
+    }
+
+    /// Conjugate gradients from zero to a relative residual of `tol`.
+    fn solve_to(&self, b: &[f64], tol: f64) -> Vec<f64> {
+        match &self.matrix {
+            Some(a) => conjugate_gradients(|x| a.apply(x), &self.diag, b, &self.valid, 3000, tol),
+            None => conjugate_gradients(
+                |x| self.op.apply(x, &self.valid),
+                &self.diag,
+                b,
+                &self.valid,
+                3000,
+                tol,
+            ),
+        }
+    }
+
+    /// `A x`.
+    fn apply(&self, x: &[f64]) -> Vec<f64> {
+        match &self.matrix {
+            Some(a) => a.apply(x),
+            None => self.op.apply(x, &self.valid),
+        }
     }
 }
 
@@ -858,7 +947,8 @@ fn right_hand_side(op: &Op, fem: Basis, tcons: &[f32], pc: &[f64], vc: &[[f32; 3
             if !op.tab.range.contains(i) {
                 return 0.0;
             }
-            let mut s = op.add_coarse_coupling(f64::from(tcons[n as usize]), n, i, pc, vc);
+            let mut s =
+                op.add_coarse_coupling::<true, true>(f64::from(tcons[n as usize]), n, i, pc, vc);
             op.for_each_cluster(n, i, |c, bv| {
                 s += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
             });

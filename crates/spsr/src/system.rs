@@ -597,7 +597,7 @@ fn push_finer_v(
 /// `Σ_j c_ij y_j` over the children `j` (at the next level) of function `i` (node `n`).
 #[allow(clippy::too_many_arguments)]
 #[inline]
-fn restrict_one(
+pub(crate) fn restrict_one(
     _tree: &Octree,
     level: &crate::octree::Level,
     next: &crate::octree::Level,

@@ -509,6 +509,8 @@ def reconstruct(
     keep_outliers: bool = False,
     keep_normals: bool = False,
     threads: Optional[int] = None,
+    solver: str = "cascadic",
+    cycles: int = 1,
 ) -> Mesh:
     """Reconstruct a watertight triangle mesh from oriented points.
 
@@ -559,6 +561,13 @@ def reconstruct(
         Bounding cube side = largest side of the points' bounding box * scale.
     iters : int, default 8
         Gauss-Seidel sweeps per depth.
+    solver : {"cascadic", "vcycle", "wcycle"}, default "cascadic"
+        Shape of the solver's cycles over the depths: coarse to fine (PoissonRecon's
+        cascade), V-cycles (each depth also relaxed going down, its residual passed to the
+        coarser depths) or W-cycles (the coarser depths visited twice).
+    cycles : int, default 1
+        Solver cycles; the first is the cascade, each further one passes the finer depths'
+        solution back to the coarser ones and relaxes every depth again.
     confidence : bool, default False
         Use each normal's length as the point's weight.
     density : bool, default False
@@ -681,6 +690,8 @@ def reconstruct(
             data_pull=data_pull,
             vertex_normals=vertex_normals,
             confidence_property=confidence_property,
+            solver=solver,
+            cycles=cycles,
         ),
         threads=threads,
         trim=trim,

@@ -14,7 +14,7 @@ _MeshArgs = Tuple[np.ndarray, np.ndarray, Optional[np.ndarray], Optional[np.ndar
 # `params`: the method's keywords of spsr.reconstruct (depth, full_depth, samples_per_node,
 # point_weight, degree, boundary, scale, iters, confidence, density, linear_fit, max_memory
 # in bytes, two_level_splat, attributes, data_pull, vertex_normals, confidence_property,
-# noise, keep_outliers, keep_normals), every one given.
+# noise, keep_outliers, keep_normals, solver, cycles), every one given.
 def reconstruct(
     points: np.ndarray,
     normals: np.ndarray,

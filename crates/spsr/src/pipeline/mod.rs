@@ -90,6 +90,9 @@ pub struct Stats {
     pub diagnosis: Diagnosis,
     /// Slabs the run was cut into (`crate::slabs`); 0 for a run in one piece.
     pub slabs: usize,
+    /// The solver's residuals per depth and per cycle, with
+    /// [`Params::report_residuals`](crate::Params::report_residuals).
+    pub solve: Option<crate::SolveReport>,
 }
 
 /// The solved implicit function χ and what extraction needs besides: the output of stages
@@ -174,7 +177,14 @@ pub fn stage_plan(params: &Params, trimming: bool) -> Vec<String> {
     let base = params.base_depth().max(1).min(params.depth);
     let solver = ["constraints".to_string(), "solving base depth".into()]
         .into_iter()
-        .chain((base + 1..=params.depth).map(|d| format!("solving depth {d}")));
+        .chain((base + 1..=params.depth).map(|d| format!("solving depth {d}")))
+        // Each further cycle of the solver (`solver::cycles`), when there are depths above
+        // the base to cycle over.
+        .chain(
+            (2..=params.cycles)
+                .filter(|_| base < params.depth)
+                .map(|k| format!("solver cycle {k}")),
+        );
     let adaptive = params.noise == Noise::Adaptive;
     ["preparing points", "density"]
         .iter()
@@ -347,9 +357,10 @@ pub(crate) fn solve_implicit(
         )
     });
     let system::Screening { clusters, data } = screening;
-    let solution = run.stage("solving", || {
+    let mut solution = run.stage("solving", || {
         solve::solve(&tree, fem, &clusters, field.v, params, run.progress)
     });
+    let solve_report = solution.report.take();
     drop(clusters);
     run.add_parts(&solution.timings);
     let eval = Evaluator::new(&tree, fem, &solution);
@@ -373,6 +384,7 @@ pub(crate) fn solve_implicit(
             contradicted_normals,
             ..Diagnosis::default()
         },
+        solve: solve_report,
         ..Stats::default()
     };
     let implicit = Implicit {

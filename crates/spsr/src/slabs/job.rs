@@ -239,6 +239,7 @@ fn read_coarse(dir: &Path, plan: &Plan, params: &Params) -> Result<(Coarse, u64)
             p: r.p,
             base_level: r.base_level,
             timings: Vec::new(),
+            report: None,
         },
         carry: r.carry,
         mean_area: r.mean_area,

@@ -159,6 +159,14 @@ fn check_supported(params: &Params) -> Result<()> {
     if let PointWeights::Property(name) = &params.weights {
         return refuse("weights", name);
     }
+    // The slabs solve the coarse depths once for the whole cloud and the finer ones slab by
+    // slab: there is no pass from the finer depths back down to the coarse ones.
+    if params.solver != crate::Solver::Cascadic {
+        return refuse("solver", params.solver.name());
+    }
+    if params.cycles != 1 {
+        return refuse("cycles", &params.cycles.to_string());
+    }
     Ok(())
 }
 

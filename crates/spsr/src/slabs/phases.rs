@@ -168,6 +168,10 @@ fn problem<'a>(
         base_level: base_level(params),
         iters: params.iters,
         singular: params.alpha() == 0.0 && params.boundary != crate::Boundary::Dirichlet,
+        // Refused in slab mode but the cascade (`check_supported`).
+        solver: crate::Solver::Cascadic,
+        cycles: 1,
+        report: false,
         progress: &|_| {},
     }
 }
@@ -427,6 +431,7 @@ fn coarse_onto(tree: &Octree, coarse: &Coarse, params: &Params, tc: u32) -> (Sol
         p: vec![Vec::new(); nlev],
         base_level: tb,
         timings: Vec::new(),
+        report: None,
     };
     let map = |t: u32, from: &dyn Fn(u32) -> f32| -> Vec<f32> {
         let level = &tree.levels[t as usize];

@@ -202,6 +202,9 @@ impl Fixture {
             base_level: self.base_level,
             iters: 8,
             singular: self.singular,
+            solver: crate::Solver::Cascadic,
+            cycles: 1,
+            report: false,
             progress: &|_| {},
         }
     }
@@ -429,5 +432,120 @@ fn gauss_seidel_lowers_the_energy_with_every_sweep() {
         }
         let r6 = residual(&to64(&x));
         assert!(r6 < 0.5 * r0, "{what}: residual {r0} to {r6} in six sweeps");
+    }
+}
+
+/// The solution's bits, level by level (`x`, then `p`).
+fn solution_bits(s: &Solution) -> (Vec<Vec<u32>>, Vec<Vec<u32>>) {
+    let bits = |v: &[Vec<f32>]| -> Vec<Vec<u32>> {
+        v.iter()
+            .map(|l| l.iter().map(|x| x.to_bits()).collect())
+            .collect()
+    };
+    (bits(&s.x), bits(&s.p))
+}
+
+#[test]
+fn one_cascadic_cycle_with_residuals_is_the_cascade_bit_for_bit() {
+    for (what, f) in fixtures() {
+        let plain = solve(&f.problem(), f.v.clone());
+        let reported = solve(
+            &Problem {
+                report: true,
+                ..f.problem()
+            },
+            f.v.clone(),
+        );
+        assert!(plain.report.is_none());
+        let report = reported.report.as_ref().expect("asked for");
+        assert_eq!(report.after_cycle.len(), 1, "{what}");
+        assert_eq!(solution_bits(&plain), solution_bits(&reported), "{what}");
+    }
+}
+
+#[test]
+fn every_cycle_lowers_the_residual_and_every_relaxation_its_depths() {
+    for (what, f) in fixtures() {
+        for solver in [Solver::VCycle, Solver::WCycle, Solver::Cascadic] {
+            let s = solve(
+                &Problem {
+                    solver,
+                    cycles: 3,
+                    report: true,
+                    ..f.problem()
+                },
+                f.v.clone(),
+            );
+            let r = s.report.expect("asked for");
+            assert_eq!(r.after_cycle.len(), 3, "{what} {solver:?}");
+            for d in &r.depths {
+                assert!(d.after < 0.1 * d.before, "{what} {solver:?}: {d:?}");
+            }
+            for k in 1..r.after_cycle.len() {
+                assert!(
+                    r.after_cycle[k] < r.after_cycle[k - 1],
+                    "{what} {solver:?}: cycle {} raised the residual: {:?}",
+                    k + 1,
+                    r.after_cycle
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn the_cycles_give_the_same_bits_on_one_and_four_threads() {
+    let f = &fixtures()[0].1;
+    for solver in [Solver::VCycle, Solver::WCycle, Solver::Cascadic] {
+        let run = |threads| {
+            with_threads(threads, || {
+                let p = Problem {
+                    solver,
+                    cycles: 2,
+                    ..f.problem()
+                };
+                solution_bits(&solve(&p, f.v.clone()))
+            })
+        };
+        assert_eq!(run(1), run(4), "{solver:?}");
+    }
+}
+
+#[test]
+fn the_hierarchical_stiffness_is_symmetric() {
+    for (what, f) in fixtures() {
+        let p = f.problem();
+        let tb = f.base_level as usize;
+        let rand = |seed: u64| -> Vec<Vec<f32>> {
+            (0..f.tree.levels.len())
+                .map(|t| {
+                    if t < tb {
+                        return Vec::new();
+                    }
+                    let op = Op::new(&p, t as u32);
+                    masked_random(&valid_nodes(&op), seed + t as u64)
+                        .iter()
+                        .map(|&v| v as f32)
+                        .collect()
+                })
+                .collect()
+        };
+        let (x, y) = (rand(1), rand(100));
+        let (mx, my) = (
+            cycles::apply_stiffness(&p, &x),
+            cycles::apply_stiffness(&p, &y),
+        );
+        let dot = |a: &[Vec<f32>], b: &[Vec<f64>]| -> Vec<f64> {
+            a.iter()
+                .zip(b)
+                .map(|(a, b)| a.iter().zip(b).map(|(&u, v)| f64::from(u) * v).sum())
+                .collect()
+        };
+        let (ymx, xmy) = (dot(&y, &mx), dot(&x, &my));
+        let (s1, s2): (f64, f64) = (ymx.iter().sum(), xmy.iter().sum());
+        assert!(
+            (s1 - s2).abs() < 1e-9 * s1.abs().max(1.0),
+            "{what}: {s1} vs {s2}"
+        );
     }
 }

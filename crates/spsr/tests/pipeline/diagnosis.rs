@@ -175,7 +175,17 @@ fn the_stage_plan_is_what_the_progress_callback_hears() {
         degree: spsr::Degree::Quadratic,
         ..Params::default()
     };
-    for (params, trimming) in [(at(5), false), (quadratic, false), (at(6), true)] {
+    let cycles = Params {
+        solver: spsr::Solver::WCycle,
+        cycles: 3,
+        ..at(6)
+    };
+    for (params, trimming) in [
+        (at(5), false),
+        (quadratic, false),
+        (at(6), true),
+        (cycles, false),
+    ] {
         let heard = Mutex::new(Vec::new());
         let progress = |s: &str| heard.lock().unwrap().push(s.to_string());
         if trimming {

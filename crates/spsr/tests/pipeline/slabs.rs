@@ -221,3 +221,40 @@ fn slab_tasks_refuse_steps_out_of_order_and_foreign_folders() {
     job::remove(&j.dir).unwrap();
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
 }
+
+#[test]
+fn slabs_refuse_solver_cycles_with_the_field_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let cloud = torus(2_000, 0.3, 0.1, 7);
+    for (params, field) in [
+        (
+            Params {
+                solver: spsr::Solver::VCycle,
+                ..Params::default()
+            },
+            "solver",
+        ),
+        (
+            Params {
+                cycles: 2,
+                ..Params::default()
+            },
+            "cycles",
+        ),
+    ] {
+        let err = slabs::reconstruct(
+            Source::Cloud(&cloud),
+            &params,
+            &SlabOptions {
+                slabs: 2,
+                work_dir: dir.path().to_path_buf(),
+            },
+            &|_| {},
+        )
+        .expect_err("refused");
+        match err {
+            spsr::Error::InvalidParameter { field: f, .. } => assert_eq!(f, field),
+            other => panic!("{field}: {other:?}"),
+        }
+    }
+}

@@ -1,0 +1,649 @@
+//! Multigrid cycles over the depths (issue 18; ALGORITHM.md §7.4).
+//!
+//! The cascade (§7.1) solves each depth once, against the coarser depths' solution, and never
+//! looks back: what a depth's Gauss–Seidel sweeps leave unsolved stays unsolved. The cycles
+//! solve one system over all depths at once, the hierarchical system
+//!
+//! ```text
+//! (L_d + S_d) x_d = b_d − A_{d,<d} x_{<d} − L_{d,>d} x_{>d}     for every depth d ≥ base
+//! ```
+//!
+//! where `b_d − A_{d,<d} x_{<d}` is the cascade's right-hand side (the coarser solution's
+//! gradient coupling and its screening at the depth's clusters) and `L_{d,>d} x_{>d}` is the
+//! gradient coupling with the finer depths, `U_d[i] = Σ_{j finer} ∫∇B_i·∇B_j x_j`. The
+//! gradient term of the energy couples every pair of depths both ways; the screening stays as
+//! the cascade has it: depth `d`'s clusters screen the partial sum `χ_{≤d}`. With no finer
+//! solution (`U = 0`) the system's first pass is the cascade itself.
+//!
+//! `U_d` is gathered fine to coarse: the next depth's solution pushed through the parent
+//! stiffness stencils (the transpose of the cascade's pull), plus the restriction of `U_{d+1}`
+//! by the two-scale relation, which is exact because the conforming windows guarantee every
+//! child function such a finer solution touches (the same argument as for the divergence
+//! constraints of V two depths finer, `system::divergence_constraints`).
+//!
+//! A cycle after the first: going down, each depth is relaxed (V and W; not cascadic) and its
+//! `U` handed to the next coarser depth; the base depth is solved by conjugate gradients;
+//! going up, each depth is relaxed against the new coarser solution and its cumulative
+//! solution prolonged. A W-cycle visits the coarser depths twice from every depth above the
+//! base's next.
+
+use rayon::prelude::*;
+
+use super::{
+    coarse_cluster_values, prolong_field, prolong_solution, remove_mean, right_hand_side, to_f32,
+    BaseSystem, Laps, Op, Problem, Solution, TAU,
+};
+use crate::octree::{neighbor_in, DEPTH_OFFSET, NONE};
+use crate::shared_slice::SharedSlice;
+use crate::system::restrict_one;
+use crate::Solver;
+
+/// The relative residual of one depth's equations around one relaxation (or the base solve):
+/// `‖r − A x‖ / ‖r‖` for the right-hand side `r` the depth was relaxed against.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthResidual {
+    /// The cycle, from 1.
+    pub cycle: u32,
+    /// The unit depth.
+    pub depth: u32,
+    /// `"down"`, `"up"` or `"base"`.
+    pub phase: &'static str,
+    /// Before the relaxation.
+    pub before: f64,
+    /// After it.
+    pub after: f64,
+}
+
+/// The residuals of a solve ([`crate::Params::report_residuals`]).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SolveReport {
+    /// The shape of the cycles.
+    pub solver: Solver,
+    /// Gauss–Seidel sweeps per relaxation.
+    pub iters: u32,
+    /// Every relaxation in order.
+    pub depths: Vec<DepthResidual>,
+    /// After each cycle, the relative residual of the whole hierarchical system,
+    /// `‖b − M x‖ / ‖b‖` over every depth's equations (see the module's documentation).
+    pub after_cycle: Vec<f64>,
+    /// After each cycle, the work so far: Gauss–Seidel sweeps × nodes, over the depths above
+    /// the base.
+    pub work: Vec<f64>,
+    /// After each cycle, the solve's wall time so far without the residuals' measurement,
+    /// in seconds (the divergence constraints not included).
+    pub seconds: Vec<f64>,
+}
+
+/// The state of the cycles: per level, the fixed right-hand side, the solution, the
+/// cumulative solution and the finer depths' coupling.
+struct Cycles<'a> {
+    p: &'a Problem<'a>,
+    /// Operators of the levels above the base (`None` at and below it).
+    ops: Vec<Option<Op<'a>>>,
+    base: BaseSystem<'a>,
+    tb: usize,
+    max: usize,
+    /// `b_d` of the levels above the base: the constraints, the coarser V and the screening
+    /// targets (everything the solution does not change).
+    b: Vec<Vec<f32>>,
+    /// The base level's right-hand side without the finer coupling.
+    b_base: Vec<f64>,
+    /// Solution of the levels above the base.
+    x: Vec<Vec<f32>>,
+    /// Solution of the base level.
+    x_base: Vec<f64>,
+    /// Cumulative solution of each level below the deepest.
+    pcum: Vec<Vec<f64>>,
+    /// `U_t`, the finer depths' gradient coupling, of each level below the deepest.
+    u: Vec<Vec<f64>>,
+    report: Option<SolveReport>,
+    cycle: u32,
+    work: f64,
+    /// Time spent measuring residuals, left out of the report's seconds.
+    measuring: std::time::Duration,
+    started: std::time::Instant,
+}
+
+/// Solves the hierarchy with [`Problem::cycles`] cycles of shape [`Problem::solver`], the
+/// first being the cascade (bit for bit: the same arithmetic as [`super::cascade`]).
+pub(super) fn solve(
+    p: &Problem,
+    mut tcons: Vec<Vec<f32>>,
+    mut v: Vec<Vec<[f32; 3]>>,
+    mut laps: Laps,
+) -> Solution {
+    let nlev = p.tree.levels.len();
+    let tb = p.base_level as usize;
+    let max = nlev - 1;
+    v.resize_with(nlev, Vec::new);
+    let ops: Vec<Option<Op>> = (0..nlev)
+        .map(|t| (t > tb).then(|| Op::new(p, t as u32)))
+        .collect();
+    (p.progress)("solving base depth");
+    let base = BaseSystem::new(p);
+    let b_base = base.right_hand_side(std::mem::take(&mut tcons[tb]));
+    let mut c = Cycles {
+        p,
+        ops,
+        base,
+        tb,
+        max,
+        b: vec![Vec::new(); nlev],
+        b_base,
+        x: vec![Vec::new(); nlev],
+        x_base: Vec::new(),
+        pcum: vec![Vec::new(); nlev],
+        u: vec![Vec::new(); nlev],
+        report: p.report.then(|| SolveReport {
+            solver: p.solver,
+            iters: p.iters,
+            ..SolveReport::default()
+        }),
+        cycle: 1,
+        work: 0.0,
+        measuring: std::time::Duration::ZERO,
+        started: std::time::Instant::now(),
+    };
+    c.first_pass(tcons, v);
+    c.end_cycle();
+    laps.lap("cycle 1: cascade".into());
+    for k in 2..=p.cycles.max(1) {
+        if max == tb {
+            break;
+        }
+        c.cycle = k;
+        (p.progress)(&format!("solver cycle {k}"));
+        c.cycle_from(max);
+        c.end_cycle();
+        laps.lap(format!("cycle {k}: {}", p.solver.name()));
+    }
+    let mut sol = Solution {
+        x: vec![Vec::new(); nlev],
+        p: vec![Vec::new(); nlev],
+        base_level: p.base_level,
+        timings: laps.timings,
+        report: c.report.take(),
+    };
+    sol.x[tb] = to_f32(&c.x_base);
+    sol.p[tb] = to_f32(&c.x_base);
+    for t in tb + 1..=max {
+        if t < max {
+            sol.p[t] = to_f32(&c.pcum[t]);
+        }
+        sol.x[t] = std::mem::take(&mut c.x[t]);
+    }
+    sol
+}
+
+impl<'a> Cycles<'a> {
+    fn op(&self, t: usize) -> &Op<'a> {
+        self.ops[t].as_ref().expect("operators above the base")
+    }
+
+    /// The cascade, keeping each level's fixed right-hand side for the cycles to come.
+    fn first_pass(&mut self, mut tcons: Vec<Vec<f32>>, mut v: Vec<Vec<[f32; 3]>>) {
+        let p = self.p;
+        let (tb, max) = (self.tb, self.max);
+        self.x_base = self.base.solve(&self.b_base);
+        if self.report.is_some() {
+            let after = self.base_residual(&self.b_base.clone());
+            self.record(tb, "base", 1.0, after);
+        }
+        self.pcum[tb] = self.x_base.clone();
+        let mut vc: Vec<[f32; 3]> = std::mem::take(&mut v[tb]);
+        if vc.is_empty() {
+            vc = vec![[0.0; 3]; p.tree.levels[tb].len()];
+        }
+        for t in tb + 1..=max {
+            (p.progress)(&format!("solving depth {}", t as u32 - DEPTH_OFFSET));
+            let op = self.ops[t].as_ref().expect("operators above the base");
+            let r = right_hand_side(op, p.fem, &tcons[t], &self.pcum[t - 1], &vc);
+            let b = fixed_right_hand_side(op, &tcons[t], &vc);
+            tcons[t] = Vec::new();
+            if t == max {
+                vc = Vec::new();
+            }
+            let mut x = vec![0.0f32; op.level.len()];
+            op.gauss_seidel(&r, &mut x, p.iters);
+            self.work += f64::from(p.iters) * op.level.len() as f64;
+            if self.report.is_some() {
+                let clock = std::time::Instant::now();
+                let after = relative_residual(op, &r, &x);
+                self.measuring += clock.elapsed();
+                record(&mut self.report, 1, t, "up", 1.0, after);
+            }
+            if t < max {
+                self.pcum[t] = prolong_solution(op, &self.pcum[t - 1], &x);
+                vc = prolong_field(op, &vc, std::mem::take(&mut v[t]));
+            }
+            self.b[t] = b;
+            self.x[t] = x;
+        }
+    }
+
+    /// One cycle over levels `tb..=t`, the finer levels' coupling `U_t` fixed.
+    fn cycle_from(&mut self, t: usize) {
+        if self.p.solver != Solver::Cascadic {
+            self.relax(t, "down");
+        }
+        self.u[t - 1] = self.coupling_below(t, &self.u[t]);
+        if t - 1 == self.tb {
+            self.solve_base();
+        } else {
+            self.cycle_from(t - 1);
+            if self.p.solver == Solver::WCycle {
+                self.cycle_from(t - 1);
+            }
+        }
+        self.relax(t, "up");
+        if t < self.max {
+            self.pcum[t] = prolong_solution(self.op(t), &self.pcum[t - 1], &self.x[t]);
+        }
+    }
+
+    /// `U_{t−1}`: level `t`'s solution pushed through the parent stencils, plus `u_t` (the
+    /// coupling of the levels finer than `t`; empty for none) restricted.
+    fn coupling_below(&self, t: usize, u_t: &[f64]) -> Vec<f64> {
+        let op = self.op(t);
+        let mut g = push_to_parents(op, &self.x[t]);
+        if !u_t.is_empty() {
+            let tree = self.p.tree;
+            let coarse = &tree.levels[t - 1];
+            let d = (t - 1) as u32 - DEPTH_OFFSET;
+            let range = self.p.tables[t - 1].as_ref().expect("tables").range;
+            g.par_iter_mut().enumerate().for_each(|(n, gn)| {
+                let i = crate::octree::func_index(coarse.key(n as u32), d);
+                if range.contains(i) {
+                    *gn += restrict_one(tree, coarse, op.level, self.p.fem, d, n as u32, i, u_t);
+                }
+            });
+        }
+        g
+    }
+
+    /// The right-hand side level `t` is relaxed against: `b_t`, minus the coarser solution's
+    /// coupling, minus the finer levels' `U_t`.
+    fn level_right_hand_side(&self, t: usize) -> Vec<f64> {
+        let op = self.op(t);
+        let pc = &self.pcum[t - 1];
+        let coarse_chi = coarse_cluster_values(op, self.p.fem, pc);
+        let (b, u) = (&self.b[t], &self.u[t]);
+        (0..op.level.len() as u32)
+            .into_par_iter()
+            .map(|n| {
+                let i = op.index(n);
+                if !op.tab.range.contains(i) {
+                    return 0.0;
+                }
+                let mut s = f64::from(b[n as usize]);
+                s = op.add_coarse_coupling::<true, false>(s, n, i, pc, &[]);
+                op.for_each_cluster(n, i, |c, bv| {
+                    s -= op.cl.omega[c as usize] * bv * coarse_chi[c as usize];
+                });
+                if !u.is_empty() {
+                    s -= u[n as usize];
+                }
+                s
+            })
+            .collect()
+    }
+
+    /// `iters` Gauss–Seidel sweeps on level `t` from its current solution.
+    fn relax(&mut self, t: usize, phase: &'static str) {
+        let r = self.level_right_hand_side(t);
+        let op = self.ops[t].as_ref().expect("operators above the base");
+        let before = self
+            .report
+            .is_some()
+            .then(|| relative_residual(op, &r, &self.x[t]));
+        let mut x = std::mem::take(&mut self.x[t]);
+        op.gauss_seidel(&r, &mut x, self.p.iters);
+        self.work += f64::from(self.p.iters) * op.level.len() as f64;
+        if let Some(before) = before {
+            let clock = std::time::Instant::now();
+            let after = relative_residual(op, &r, &x);
+            self.measuring += clock.elapsed();
+            self.record(t, phase, before, after);
+        }
+        self.x[t] = x;
+    }
+
+    /// The base level solved for `b − U`.
+    fn solve_base(&mut self) {
+        let tb = self.tb;
+        let mut b = self.b_base.clone();
+        for (bi, ui) in b.iter_mut().zip(&self.u[tb]) {
+            *bi -= ui;
+        }
+        if self.base.singular() {
+            remove_mean(&mut b, &self.base.valid);
+        }
+        let before = self.report.is_some().then(|| self.base_residual(&b));
+        // From the previous solution: conjugate gradients on the correction, to the same
+        // 1e-7 of the whole right-hand side as the cascade's base solve.
+        let ax = self.base.apply(&self.x_base);
+        let mut r: Vec<f64> = b.iter().zip(&ax).map(|(b, a)| b - a).collect();
+        if self.base.singular() {
+            remove_mean(&mut r, &self.base.valid);
+        }
+        let (rn, bn) = (norm2(&r).sqrt(), norm2(&b).sqrt());
+        if rn > 1e-7 * bn {
+            let e = self.base.solve_to(&r, 1e-7 * bn / rn);
+            for (x, e) in self.x_base.iter_mut().zip(&e) {
+                *x += e;
+            }
+        }
+        if let Some(before) = before {
+            let after = self.base_residual(&b);
+            self.record(tb, "base", before, after);
+        }
+        self.pcum[tb] = self.x_base.clone();
+    }
+
+    fn base_residual(&mut self, b: &[f64]) -> f64 {
+        let clock = std::time::Instant::now();
+        let ax = self.base.apply(&self.x_base);
+        let r: Vec<f64> = b.iter().zip(&ax).map(|(b, a)| b - a).collect();
+        let out = (norm2(&r) / norm2(b)).sqrt();
+        self.measuring += clock.elapsed();
+        out
+    }
+
+    fn record(&mut self, t: usize, phase: &'static str, before: f64, after: f64) {
+        record(&mut self.report, self.cycle, t, phase, before, after);
+    }
+
+    /// Records the whole system's residual, the work and the time after a cycle.
+    fn end_cycle(&mut self) {
+        if self.report.is_none() {
+            return;
+        }
+        let seconds = (self.started.elapsed() - self.measuring).as_secs_f64();
+        let clock = std::time::Instant::now();
+        let residual = self.system_residual();
+        self.measuring += clock.elapsed();
+        let work = self.work;
+        let r = self.report.as_mut().expect("report");
+        r.after_cycle.push(residual);
+        r.work.push(work);
+        r.seconds.push(seconds);
+    }
+
+    /// `‖b − M x‖ / ‖b‖` over every level's equations, with the finer coupling gathered
+    /// afresh from the current solution.
+    fn system_residual(&self) -> f64 {
+        let (tb, max) = (self.tb, self.max);
+        let mut u_next: Vec<f64> = Vec::new();
+        let (mut r2, mut b2) = (0.0, 0.0);
+        for t in (tb + 1..=max).rev() {
+            let op = self.op(t);
+            let pc = &self.pcum[t - 1];
+            let coarse_chi = coarse_cluster_values(op, self.p.fem, pc);
+            let b = &self.b[t];
+            let rhs: Vec<f64> = (0..op.level.len() as u32)
+                .into_par_iter()
+                .map(|n| {
+                    let i = op.index(n);
+                    if !op.tab.range.contains(i) {
+                        return 0.0;
+                    }
+                    let mut s = op.add_coarse_coupling::<true, false>(
+                        f64::from(b[n as usize]),
+                        n,
+                        i,
+                        pc,
+                        &[],
+                    );
+                    op.for_each_cluster(n, i, |c, bv| {
+                        s -= op.cl.omega[c as usize] * bv * coarse_chi[c as usize];
+                    });
+                    if !u_next.is_empty() {
+                        s -= u_next[n as usize];
+                    }
+                    s
+                })
+                .collect();
+            r2 += residual_squared(op, &rhs, &self.x[t]);
+            b2 += norm2(&b.iter().map(|&x| f64::from(x)).collect::<Vec<_>>());
+            u_next = self.coupling_below(t, &u_next);
+        }
+        let mut b = self.b_base.clone();
+        for (bi, ui) in b.iter_mut().zip(&u_next) {
+            *bi -= ui;
+        }
+        let ax = self.base.op.apply(&self.x_base, &self.base.valid);
+        let mut r: Vec<f64> = b.iter().zip(&ax).map(|(b, a)| b - a).collect();
+        if self.base.singular() {
+            remove_mean(&mut r, &self.base.valid);
+        }
+        r2 += norm2(&r);
+        b2 += norm2(&self.b_base);
+        (r2 / b2).sqrt()
+    }
+}
+
+fn record(
+    report: &mut Option<SolveReport>,
+    cycle: u32,
+    t: usize,
+    phase: &'static str,
+    before: f64,
+    after: f64,
+) {
+    if let Some(r) = report {
+        r.depths.push(DepthResidual {
+            cycle,
+            depth: t as u32 - DEPTH_OFFSET,
+            phase,
+            before,
+            after,
+        });
+    }
+}
+
+/// The fixed part of a level's right-hand side: its constraints, the coarser V (`vc`,
+/// cumulative, on the parent level) and the screening targets `Σ_c ω_c B_i(p_c) τ`.
+fn fixed_right_hand_side(op: &Op, tcons: &[f32], vc: &[[f32; 3]]) -> Vec<f32> {
+    (0..op.level.len() as u32)
+        .into_par_iter()
+        .map(|n| {
+            let i = op.index(n);
+            if !op.tab.range.contains(i) {
+                return 0.0;
+            }
+            let mut s =
+                op.add_coarse_coupling::<false, true>(f64::from(tcons[n as usize]), n, i, &[], vc);
+            op.for_each_cluster(n, i, |c, bv| {
+                s += op.cl.omega[c as usize] * bv * TAU;
+            });
+            s as f32
+        })
+        .collect()
+}
+
+/// `Σ_n (r_n − ((L + S) x)_n)²` over the level's functions, summed in a fixed order.
+fn residual_squared<R: Copy + Into<f64> + Sync>(op: &Op, r: &[R], x: &[f32]) -> f64 {
+    let chi = op.cluster_values(|n| f64::from(x[n]));
+    let res: Vec<f64> = (0..op.level.len() as u32)
+        .into_par_iter()
+        .map(|n| {
+            let i = op.index(n);
+            if !op.tab.range.contains(i) {
+                return 0.0;
+            }
+            let mut s = op.stiffness_row(n, i, |m| f64::from(x[m]));
+            op.for_each_cluster(n, i, |c, bv| {
+                s += op.cl.omega[c as usize] * bv * chi[c as usize];
+            });
+            r[n as usize].into() - s
+        })
+        .collect();
+    norm2(&res)
+}
+
+/// `‖r − (L + S) x‖ / ‖r‖` on one level (0 for a zero right-hand side).
+fn relative_residual<R: Copy + Into<f64> + Sync>(op: &Op, r: &[R], x: &[f32]) -> f64 {
+    let rr: Vec<f64> = r.par_iter().map(|&v| v.into()).collect();
+    let b2 = norm2(&rr);
+    if b2 == 0.0 {
+        return 0.0;
+    }
+    (residual_squared(op, r, x) / b2).sqrt()
+}
+
+/// `Σ a²`, in fixed-size chunks summed in order (the same for any thread count).
+fn norm2(a: &[f64]) -> f64 {
+    a.par_chunks(4096)
+        .map(|c| c.iter().map(|v| v * v).sum::<f64>())
+        .collect::<Vec<f64>>()
+        .iter()
+        .sum()
+}
+
+/// `Σ_j ∫∇B_q·∇B_j x_j` for every function `q` of the parent level of `op`'s level, from its
+/// coefficients `x`: each function pushes into its parent window through the parent stiffness
+/// stencils (the transpose of the cascade's pull). Broods are coloured by their parent's key
+/// modulo 5 per axis, so that the windows of one colour's parents never overlap: a colour is
+/// pushed in parallel without races, in an order that does not depend on the thread count.
+fn push_to_parents(op: &Op, x: &[f32]) -> Vec<f64> {
+    let parent_level = &op.tree.levels[op.t as usize - 1];
+    let level = op.level;
+    let mut g = vec![0.0f64; parent_level.len()];
+    let mut colours: Vec<Vec<u32>> = vec![Vec::new(); 125];
+    for b in 0..(level.len() / 8) as u32 {
+        let base = (b * 8) as usize;
+        if x[base..base + 8].iter().all(|&v| v == 0.0) {
+            continue;
+        }
+        let k = parent_level.key(level.brood_parent[b as usize]);
+        colours[(k[0] % 5 + 5 * (k[1] % 5) + 25 * (k[2] % 5)) as usize].push(b);
+    }
+    let gs = SharedSlice::new(&mut g);
+    for list in &colours {
+        list.par_iter().with_min_len(64).for_each(|&b| {
+            let par = level.brood_parent[b as usize];
+            for c in 0..8u32 {
+                let n = b * 8 + c;
+                let xn = f64::from(x[n as usize]);
+                if xn == 0.0 {
+                    continue;
+                }
+                let i = op.index(n);
+                if !op.tab.range.contains(i) {
+                    continue;
+                }
+                op.for_each_parent_stiffness(i, par, |q, k| {
+                    // SAFETY: within one colour, only this brood's task writes the window
+                    // of its parent `par` (see the colouring above).
+                    unsafe { gs.set(q as usize, gs.get(q as usize) + k * xn) };
+                });
+            }
+        });
+    }
+    g
+}
+
+impl Op<'_> {
+    /// Calls `f(q, ∫∇B_i·∇B_q)` for the nonzero entries of the parent window of function `i`
+    /// (whose node's parent is `par`): the same entries the cascade's pull reads.
+    #[inline]
+    fn for_each_parent_stiffness(&self, i: [i64; 3], par: u32, mut f: impl FnMut(u32, f64)) {
+        let tab = self.tab;
+        let parent_level = &self.tree.levels[self.t as usize - 1];
+        if tab.is_interior(i) {
+            let c = ((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2)) as usize;
+            let ps = &tab.pstencil[c];
+            for &w in &tab.pnonzero[c] {
+                let w = usize::from(w);
+                if ps[w] == 0.0 {
+                    continue;
+                }
+                let q = neighbor_in(parent_level, par, w);
+                if q != NONE {
+                    f(q, ps[w]);
+                }
+            }
+            return;
+        }
+        let mut pm = [[0.0; 5]; 3];
+        let mut ps = [[0.0; 5]; 3];
+        for a in 0..3 {
+            for o in 0..5 {
+                pm[a][o] = tab.pmass.get(i[a], o as i64 - 2);
+                ps[a][o] = tab.pstiff.get(i[a], o as i64 - 2);
+            }
+        }
+        for w in 0..125usize {
+            let (ox, oy, oz) = (w % 5, (w / 5) % 5, w / 25);
+            let k = ps[0][ox] * pm[1][oy] * pm[2][oz]
+                + pm[0][ox] * ps[1][oy] * pm[2][oz]
+                + pm[0][ox] * pm[1][oy] * ps[2][oz];
+            if k == 0.0 {
+                continue;
+            }
+            let q = neighbor_in(parent_level, par, w);
+            if q != NONE {
+                f(q, k);
+            }
+        }
+    }
+}
+
+/// `M x` of the whole hierarchical system for the coefficients `xs` (per level, the base's
+/// and above), without the screening: the gradient coupling of every pair of depths.
+#[cfg(test)]
+pub(super) fn apply_stiffness(p: &Problem, xs: &[Vec<f32>]) -> Vec<Vec<f64>> {
+    let nlev = p.tree.levels.len();
+    let (tb, max) = (p.base_level as usize, nlev - 1);
+    let ops: Vec<Option<Op>> = (0..nlev)
+        .map(|t| (t >= tb).then(|| Op::new(p, t as u32)))
+        .collect();
+    let mut out = vec![Vec::new(); nlev];
+    // Cumulative coarser solution, pulled through the parent stencils.
+    let mut pcum: Vec<f64> = xs[tb].iter().map(|&v| f64::from(v)).collect();
+    for t in tb..=max {
+        let op = ops[t].as_ref().expect("op");
+        let x = &xs[t];
+        let prev = pcum.clone();
+        let y: Vec<f64> = (0..op.level.len() as u32)
+            .into_par_iter()
+            .map(|n| {
+                let i = op.index(n);
+                if !op.tab.range.contains(i) {
+                    return 0.0;
+                }
+                let mut s = op.stiffness_row(n, i, |m| f64::from(x[m]));
+                if t > tb {
+                    s -= op.add_coarse_coupling::<true, false>(0.0, n, i, &prev, &[]);
+                }
+                s
+            })
+            .collect();
+        out[t] = y;
+        if t > tb && t < max {
+            pcum = prolong_solution(op, &prev, x);
+        }
+    }
+    // Finer coupling, fine to coarse.
+    let mut u: Vec<f64> = Vec::new();
+    for t in (tb + 1..=max).rev() {
+        let op = ops[t].as_ref().expect("op");
+        let mut g = push_to_parents(op, &xs[t]);
+        if !u.is_empty() {
+            let coarse = &p.tree.levels[t - 1];
+            let d = (t - 1) as u32 - DEPTH_OFFSET;
+            let range = p.tables[t - 1].as_ref().expect("tables").range;
+            for (n, gn) in g.iter_mut().enumerate() {
+                let i = crate::octree::func_index(coarse.key(n as u32), d);
+                if range.contains(i) {
+                    *gn += restrict_one(p.tree, coarse, op.level, p.fem, d, n as u32, i, &u);
+                }
+            }
+        }
+        for (o, gi) in out[t - 1].iter_mut().zip(&g) {
+            *o += gi;
+        }
+        u = g;
+    }
+    out
+}
