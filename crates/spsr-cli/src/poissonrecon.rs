@@ -71,7 +71,6 @@ const UNSUPPORTED: &[(&str, &str)] = &[
     ("tree", "spsr writes no octree file"),
     ("voxel", "spsr writes no voxel grid"),
     ("voxelDepth", "spsr writes no voxel grid"),
-    ("width", "use --depth"),
     ("xForm", "transform the points before reconstructing"),
 ];
 

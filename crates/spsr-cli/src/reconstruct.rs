@@ -108,14 +108,23 @@ pub struct ReconstructArgs {
     pub output: PathBuf,
 
     /// Maximum octree depth; the finest cells are 1/2^depth of the bounding cube. Default as
-    /// PoissonRecon 6 and 18.
+    /// PoissonRecon 6 and 18. `auto` chooses it from the data: the first depth whose finest
+    /// cells are no wider than the points' typical spacing (median nearest-neighbour distance),
+    /// lowered to fit --max-memory, and says which in a note
     #[arg(
         long,
         value_name = "D",
-        default_value_t = spsr::Params::default().depth,
+        default_value_t = DepthArg::Fixed(spsr::Params::default().depth),
+        value_parser = parse_depth,
         allow_negative_numbers = true
     )]
-    pub depth: u32,
+    pub depth: DepthArg,
+
+    /// The finest cells' width, in the input's units: sets the depth to the smallest whose
+    /// cells are no wider, and widens the bounding cube so that they are exactly W wide, as
+    /// PoissonRecon's --width. Not with --depth [default: none]
+    #[arg(long, value_name = "W", conflicts_with = "depth")]
+    pub width: Option<f64>,
 
     /// Depth down to which the octree is complete; the coarse solve happens there. Default as
     /// PoissonRecon 6 and 18 [default: 5, or --depth when that is smaller]
@@ -365,12 +374,20 @@ impl ReconstructArgs {
 
     /// The library parameters these arguments describe (not yet validated).
     pub fn params(&self) -> spsr::Params {
-        // An explicit --full-depth deeper than --depth is an error; the default follows --depth.
+        let default = spsr::Params::default();
+        let (depth, resolution) = match (self.depth, self.width) {
+            (_, Some(w)) => (default.depth, spsr::Resolution::Width(w)),
+            (DepthArg::Auto, None) => (default.depth, spsr::Resolution::Auto),
+            (DepthArg::Fixed(d), None) => (d, spsr::Resolution::Depth),
+        };
+        // An explicit --full-depth deeper than --depth is an error; the default follows --depth
+        // (and a chosen depth, when the library resolves it).
         let full_depth = self
             .full_depth
-            .unwrap_or_else(|| spsr::Params::default().full_depth.min(self.depth));
+            .unwrap_or_else(|| default.full_depth.min(depth));
         spsr::Params {
-            depth: self.depth,
+            depth,
+            resolution,
             full_depth,
             samples_per_node: self
                 .samples_per_node
@@ -418,6 +435,38 @@ pub enum NoiseArg {
     Adaptive,
     /// PoissonRecon's behaviour.
     Off,
+}
+
+/// `--depth`: a number, or `auto`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DepthArg {
+    /// This depth.
+    Fixed(u32),
+    /// Chosen from the points' spacing.
+    Auto,
+}
+
+impl std::fmt::Display for DepthArg {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            DepthArg::Fixed(d) => write!(f, "{d}"),
+            DepthArg::Auto => f.write_str("auto"),
+        }
+    }
+}
+
+/// Parses `--depth`: a non-negative integer (the library checks the range) or `auto`.
+fn parse_depth(s: &str) -> Result<DepthArg, String> {
+    let t = s.trim();
+    if t.eq_ignore_ascii_case("auto") {
+        return Ok(DepthArg::Auto);
+    }
+    t.parse::<u32>().map(DepthArg::Fixed).map_err(|_| {
+        format!(
+            "'{s}' is neither a depth (an integer from 1 to {}) nor auto",
+            spsr::MAX_DEPTH
+        )
+    })
 }
 
 /// Parses `--degree`: 1 or 2.
@@ -500,6 +549,24 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
             input.display()
         )));
     }
+
+    // A depth from --width or `auto` is resolved over the cloud now, so that the progress
+    // counts the stages of that depth and a fallback to slabs runs at it.
+    let params = if params.resolution == spsr::Resolution::Depth {
+        params
+    } else {
+        let resolved = spsr::resolve(&cloud, &params).map_err(fail)?;
+        if let Some(c) = &resolved.choice {
+            progress.note(&format!("spsr: note: {}", words::depth_choice(c)));
+        }
+        let trimming = trim_params.is_some();
+        progress.add_stages(
+            spsr::stage_plan(&resolved.params, trimming)
+                .len()
+                .saturating_sub(plan.len()),
+        );
+        resolved.params
+    };
 
     // The cloud is handed over so that it is released once the points are normalised.
     let (result, trimmed) = match &trim_params {
@@ -667,7 +734,23 @@ fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, Str
     };
     let on = |b: bool| if b { "on" } else { "off" }.to_string();
     let mut rows: Vec<(&str, String, Source)> = vec![
-        ("depth", params.depth.to_string(), src("depth")),
+        match params.resolution {
+            spsr::Resolution::Depth => ("depth", params.depth.to_string(), src("depth")),
+            spsr::Resolution::Auto => (
+                "depth",
+                "auto".into(),
+                Source::Derived("from the points' spacing, once read".into()),
+            ),
+            spsr::Resolution::Width(_) => (
+                "depth",
+                "from --width".into(),
+                Source::Derived("the smallest whose cells are no wider".into()),
+            ),
+        },
+        match params.resolution {
+            spsr::Resolution::Width(w) => ("width", w.to_string(), Source::Flag),
+            _ => ("width", "none".into(), Source::Default),
+        },
         (
             "full_depth",
             params.full_depth.to_string(),

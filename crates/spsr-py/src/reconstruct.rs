@@ -161,6 +161,7 @@ pub fn reconstruct_params(
         ),
         keep_outliers,
         keep_normals,
+        resolution: spsr::Resolution::Depth,
     };
     let given = [
         ("depth", Some(depth)),

@@ -73,6 +73,26 @@ pub struct Params {
     /// Keep the normals as given even when many contradict their neighbours. Default off:
     /// such normals are made consistent, with a warning.
     pub keep_normals: bool,
+    /// How the depth is set: `depth` as given (default), from a cell width in the input's
+    /// units, or from the cloud's point spacing (`crate::pipeline::resolution`, issue 18).
+    #[serde(default)]
+    pub resolution: Resolution,
+}
+
+/// How the octree depth is chosen (issue 18). Resolved into a plain `depth` by
+/// [`crate::pipeline::resolution::resolve`] before the pipeline's stages run.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+pub enum Resolution {
+    /// [`Params::depth`] as given (default).
+    #[default]
+    Depth,
+    /// The finest cells this wide, in the input's units: the depth is the smallest whose
+    /// cells are no wider, and the bounding cube is widened so that they are exactly this
+    /// wide, as PoissonRecon's `--width`.
+    Width(f64),
+    /// The depth whose finest cells match the cloud's typical point spacing, no deeper than
+    /// the memory limit allows.
+    Auto,
 }
 
 /// Whether the reconstruction adapts to the local noise of the points (issue 16).
@@ -143,6 +163,7 @@ impl Default for Params {
             noise: Noise::Adaptive,
             keep_outliers: false,
             keep_normals: false,
+            resolution: Resolution::Depth,
         }
     }
 }
@@ -224,6 +245,15 @@ impl Params {
                 "an empty property name",
                 "the name of a per-point property",
             ));
+        }
+        if let Resolution::Width(w) = self.resolution {
+            if !(w.is_finite() && w > 0.0) {
+                return Err(Error::invalid(
+                    "width",
+                    w,
+                    "a positive cell width in the input's units",
+                ));
+            }
         }
         if self.iters == 0 || self.iters > 10_000 {
             return Err(Error::invalid(

@@ -39,6 +39,7 @@ pub mod iso;
 pub mod noise;
 pub mod orientation;
 pub mod prepare;
+pub mod resolution;
 pub mod solve;
 pub mod splat;
 pub mod system;
@@ -47,6 +48,7 @@ pub mod tree;
 use diagnose::{Diagnosis, NormalProbe};
 pub use noise::NoiseSummary;
 pub use prepare::Frame;
+pub use resolution::{DepthChoice, DepthLimit, DepthReason};
 
 /// The output of [`reconstruct`].
 #[derive(Debug, Clone)]
@@ -90,6 +92,8 @@ pub struct Stats {
     pub diagnosis: Diagnosis,
     /// Slabs the run was cut into (`crate::slabs`); 0 for a run in one piece.
     pub slabs: usize,
+    /// How the depth was chosen, when it was not given ([`crate::Resolution`]).
+    pub depth_choice: Option<DepthChoice>,
 }
 
 /// The solved implicit function χ and what extraction needs besides: the output of stages
@@ -226,12 +230,18 @@ fn reconstruct_input(
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<(Reconstruction, Option<TrimStats>)> {
     let mut run = Run::new(progress);
+    let resolution::Resolved {
+        params,
+        choice: depth_choice,
+    } = resolution::resolve(input.cloud(), params)?;
+    let params = &params;
     // Trimming needs the per-vertex density, kept on the mesh only when asked for.
     let solved = Params {
         density: params.density || trim.is_some(),
         ..params.clone()
     };
     let (implicit, mut stats) = solve_implicit(input, &solved, &mut run)?;
+    stats.depth_choice = depth_choice;
     let frame = implicit.frame;
     let mut mesh = run.stage("extraction", || extract::extract(implicit, &solved))?;
     if params.noise == Noise::Adaptive {

@@ -148,7 +148,15 @@ fn check_supported(params: &Params) -> Result<()> {
     if let PointWeights::Property(name) = &params.weights {
         return refuse("weights", name);
     }
-    Ok(())
+    // The depth of a width or of the spacing is resolved over the whole cloud in memory
+    // (`pipeline::resolution::resolve`); a slab run takes a plain depth.
+    let whole = "a fixed depth in slab mode (a width or auto is resolved over the whole cloud \
+                 in memory)";
+    match params.resolution {
+        crate::Resolution::Depth => Ok(()),
+        crate::Resolution::Width(w) => Err(Error::invalid("width", w, whole)),
+        crate::Resolution::Auto => Err(Error::invalid("depth", "auto", whole)),
+    }
 }
 
 /// Reconstructs the cloud of `source` in slabs: one pass for the bounding cube, one that

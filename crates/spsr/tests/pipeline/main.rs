@@ -11,5 +11,6 @@ mod noise;
 mod normals;
 mod properties;
 mod reconstruct;
+mod resolution;
 mod slabs;
 mod trim;
