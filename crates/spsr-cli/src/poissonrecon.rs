@@ -46,7 +46,6 @@ const UNSUPPORTED: &[(&str, &str)] = &[
         "gradients",
         "use --normals for per-vertex normals from the gradient",
     ),
-    ("grid", "spsr writes no voxel grid"),
     ("gridCoordinates", "spsr writes no voxel grid"),
     ("inCore", "spsr always works in memory (see --max-memory)"),
     (

@@ -336,6 +336,19 @@ pub struct ReconstructArgs {
     #[arg(long, value_name = "PNG")]
     pub preview: Option<PathBuf>,
 
+    /// Also write the implicit function minus the iso-value (negative inside, positive
+    /// outside), sampled at the centres of an R x R x R grid of cells over the bounding cube, to
+    /// this NumPy .npz file: arrays `values` (float32, shape (R, R, R), indexed x, y, z),
+    /// `origin` (the centre of cell (0, 0, 0)) and `spacing`, in the input's units. Needs
+    /// --grid-res [default: none]
+    #[arg(long, value_name = "FILE.npz", requires = "grid_res")]
+    pub grid: Option<PathBuf>,
+
+    /// Samples along each axis of --grid's grid, at least 2; refused when R^3 float32 values
+    /// exceed --max-memory. Needs --grid [default: none]
+    #[arg(long, value_name = "R", requires = "grid")]
+    pub grid_res: Option<u32>,
+
     /// The ids of the arguments given on the command line (filled by
     /// [`crate::try_parse_from`]), which `-v` reports as set by a flag.
     #[arg(skip)]
@@ -388,6 +401,7 @@ impl ReconstructArgs {
         spsr::Params {
             depth,
             resolution,
+            grid_res: self.grid_res,
             full_depth,
             samples_per_node: self
                 .samples_per_node
@@ -506,6 +520,14 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     check_output_arg(output, input).map_err(fail)?;
     if let Some(p) = &args.preview {
         crate::render::check_picture_path(p, input)?;
+    }
+    if let Some(g) = &args.grid {
+        if !g.extension().is_some_and(|e| e.eq_ignore_ascii_case("npz")) {
+            return Err(usage(format!(
+                "--grid {}: the grid is written as NumPy .npz; name a file ending in .npz",
+                g.display()
+            )));
+        }
     }
     if args.common.verbose {
         print_parameters(args, &params);
@@ -644,6 +666,9 @@ fn finish(
     let writing = t.elapsed();
     if let Some(p) = &args.preview {
         crate::render::write_preview(&result.mesh, p, input)?;
+    }
+    if let (Some(path), Some(grid)) = (&args.grid, &result.grid) {
+        spsr::io::write_grid(path, grid).map_err(fail)?;
     }
     drop(progress);
 
@@ -909,6 +934,17 @@ fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, Str
             Source::Derived("from the noise, 16 to 192".into()),
         ),
     });
+    rows.push(match params.grid_res {
+        Some(r) => ("grid_res", r.to_string(), Source::Flag),
+        None => ("grid_res", "none".into(), Source::Default),
+    });
+    rows.push((
+        "grid",
+        args.grid
+            .as_ref()
+            .map_or_else(|| "none".into(), |p| p.display().to_string()),
+        src("grid"),
+    ));
     rows.push((
         "preview",
         args.preview

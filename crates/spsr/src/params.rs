@@ -77,6 +77,10 @@ pub struct Params {
     /// units, or from the cloud's point spacing (`crate::pipeline::resolution`, issue 18).
     #[serde(default)]
     pub resolution: Resolution,
+    /// Also sample the implicit function minus the iso-value on an `R³` grid over the
+    /// bounding cube ([`crate::Reconstruction::grid`]; negative inside). Default none.
+    #[serde(default)]
+    pub grid_res: Option<u32>,
 }
 
 /// How the octree depth is chosen (issue 18). Resolved into a plain `depth` by
@@ -164,6 +168,7 @@ impl Default for Params {
             keep_outliers: false,
             keep_normals: false,
             resolution: Resolution::Depth,
+            grid_res: None,
         }
     }
 }
@@ -254,6 +259,13 @@ impl Params {
                     "a positive cell width in the input's units",
                 ));
             }
+        }
+        if let Some(res) = self.grid_res {
+            let limited = Params {
+                max_memory: self.max_memory.or(Some(u64::MAX)),
+                ..Params::default()
+            };
+            crate::pipeline::grid::check_res(res, &limited)?;
         }
         if self.iters == 0 || self.iters > 10_000 {
             return Err(Error::invalid(

@@ -715,3 +715,52 @@ fn depth_auto_says_which_depth_and_goes_deeper_for_denser_points() {
     };
     assert!(depth(8000) > depth(2000));
 }
+
+#[test]
+fn grid_writes_a_numpy_archive_and_bad_resolutions_are_refused() {
+    let (dir, input) = sphere_dir();
+    let output = dir.path().join("out.ply");
+    let grid = dir.path().join("g.npz");
+    let out = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&output),
+        "--depth",
+        "5",
+        "--grid",
+        s(&grid),
+        "--grid-res",
+        "6",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let bytes = fs::read(&grid).unwrap();
+    assert_eq!(&bytes[..4], b"PK\x03\x04");
+    assert_eq!(&bytes[30..40], b"values.npy");
+    for (res, fragment) in [("1", "at least 2"), ("5000", "at most")] {
+        let g = dir.path().join("bad.npz");
+        let out = spsr(&[
+            "reconstruct",
+            s(&input),
+            "-o",
+            s(&output),
+            "--grid",
+            s(&g),
+            "--grid-res",
+            res,
+            "--max-memory",
+            "1G",
+        ]);
+        assert_fails_one_line(&out, USAGE, &["--grid-res", fragment], &g);
+    }
+    // Each flag needs the other.
+    let out = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&output),
+        "--grid",
+        s(&grid),
+    ]);
+    assert_eq!(out.status.code(), Some(USAGE));
+}

@@ -150,6 +150,13 @@ fn check_supported(params: &Params) -> Result<()> {
     }
     // The depth of a width or of the spacing is resolved over the whole cloud in memory
     // (`pipeline::resolution::resolve`); a slab run takes a plain depth.
+    if let Some(res) = params.grid_res {
+        return Err(Error::invalid(
+            "grid_res",
+            res,
+            "none in slab mode (not supported there yet)",
+        ));
+    }
     let whole = "a fixed depth in slab mode (a width or auto is resolved over the whole cloud \
                  in memory)";
     match params.resolution {
@@ -172,6 +179,7 @@ pub fn reconstruct(
     Ok(Reconstruction {
         mesh: mesh.expect("assembled in memory"),
         stats,
+        grid: None,
     })
 }
 

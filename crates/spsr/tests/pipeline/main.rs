@@ -6,6 +6,7 @@ mod common;
 
 mod attributes;
 mod diagnosis;
+mod grid;
 mod hostile;
 mod noise;
 mod normals;
