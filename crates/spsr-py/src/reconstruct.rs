@@ -162,6 +162,7 @@ pub fn reconstruct_params(
         keep_outliers,
         keep_normals,
         resolution: spsr::Resolution::Depth,
+        grid_res: None,
     };
     let given = [
         ("depth", Some(depth)),
