@@ -46,7 +46,6 @@ const UNSUPPORTED: &[(&str, &str)] = &[
         "gradients",
         "use --normals for per-vertex normals from the gradient",
     ),
-    ("grid", "spsr writes no voxel grid"),
     ("gridCoordinates", "spsr writes no voxel grid"),
     ("inCore", "spsr always works in memory (see --max-memory)"),
     (
@@ -71,7 +70,6 @@ const UNSUPPORTED: &[(&str, &str)] = &[
     ("tree", "spsr writes no octree file"),
     ("voxel", "spsr writes no voxel grid"),
     ("voxelDepth", "spsr writes no voxel grid"),
-    ("width", "use --depth"),
     ("xForm", "transform the points before reconstructing"),
 ];
 

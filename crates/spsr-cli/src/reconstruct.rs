@@ -108,14 +108,23 @@ pub struct ReconstructArgs {
     pub output: PathBuf,
 
     /// Maximum octree depth; the finest cells are 1/2^depth of the bounding cube. Default as
-    /// PoissonRecon 6 and 18.
+    /// PoissonRecon 6 and 18. `auto` chooses it from the data: the first depth whose finest
+    /// cells are no wider than the points' typical spacing (median nearest-neighbour distance),
+    /// lowered to fit --max-memory, and says which in a note
     #[arg(
         long,
         value_name = "D",
-        default_value_t = spsr::Params::default().depth,
+        default_value_t = DepthArg::Fixed(spsr::Params::default().depth),
+        value_parser = parse_depth,
         allow_negative_numbers = true
     )]
-    pub depth: u32,
+    pub depth: DepthArg,
+
+    /// The finest cells' width, in the input's units: sets the depth to the smallest whose
+    /// cells are no wider, and widens the bounding cube so that they are exactly W wide, as
+    /// PoissonRecon's --width. Not with --depth [default: none]
+    #[arg(long, value_name = "W", conflicts_with = "depth")]
+    pub width: Option<f64>,
 
     /// Depth down to which the octree is complete; the coarse solve happens there. Default as
     /// PoissonRecon 6 and 18 [default: 5, or --depth when that is smaller]
@@ -344,6 +353,19 @@ pub struct ReconstructArgs {
     #[arg(long, value_name = "PNG")]
     pub preview: Option<PathBuf>,
 
+    /// Also write the implicit function minus the iso-value (negative inside, positive
+    /// outside), sampled at the centres of an R x R x R grid of cells over the bounding cube, to
+    /// this NumPy .npz file: arrays `values` (float32, shape (R, R, R), indexed x, y, z),
+    /// `origin` (the centre of cell (0, 0, 0)) and `spacing`, in the input's units. Needs
+    /// --grid-res [default: none]
+    #[arg(long, value_name = "FILE.npz", requires = "grid_res")]
+    pub grid: Option<PathBuf>,
+
+    /// Samples along each axis of --grid's grid, at least 2; refused when R^3 float32 values
+    /// exceed --max-memory. Needs --grid [default: none]
+    #[arg(long, value_name = "R", requires = "grid")]
+    pub grid_res: Option<u32>,
+
     /// The ids of the arguments given on the command line (filled by
     /// [`crate::try_parse_from`]), which `-v` reports as set by a flag.
     #[arg(skip)]
@@ -382,12 +404,21 @@ impl ReconstructArgs {
 
     /// The library parameters these arguments describe (not yet validated).
     pub fn params(&self) -> spsr::Params {
-        // An explicit --full-depth deeper than --depth is an error; the default follows --depth.
+        let default = spsr::Params::default();
+        let (depth, resolution) = match (self.depth, self.width) {
+            (_, Some(w)) => (default.depth, spsr::Resolution::Width(w)),
+            (DepthArg::Auto, None) => (default.depth, spsr::Resolution::Auto),
+            (DepthArg::Fixed(d), None) => (d, spsr::Resolution::Depth),
+        };
+        // An explicit --full-depth deeper than --depth is an error; the default follows --depth
+        // (and a chosen depth, when the library resolves it).
         let full_depth = self
             .full_depth
-            .unwrap_or_else(|| spsr::Params::default().full_depth.min(self.depth));
+            .unwrap_or_else(|| default.full_depth.min(depth));
         spsr::Params {
-            depth: self.depth,
+            depth,
+            resolution,
+            grid_res: self.grid_res,
             full_depth,
             samples_per_node: self
                 .samples_per_node
@@ -455,6 +486,38 @@ pub enum NoiseArg {
     Off,
 }
 
+/// `--depth`: a number, or `auto`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DepthArg {
+    /// This depth.
+    Fixed(u32),
+    /// Chosen from the points' spacing.
+    Auto,
+}
+
+impl std::fmt::Display for DepthArg {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            DepthArg::Fixed(d) => write!(f, "{d}"),
+            DepthArg::Auto => f.write_str("auto"),
+        }
+    }
+}
+
+/// Parses `--depth`: a non-negative integer (the library checks the range) or `auto`.
+fn parse_depth(s: &str) -> Result<DepthArg, String> {
+    let t = s.trim();
+    if t.eq_ignore_ascii_case("auto") {
+        return Ok(DepthArg::Auto);
+    }
+    t.parse::<u32>().map(DepthArg::Fixed).map_err(|_| {
+        format!(
+            "'{s}' is neither a depth (an integer from 1 to {}) nor auto",
+            spsr::MAX_DEPTH
+        )
+    })
+}
+
 /// Parses `--degree`: 1 or 2.
 fn parse_degree(s: &str) -> Result<spsr::Degree, String> {
     s.trim()
@@ -492,6 +555,14 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     check_output_arg(output, input).map_err(fail)?;
     if let Some(p) = &args.preview {
         crate::render::check_picture_path(p, input)?;
+    }
+    if let Some(g) = &args.grid {
+        if !g.extension().is_some_and(|e| e.eq_ignore_ascii_case("npz")) {
+            return Err(usage(format!(
+                "--grid {}: the grid is written as NumPy .npz; name a file ending in .npz",
+                g.display()
+            )));
+        }
     }
     if args.common.verbose {
         print_parameters(args, &params);
@@ -535,6 +606,24 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
             input.display()
         )));
     }
+
+    // A depth from --width or `auto` is resolved over the cloud now, so that the progress
+    // counts the stages of that depth and a fallback to slabs runs at it.
+    let params = if params.resolution == spsr::Resolution::Depth {
+        params
+    } else {
+        let resolved = spsr::resolve(&cloud, &params).map_err(fail)?;
+        if let Some(c) = &resolved.choice {
+            progress.note(&format!("spsr: note: {}", words::depth_choice(c)));
+        }
+        let trimming = trim_params.is_some();
+        progress.add_stages(
+            spsr::stage_plan(&resolved.params, trimming)
+                .len()
+                .saturating_sub(plan.len()),
+        );
+        resolved.params
+    };
 
     // The cloud is handed over so that it is released once the points are normalised.
     let (result, trimmed) = match &trim_params {
@@ -604,6 +693,9 @@ fn finish(
     let writing = t.elapsed();
     if let Some(p) = &args.preview {
         crate::render::write_preview(&result.mesh, p, input)?;
+    }
+    if let (Some(path), Some(grid)) = (&args.grid, &result.grid) {
+        spsr::io::write_grid(path, grid).map_err(fail)?;
     }
     drop(progress);
 
@@ -694,7 +786,23 @@ fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, Str
     };
     let on = |b: bool| if b { "on" } else { "off" }.to_string();
     let mut rows: Vec<(&str, String, Source)> = vec![
-        ("depth", params.depth.to_string(), src("depth")),
+        match params.resolution {
+            spsr::Resolution::Depth => ("depth", params.depth.to_string(), src("depth")),
+            spsr::Resolution::Auto => (
+                "depth",
+                "auto".into(),
+                Source::Derived("from the points' spacing, once read".into()),
+            ),
+            spsr::Resolution::Width(_) => (
+                "depth",
+                "from --width".into(),
+                Source::Derived("the smallest whose cells are no wider".into()),
+            ),
+        },
+        match params.resolution {
+            spsr::Resolution::Width(w) => ("width", w.to_string(), Source::Flag),
+            _ => ("width", "none".into(), Source::Default),
+        },
         (
             "full_depth",
             params.full_depth.to_string(),
@@ -855,6 +963,17 @@ fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, Str
             Source::Derived("from the noise, 16 to 192".into()),
         ),
     });
+    rows.push(match params.grid_res {
+        Some(r) => ("grid_res", r.to_string(), Source::Flag),
+        None => ("grid_res", "none".into(), Source::Default),
+    });
+    rows.push((
+        "grid",
+        args.grid
+            .as_ref()
+            .map_or_else(|| "none".into(), |p| p.display().to_string()),
+        src("grid"),
+    ));
     rows.push((
         "preview",
         args.preview

@@ -16,6 +16,11 @@ pub fn flag(field: &str) -> String {
     }
 }
 
+/// How the depth was chosen (`--width`, `--depth auto`), in the command line's words.
+pub fn depth_choice(c: &spsr::DepthChoice) -> String {
+    c.message(&flag)
+}
+
 /// The message of a library error in the command line's words, where they differ from the
 /// library's.
 pub fn error(e: &Error) -> Option<String> {

@@ -142,6 +142,8 @@ impl MethodKeywords {
             solver,
             cycles: int_arg(self.cycles),
             report_residuals: false,
+            resolution: spsr::Resolution::Depth,
+            grid_res: None,
         };
         let given = [
             ("depth", Some(self.depth)),

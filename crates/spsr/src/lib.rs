@@ -42,11 +42,12 @@ mod vec3;
 pub use bspline::{Boundary, Degree};
 pub use error::{gib, Error, FarOutliers, MemoryLimit, MemoryShortfall, Remedy, Result, Warning};
 pub use mesh::Mesh;
-pub use params::{Noise, Params, PointWeights, Solver, MAX_DEPTH};
+pub use params::{Noise, Params, PointWeights, Resolution, Solver, MAX_DEPTH};
 pub use pipeline::diagnose::{self, Diagnosis};
 pub use pipeline::{
-    reconstruct, reconstruct_and_trim, reconstruct_owned, reconstruct_with_progress, stage_plan,
-    NoiseSummary, Reconstruction, Stats,
+    reconstruct, reconstruct_and_trim, reconstruct_implicit, reconstruct_owned,
+    reconstruct_with_progress, resolution::resolve, stage_plan, DepthChoice, DepthLimit,
+    DepthReason, Grid, ImplicitFunction, NoiseSummary, Reconstruction, Stats,
 };
 pub use points::{PointCloud, ScanOrigin};
 pub use resources::{memory_budget, peak_rss};

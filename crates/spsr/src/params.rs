@@ -83,6 +83,14 @@ pub struct Params {
     /// [`crate::Stats::solve`] (what the command line's `-v` prints). Costs about one
     /// more sweep per depth and cycle; the mesh is the same. Default off.
     pub report_residuals: bool,
+    /// How the depth is set: `depth` as given (default), from a cell width in the input's
+    /// units, or from the cloud's point spacing (`crate::pipeline::resolution`, issue 18).
+    #[serde(default)]
+    pub resolution: Resolution,
+    /// Also sample the implicit function minus the iso-value on an `R³` grid over the
+    /// bounding cube ([`crate::Reconstruction::grid`]; negative inside). Default none.
+    #[serde(default)]
+    pub grid_res: Option<u32>,
 }
 
 /// The shape of the solver's cycles over the depths (issue 18). Each cycle relaxes every depth
@@ -122,6 +130,22 @@ impl Solver {
             Solver::WCycle => "wcycle",
         }
     }
+}
+
+/// How the octree depth is chosen (issue 18). Resolved into a plain `depth` by
+/// [`crate::pipeline::resolution::resolve`] before the pipeline's stages run.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+pub enum Resolution {
+    /// [`Params::depth`] as given (default).
+    #[default]
+    Depth,
+    /// The finest cells this wide, in the input's units: the depth is the smallest whose
+    /// cells are no wider, and the bounding cube is widened so that they are exactly this
+    /// wide, as PoissonRecon's `--width`.
+    Width(f64),
+    /// The depth whose finest cells match the cloud's typical point spacing, no deeper than
+    /// the memory limit allows.
+    Auto,
 }
 
 /// Whether the reconstruction adapts to the local noise of the points (issue 16).
@@ -195,6 +219,8 @@ impl Default for Params {
             solver: Solver::Cascadic,
             cycles: 1,
             report_residuals: false,
+            resolution: Resolution::Depth,
+            grid_res: None,
         }
     }
 }
@@ -276,6 +302,22 @@ impl Params {
                 "an empty property name",
                 "the name of a per-point property",
             ));
+        }
+        if let Resolution::Width(w) = self.resolution {
+            if !(w.is_finite() && w > 0.0) {
+                return Err(Error::invalid(
+                    "width",
+                    w,
+                    "a positive cell width in the input's units",
+                ));
+            }
+        }
+        if let Some(res) = self.grid_res {
+            let limited = Params {
+                max_memory: self.max_memory.or(Some(u64::MAX)),
+                ..Params::default()
+            };
+            crate::pipeline::grid::check_res(res, &limited)?;
         }
         if self.iters == 0 || self.iters > 10_000 {
             return Err(Error::invalid(

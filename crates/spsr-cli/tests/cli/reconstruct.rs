@@ -631,3 +631,136 @@ fn colours_normals_and_confidence_reach_the_output() {
 fn spsr_read_mesh(path: &Path) -> spsr::Mesh {
     spsr::io::read_mesh(path).unwrap()
 }
+
+// ---- the depth from a width or from the data (issue 18) ----
+
+/// The `spsr: note:` line of a successful run.
+fn the_note(out: &Output) -> String {
+    let err = stderr(out);
+    assert!(out.status.success(), "{err}");
+    let notes: Vec<&str> = err.lines().filter(|l| l.contains("note:")).collect();
+    assert_eq!(notes.len(), 1, "{err}");
+    notes[0].to_string()
+}
+
+#[test]
+fn width_lands_on_the_depth_it_implies() {
+    let (dir, input) = sphere_dir();
+    let output = dir.path().join("out.ply");
+    // The sphere's box is 1.6 wide, its cube 1.76: 0.05-wide cells need 35.2, so 2^6.
+    let out = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&output),
+        "--width",
+        "0.05",
+        "-v",
+    ]);
+    let note = the_note(&out);
+    assert!(note.contains("--width 0.05000 gives --depth 6"), "{note}");
+    // The octree's levels run from 0 to 6.
+    let err = stderr(&out);
+    let levels = err.lines().skip_while(|l| !l.starts_with("octree")).skip(1);
+    let last = levels.take_while(|l| l.starts_with("  ")).last().unwrap();
+    assert_eq!(last.split_whitespace().next(), Some("6"), "{err}");
+}
+
+#[test]
+fn depth_and_width_together_are_a_usage_error() {
+    let (dir, input) = sphere_dir();
+    let output = dir.path().join("out.ply");
+    let out = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&output),
+        "--width",
+        "0.05",
+        "--depth",
+        "7",
+    ]);
+    assert_fails(&out, USAGE, &["--width", "--depth"], &output);
+    bad_parameter(&["--width", "0"], "--width");
+    let out = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&output),
+        "--depth",
+        "deep",
+    ]);
+    assert_fails(&out, USAGE, &["'deep'", "auto"], &output);
+}
+
+#[test]
+fn depth_auto_says_which_depth_and_goes_deeper_for_denser_points() {
+    let depth = |n: usize| {
+        let dir = TempDir::new().unwrap();
+        let input = dir.path().join("in.ply");
+        write_ascii_ply(&input, &sphere(n));
+        let output = dir.path().join("out.ply");
+        let out = spsr(&[
+            "reconstruct",
+            s(&input),
+            "-o",
+            s(&output),
+            "--depth",
+            "auto",
+        ]);
+        let note = the_note(&out);
+        let chose = note.split("chose --depth ").nth(1).expect(&note);
+        assert!(note.contains("apart"), "{note}");
+        chose.split(':').next().unwrap().parse::<u32>().unwrap()
+    };
+    assert!(depth(8000) > depth(2000));
+}
+
+#[test]
+fn grid_writes_a_numpy_archive_and_bad_resolutions_are_refused() {
+    let (dir, input) = sphere_dir();
+    let output = dir.path().join("out.ply");
+    let grid = dir.path().join("g.npz");
+    let out = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&output),
+        "--depth",
+        "5",
+        "--grid",
+        s(&grid),
+        "--grid-res",
+        "6",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let bytes = fs::read(&grid).unwrap();
+    assert_eq!(&bytes[..4], b"PK\x03\x04");
+    assert_eq!(&bytes[30..40], b"values.npy");
+    for (res, fragment) in [("1", "at least 2"), ("5000", "at most")] {
+        let g = dir.path().join("bad.npz");
+        let out = spsr(&[
+            "reconstruct",
+            s(&input),
+            "-o",
+            s(&output),
+            "--grid",
+            s(&g),
+            "--grid-res",
+            res,
+            "--max-memory",
+            "1G",
+        ]);
+        assert_fails_one_line(&out, USAGE, &["--grid-res", fragment], &g);
+    }
+    // Each flag needs the other.
+    let out = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&output),
+        "--grid",
+        s(&grid),
+    ]);
+    assert_eq!(out.status.code(), Some(USAGE));
+}

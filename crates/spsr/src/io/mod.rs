@@ -61,6 +61,7 @@ mod glb;
 mod las_file;
 mod lines;
 mod lzf;
+mod npz;
 mod obj;
 mod off;
 mod pcd;
@@ -542,6 +543,7 @@ pub fn write_mesh_to(
     write::write_mesh_to(out, name, format, mesh, opts)
 }
 
+pub use npz::write_grid;
 pub use unfinished::remove_unfinished_files;
 pub(crate) use write::write_atomically;
 

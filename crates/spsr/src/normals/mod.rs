@@ -71,7 +71,7 @@
 
 pub(crate) mod estimate;
 mod graph;
-mod knn;
+pub(crate) mod knn;
 mod orient;
 
 use rayon::prelude::*;

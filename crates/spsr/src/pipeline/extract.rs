@@ -13,7 +13,13 @@ use crate::{Mesh, Params, Result};
 
 /// Extracts the mesh of the implicit function (stage 8). Without attributes, the tree and the
 /// solution are released before the vertices are numbered.
-pub fn extract(implicit: Implicit, params: &Params) -> Result<Mesh> {
+/// With `keep`, the implicit function is handed back for evaluation at other points instead
+/// of being released before the mesh is assembled.
+pub(crate) fn extract(
+    implicit: Implicit,
+    params: &Params,
+    keep: bool,
+) -> Result<(Mesh, Option<Implicit>)> {
     let Implicit {
         tree,
         solution,
@@ -36,19 +42,18 @@ pub fn extract(implicit: Implicit, params: &Params) -> Result<Mesh> {
     };
     let blocks = extract_blocks(&cells, &field, iso, &options)?;
     drop(cells);
-    let mut mesh = match data {
-        Some(data) => {
+    let (mut mesh, kept) = match (data, keep) {
+        (Some(data), _) => {
             // Per-vertex values that need the tree: computed before it goes.
             let mut mesh = blocks.assemble()?;
             mesh.attributes = interpolate_attributes(&mesh, &data, &tree, &attribute_types);
-            drop(solution);
-            drop(tree);
-            mesh
+            (mesh, keep.then_some((tree, solution)))
         }
-        None => {
+        (None, true) => (blocks.assemble()?, Some((tree, solution))),
+        (None, false) => {
             drop(solution);
             drop(tree);
-            blocks.assemble()?
+            (blocks.assemble()?, None)
         }
     };
     if params.density {
@@ -62,7 +67,17 @@ pub fn extract(implicit: Implicit, params: &Params) -> Result<Mesh> {
     for p in &mut mesh.vertices {
         *p = frame.to_world(*p);
     }
-    Ok(mesh)
+    let kept = kept.map(|(tree, solution)| Implicit {
+        tree,
+        solution,
+        fem,
+        density,
+        iso,
+        frame,
+        data: None,
+        attribute_types: Vec::new(),
+    });
+    Ok((mesh, kept))
 }
 
 /// A slab's share of the extraction (ALGORITHM.md §9; `crate::slabs`): the blocks of unit

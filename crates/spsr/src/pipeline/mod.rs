@@ -35,18 +35,22 @@ pub mod density;
 pub mod diagnose;
 pub mod extract;
 pub mod fragments;
+pub mod grid;
 pub mod iso;
 pub mod noise;
 pub mod orientation;
 pub mod prepare;
+pub mod resolution;
 pub mod solve;
 pub mod splat;
 pub mod system;
 pub mod tree;
 
 use diagnose::{Diagnosis, NormalProbe};
+pub use grid::{Grid, ImplicitFunction};
 pub use noise::NoiseSummary;
 pub use prepare::Frame;
+pub use resolution::{DepthChoice, DepthLimit, DepthReason};
 
 /// The output of [`reconstruct`].
 #[derive(Debug, Clone)]
@@ -55,6 +59,8 @@ pub struct Reconstruction {
     pub mesh: Mesh,
     /// Counts and timings of the run.
     pub stats: Stats,
+    /// The implicit function sampled on a grid, when [`Params::grid_res`] asks for one.
+    pub grid: Option<Grid>,
 }
 
 /// Counts and timings gathered during a reconstruction.
@@ -93,6 +99,8 @@ pub struct Stats {
     /// The solver's residuals per depth and per cycle, with
     /// [`Params::report_residuals`](crate::Params::report_residuals).
     pub solve: Option<crate::SolveReport>,
+    /// How the depth was chosen, when it was not given ([`crate::Resolution`]).
+    pub depth_choice: Option<DepthChoice>,
 }
 
 /// The solved implicit function χ and what extraction needs besides: the output of stages
@@ -139,7 +147,7 @@ pub fn reconstruct_with_progress(
     params: &Params,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<Reconstruction> {
-    reconstruct_input(Input::Borrowed(points), params, None, progress).map(|(r, _)| r)
+    reconstruct_input(Input::Borrowed(points), params, None, false, progress).map(|(r, _, _)| r)
 }
 
 /// As [`reconstruct_with_progress`], taking the cloud by value: it is released as soon as
@@ -149,7 +157,21 @@ pub fn reconstruct_owned(
     params: &Params,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<Reconstruction> {
-    reconstruct_input(Input::Owned(points), params, None, progress).map(|(r, _)| r)
+    reconstruct_input(Input::Owned(points), params, None, false, progress).map(|(r, _, _)| r)
+}
+
+/// As [`reconstruct_owned`], keeping the solved implicit function, which answers
+/// [`ImplicitFunction::values`] and [`ImplicitFunction::values_and_gradients`] at any point afterwards (it
+/// holds the octree and the solution: about the run's peak memory).
+pub fn reconstruct_implicit(
+    points: PointCloud,
+    params: &Params,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<(Reconstruction, ImplicitFunction)> {
+    match reconstruct_input(Input::Owned(points), params, None, true, progress)? {
+        (out, _, Some(implicit)) => Ok((out, ImplicitFunction(implicit))),
+        (_, _, None) => unreachable!("reconstruct_input keeps the function when asked"),
+    }
 }
 
 /// Reconstructs, then trims the mesh where its density is low (ALGORITHM.md §10): the one
@@ -164,9 +186,11 @@ pub fn reconstruct_and_trim(
 ) -> Result<(Reconstruction, TrimStats)> {
     params.validate()?;
     trim.validate()?;
-    match reconstruct_input(Input::Owned(points), params, Some(trim), progress)? {
-        (out, Some(trimmed)) => Ok((out, trimmed)),
-        (_, None) => unreachable!("reconstruct_input trims when it is given trimming parameters"),
+    match reconstruct_input(Input::Owned(points), params, Some(trim), false, progress)? {
+        (out, Some(trimmed), _) => Ok((out, trimmed)),
+        (_, None, _) => {
+            unreachable!("reconstruct_input trims when it is given trimming parameters")
+        }
     }
 }
 
@@ -197,12 +221,17 @@ pub fn stage_plan(params: &Params, trimming: bool) -> Vec<String> {
                 .map(|s| s.to_string()),
         )
         .chain(solver)
-        .chain(["iso-value", "extraction"].map(String::from))
+        .chain(std::iter::once("iso-value".to_string()))
+        .chain(params.grid_res.map(|_| GRID.to_string()))
+        .chain(std::iter::once("extraction".to_string()))
         .chain(adaptive.then(|| FRAGMENTS.to_string()))
         .chain(trimming.then(|| "trimming".to_string()))
         .chain(std::iter::once(CHECKING.to_string()))
         .collect()
 }
+
+/// The name of the grid's sampling (issue 18), after the iso-value.
+const GRID: &str = "grid";
 
 /// The name of stage 10.
 const CHECKING: &str = "checking the mesh";
@@ -228,22 +257,36 @@ impl Input<'_> {
     }
 }
 
-/// Stages 1–9, with the trimming between extraction and the checks when `trim` is given.
+/// Stages 1–9, with the trimming between extraction and the checks when `trim` is given;
+/// with `keep`, the implicit function is handed back too.
 fn reconstruct_input(
     input: Input,
     params: &Params,
     trim: Option<&TrimParams>,
+    keep: bool,
     progress: &(dyn Fn(&str) + Sync),
-) -> Result<(Reconstruction, Option<TrimStats>)> {
+) -> Result<(Reconstruction, Option<TrimStats>, Option<Implicit>)> {
     let mut run = Run::new(progress);
+    let resolution::Resolved {
+        params,
+        choice: depth_choice,
+    } = resolution::resolve(input.cloud(), params)?;
+    let params = &params;
+    if let Some(res) = params.grid_res {
+        grid::check_res(res, params)?;
+    }
     // Trimming needs the per-vertex density, kept on the mesh only when asked for.
     let solved = Params {
         density: params.density || trim.is_some(),
         ..params.clone()
     };
     let (implicit, mut stats) = solve_implicit(input, &solved, &mut run)?;
+    stats.depth_choice = depth_choice;
     let frame = implicit.frame;
-    let mut mesh = run.stage("extraction", || extract::extract(implicit, &solved))?;
+    let grid = params
+        .grid_res
+        .map(|res| run.stage(GRID, || implicit.grid(res)));
+    let (mut mesh, kept) = run.stage("extraction", || extract::extract(implicit, &solved, keep))?;
     if params.noise == Noise::Adaptive {
         let removed = run.stage(FRAGMENTS, || fragments::remove_fragments(&mut mesh));
         if removed > 0 {
@@ -278,7 +321,7 @@ fn reconstruct_input(
         stats.warnings.extend(stats.diagnosis.warning());
     }
     (stats.stages, stats.peak_memory) = run.finish();
-    Ok((Reconstruction { mesh, stats }, trimmed))
+    Ok((Reconstruction { mesh, stats, grid }, trimmed, kept))
 }
 
 /// Stages 1–7: the implicit function χ and its iso-value, with the run's counts (the timings

@@ -72,6 +72,40 @@ pub struct Prepared {
 /// Filters, weighs and normalises the points (stage 1).
 pub fn prepare(points: &PointCloud, params: &Params) -> Result<Prepared> {
     let weight_of = weights(points, &params.weights)?;
+    let Selection {
+        valid,
+        frame,
+        warnings,
+    } = select(points, params)?;
+    let dropped = points.len() - valid.len();
+    let unit: Vec<UnitPoint> = valid
+        .par_iter()
+        .map(|&i| unit_point(frame, points.positions[i], points.normals[i], weight_of(i)))
+        .collect();
+    Ok(Prepared {
+        points: unit,
+        carried: carried(points, &valid, params.attributes),
+        frame,
+        input_points: points.len(),
+        dropped,
+        warnings,
+    })
+}
+
+/// The points a run uses and their bounding cube: what stage 1 decides before it maps them.
+pub(crate) struct Selection {
+    /// Indices of the usable points, far outliers left out unless kept.
+    pub valid: Vec<usize>,
+    /// Their bounding cube.
+    pub frame: Frame,
+    /// What the user should hear about the input.
+    pub warnings: Vec<Warning>,
+}
+
+/// The usable points (§3.1), without the far outliers unless `params.keep_outliers`, and
+/// their bounding cube (§3.2).
+pub(crate) fn select(points: &PointCloud, params: &Params) -> Result<Selection> {
+    let weight_of = weights(points, &params.weights)?;
     let valid = usable(points, &weight_of);
     let dropped = points.len() - valid.len();
     if valid.len() < MIN_POINTS {
@@ -99,17 +133,9 @@ pub fn prepare(points: &PointCloud, params: &Params) -> Result<Prepared> {
             warnings.push(Warning::OutliersDropped(w));
         }
     }
-    let dropped = points.len() - valid.len();
-    let unit: Vec<UnitPoint> = valid
-        .par_iter()
-        .map(|&i| unit_point(frame, points.positions[i], points.normals[i], weight_of(i)))
-        .collect();
-    Ok(Prepared {
-        points: unit,
-        carried: carried(points, &valid, params.attributes),
+    Ok(Selection {
+        valid,
         frame,
-        input_points: points.len(),
-        dropped,
         warnings,
     })
 }

@@ -130,20 +130,31 @@ pub fn full_grid_bytes(depth: u32) -> u64 {
     BYTES_PER_NODE.saturating_mul(nodes) + BASE_BYTES
 }
 
+/// The peak memory the model gives for a run with `nodes` octree nodes and `points` input
+/// points, in bytes.
+pub(crate) fn estimate_bytes(nodes: u64, points: usize) -> u64 {
+    BYTES_PER_NODE * nodes + BYTES_PER_POINT * points as u64 + BASE_BYTES
+}
+
+/// The limit a run's memory estimate is checked against and where it comes from: the
+/// caller's `max_memory`, else the memory available (none where the platform does not say).
+pub(crate) fn memory_limit(params: &Params) -> Option<(u64, MemoryLimit)> {
+    match params.max_memory {
+        Some(m) => Some((m, MemoryLimit::Requested)),
+        None => resources::memory_budget().map(|m| (m, MemoryLimit::Available)),
+    }
+}
+
 /// Refuses a run whose estimated peak memory exceeds the limit. The suggested depth is the
 /// deepest whose levels of this tree fit: a shallower run keeps the same coarse levels.
 fn check_memory(level_counts: &[usize], points: usize, params: &Params) -> Result<u64> {
     let estimate_to = |levels: usize| {
         let nodes: usize = level_counts.iter().take(levels).sum();
-        BYTES_PER_NODE * nodes as u64 + BYTES_PER_POINT * points as u64 + BASE_BYTES
+        estimate_bytes(nodes as u64, points)
     };
     let estimate = estimate_to(level_counts.len());
-    let (limit, source) = match params.max_memory {
-        Some(m) => (m, MemoryLimit::Requested),
-        None => match resources::memory_budget() {
-            Some(m) => (m, MemoryLimit::Available),
-            None => return Ok(estimate),
-        },
+    let Some((limit, source)) = memory_limit(params) else {
+        return Ok(estimate);
     };
     if estimate <= limit {
         return Ok(estimate);

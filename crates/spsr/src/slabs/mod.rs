@@ -167,7 +167,22 @@ fn check_supported(params: &Params) -> Result<()> {
     if params.cycles != 1 {
         return refuse("cycles", &params.cycles.to_string());
     }
-    Ok(())
+    // The depth of a width or of the spacing is resolved over the whole cloud in memory
+    // (`pipeline::resolution::resolve`); a slab run takes a plain depth.
+    if let Some(res) = params.grid_res {
+        return Err(Error::invalid(
+            "grid_res",
+            res,
+            "none in slab mode (not supported there yet)",
+        ));
+    }
+    let whole = "a fixed depth in slab mode (a width or auto is resolved over the whole cloud \
+                 in memory)";
+    match params.resolution {
+        crate::Resolution::Depth => Ok(()),
+        crate::Resolution::Width(w) => Err(Error::invalid("width", w, whole)),
+        crate::Resolution::Auto => Err(Error::invalid("depth", "auto", whole)),
+    }
 }
 
 /// Reconstructs the cloud of `source` in slabs: one pass for the bounding cube, one that
@@ -183,6 +198,7 @@ pub fn reconstruct(
     Ok(Reconstruction {
         mesh: mesh.expect("assembled in memory"),
         stats,
+        grid: None,
     })
 }
 

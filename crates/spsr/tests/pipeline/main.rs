@@ -6,10 +6,12 @@ mod common;
 
 mod attributes;
 mod diagnosis;
+mod grid;
 mod hostile;
 mod noise;
 mod normals;
 mod properties;
 mod reconstruct;
+mod resolution;
 mod slabs;
 mod trim;

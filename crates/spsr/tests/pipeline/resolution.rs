@@ -1,0 +1,151 @@
+//! The depth from a cell width or from the points' spacing (issue 18, `Params::resolution`).
+
+use spsr::{DepthLimit, DepthReason, Error, Params, Resolution};
+
+use crate::common::sphere;
+
+/// The largest side of the points' bounding box.
+fn box_side(cloud: &spsr::PointCloud) -> f64 {
+    (0..3)
+        .map(|a| {
+            let c = cloud.positions.iter().map(|p| p[a]);
+            c.clone().fold(f64::MIN, f64::max) - c.fold(f64::MAX, f64::min)
+        })
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn a_width_lands_on_the_depth_it_implies_with_cells_exactly_that_wide() {
+    let cloud = sphere(4000, [0.5, -1.0, 2.0], 1.0, 7);
+    let cube = 1.1 * box_side(&cloud);
+    for (cells, depth) in [(20.0, 5), (40.0, 6), (63.9, 6), (64.1, 7)] {
+        let width = cube / cells;
+        let params = Params {
+            resolution: Resolution::Width(width),
+            ..Params::default()
+        };
+        let r = spsr::resolve(&cloud, &params).unwrap();
+        let choice = r.choice.expect("a width is a choice");
+        assert_eq!(choice.depth, depth, "{cells} cells");
+        assert_eq!(r.params.depth, depth);
+        assert_eq!(r.params.resolution, Resolution::Depth);
+        assert!(r.params.full_depth <= depth);
+        assert_eq!(choice.reason, DepthReason::Width { width });
+        // The cube is widened so that 2^depth cells of the width span it exactly.
+        let widened = r.params.scale * box_side(&cloud);
+        let exact = width * f64::from(1u32 << depth);
+        assert!((widened / exact - 1.0).abs() < 1e-12, "{widened} {exact}");
+        assert!(widened >= cube * (1.0 - 1e-12) && widened < 2.0 * cube);
+    }
+    // The run itself: its octree reaches that depth, and it reports the choice.
+    let params = Params {
+        resolution: Resolution::Width(cube / 40.0),
+        ..Params::default()
+    };
+    let out = spsr::reconstruct(&cloud, &params).unwrap();
+    assert_eq!(out.stats.nodes_per_depth.len(), 7);
+    assert_eq!(out.stats.depth_choice.map(|c| c.depth), Some(6));
+}
+
+#[test]
+fn a_width_finer_than_the_deepest_depth_allows_is_refused_by_name() {
+    let cloud = sphere(500, [0.0; 3], 1.0, 1);
+    for width in [1e-9, 0.0, -1.0, f64::NAN] {
+        let params = Params {
+            resolution: Resolution::Width(width),
+            ..Params::default()
+        };
+        match spsr::resolve(&cloud, &params) {
+            Err(Error::InvalidParameter { field, .. }) => assert_eq!(field, "width"),
+            other => panic!("width {width}: {other:?}"),
+        }
+    }
+}
+
+#[test]
+fn depth_auto_goes_deeper_for_a_denser_sampling_of_the_same_shape() {
+    let auto = Params {
+        resolution: Resolution::Auto,
+        max_memory: Some(1 << 40),
+        ..Params::default()
+    };
+    let depth_of = |n: usize| {
+        let r = spsr::resolve(&sphere(n, [0.0; 3], 1.0, 3), &auto).unwrap();
+        let c = r.choice.unwrap();
+        let DepthReason::Spacing {
+            spacing, limited, ..
+        } = c.reason
+        else {
+            panic!("{:?}", c.reason)
+        };
+        assert_eq!(limited, None);
+        // The finest cells are no wider than the spacing, and one depth coarser would be.
+        assert!(c.cell <= spacing && 2.0 * c.cell > spacing, "{c:?}");
+        (c.depth, spacing)
+    };
+    let (sparse, s1) = depth_of(2_000);
+    let (dense, s2) = depth_of(32_000);
+    // 16 times the points on the same surface: a quarter of the spacing, two depths deeper.
+    assert!((s1 / s2 - 4.0).abs() < 1.0, "spacings {s1} {s2}");
+    assert!(dense > sparse, "{sparse} {dense}");
+    assert!((dense - sparse).abs_diff(2) <= 1, "{sparse} {dense}");
+}
+
+#[test]
+fn depth_auto_stays_within_the_memory_limit_and_says_so() {
+    let cloud = sphere(32_000, [0.0; 3], 1.0, 3);
+    let free = Params {
+        resolution: Resolution::Auto,
+        max_memory: Some(1 << 40),
+        ..Params::default()
+    };
+    let wanted = spsr::resolve(&cloud, &free).unwrap().params.depth;
+    let tight = Params {
+        max_memory: Some(40 << 20),
+        ..free
+    };
+    let r = spsr::resolve(&cloud, &tight).unwrap();
+    let c = r.choice.unwrap();
+    assert!(c.depth < wanted, "{} {wanted}", c.depth);
+    let DepthReason::Spacing { limited, .. } = c.reason else {
+        panic!()
+    };
+    assert!(
+        matches!(limited, Some(DepthLimit::Memory { .. })),
+        "{limited:?}"
+    );
+    let note = c.message(&|f| f.to_string());
+    assert!(
+        note.contains("max_memory") && note.contains(&format!("depth {wanted}")),
+        "{note}"
+    );
+    // The run at the chosen depth fits the same limit.
+    spsr::reconstruct(&cloud, &r.params).unwrap();
+}
+
+#[test]
+fn a_given_depth_is_left_alone_and_slabs_take_only_a_given_depth() {
+    let cloud = sphere(500, [0.0; 3], 1.0, 1);
+    let r = spsr::resolve(&cloud, &Params::default()).unwrap();
+    assert_eq!(r.params, Params::default());
+    assert!(r.choice.is_none());
+    let dir = tempfile::tempdir().unwrap();
+    let auto = Params {
+        resolution: Resolution::Auto,
+        ..Params::default()
+    };
+    let e = spsr::slabs::reconstruct(
+        spsr::slabs::Source::Cloud(&cloud),
+        &auto,
+        &spsr::slabs::SlabOptions {
+            slabs: 2,
+            work_dir: dir.path().to_path_buf(),
+        },
+        &|_| {},
+    )
+    .unwrap_err();
+    assert!(
+        matches!(e, Error::InvalidParameter { field: "depth", .. }),
+        "{e}"
+    );
+}
