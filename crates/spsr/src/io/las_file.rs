@@ -246,12 +246,9 @@ pub(crate) fn read_las(
     file_len: u64,
     need_normals: bool,
 ) -> Result<PointCloud> {
-    let mut whole = None;
-    read_las_chunks(path, reader, file_len, need_normals, usize::MAX, &mut |c| {
-        whole = Some(c);
-        Ok(())
-    })?;
-    Ok(whole.unwrap_or_default())
+    super::whole_cloud(|emit| {
+        read_las_chunks(path, reader, file_len, need_normals, usize::MAX, emit)
+    })
 }
 
 /// Reads the points in clouds of about `chunk` points (a multiple of the decoder's chunk,

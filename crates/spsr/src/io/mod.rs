@@ -401,6 +401,19 @@ pub fn read_points(path: &Path) -> Result<PointCloud> {
     read_cloud_as(path, true)
 }
 
+/// The one cloud a chunked reader hands over when its chunk is unbounded (a file read whole;
+/// an empty file gives an empty cloud).
+pub(crate) fn whole_cloud(
+    read: impl FnOnce(&mut dyn FnMut(PointCloud) -> Result<()>) -> Result<()>,
+) -> Result<PointCloud> {
+    let mut whole = None;
+    read(&mut |c| {
+        whole = Some(c);
+        Ok(())
+    })?;
+    Ok(whole.unwrap_or_default())
+}
+
 /// Reads an oriented point cloud as [`read_points`] does, but hands it to `emit` in clouds of
 /// at most `chunk` points, in file order, so that a file larger than memory can be passed
 /// over: PLY, text and LAS/LAZ are read chunk by chunk (LAS/LAZ in whole decoder chunks of

@@ -130,12 +130,7 @@ pub(crate) fn read_cloud<R: BufRead>(
     len: u64,
     need_normals: bool,
 ) -> Result<PointCloud> {
-    let mut whole = None;
-    read_cloud_chunks(path, reader, len, need_normals, usize::MAX, &mut |c| {
-        whole = Some(c);
-        Ok(())
-    })?;
-    Ok(whole.unwrap_or_default())
+    super::whole_cloud(|emit| read_cloud_chunks(path, reader, len, need_normals, usize::MAX, emit))
 }
 
 /// Reads the points in clouds of at most `chunk` points (the last one shorter, none for an

@@ -35,12 +35,7 @@ pub(crate) fn read_text_points<R: BufRead>(
     path: &Path,
     need_normals: bool,
 ) -> Result<PointCloud> {
-    let mut whole = None;
-    read_text_chunks(reader, path, need_normals, usize::MAX, &mut |c| {
-        whole = Some(c);
-        Ok(())
-    })?;
-    Ok(whole.unwrap_or_default())
+    super::whole_cloud(|emit| read_text_chunks(reader, path, need_normals, usize::MAX, emit))
 }
 
 /// Reads the points in clouds of at most `chunk` points, handed to `emit` in file order.
