@@ -118,7 +118,7 @@ impl Failure {
             | E::InvalidMesh(_)
             | E::MissingDensity
             | E::LengthMismatch { .. } => exit::DATA,
-            E::ResourceLimit { .. } => exit::RESOURCE,
+            E::ResourceLimit { .. } | E::Gpu(_) => exit::RESOURCE,
             _ => exit::DATA,
         };
         let names_file = matches!(
@@ -128,14 +128,17 @@ impl Failure {
         // The context carries the whole message in the command line's words, so printing it
         // with `{}` gives one line; the library error stays reachable for downcasting.
         let message = words::error(&e).unwrap_or_else(|| e.to_string());
-        let error =
-            if names_file || matches!(e, E::InvalidParameter { .. } | E::ResourceLimit { .. }) {
-                anyhow::Error::new(e).context(message)
-            } else {
-                // Name the file whose content is at fault.
-                let message = format!("{}: {message}", input.display());
-                anyhow::Error::new(e).context(message)
-            };
+        let error = if names_file
+            || matches!(
+                e,
+                E::InvalidParameter { .. } | E::ResourceLimit { .. } | E::Gpu(_)
+            ) {
+            anyhow::Error::new(e).context(message)
+        } else {
+            // Name the file whose content is at fault.
+            let message = format!("{}: {message}", input.display());
+            anyhow::Error::new(e).context(message)
+        };
         Failure { code, error }
     }
 }

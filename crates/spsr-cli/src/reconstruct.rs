@@ -226,6 +226,20 @@ pub struct ReconstructArgs {
     )]
     pub cycles: u32,
 
+    /// Relax the solver's depths on an NVIDIA GPU, with the same mesh bit for bit: `--gpu`
+    /// (or `--gpu on`) fails with exit code 3 where no GPU can be used, `--gpu auto` falls
+    /// back to the CPU with a note. Needs a build with the cargo feature `gpu` and the CUDA
+    /// driver and NVRTC at run time. spsr's own
+    #[arg(
+        long,
+        value_enum,
+        value_name = "WHEN",
+        num_args = 0..=1,
+        default_value = "off",
+        default_missing_value = "on"
+    )]
+    pub gpu: GpuArg,
+
     /// Use each normal's length as the point's confidence weight. Off by default, as PoissonRecon
     /// 18 [default: off]
     #[arg(long)]
@@ -452,6 +466,11 @@ impl ReconstructArgs {
             },
             cycles: self.cycles,
             report_residuals: self.common.verbose,
+            gpu: match self.gpu {
+                GpuArg::Off => spsr::Gpu::Off,
+                GpuArg::On => spsr::Gpu::On,
+                GpuArg::Auto => spsr::Gpu::Auto,
+            },
         }
     }
 
@@ -475,6 +494,17 @@ pub enum SolverArg {
     Vcycle,
     /// W-cycles.
     Wcycle,
+}
+
+/// `--gpu`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum GpuArg {
+    /// The CPU only.
+    Off,
+    /// An NVIDIA GPU, or an error.
+    On,
+    /// An NVIDIA GPU where one can be used, else the CPU.
+    Auto,
 }
 
 /// `--noise`.
@@ -865,6 +895,13 @@ fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, Str
         ("iters", params.iters.to_string(), src("iters")),
         ("solver", params.solver.name().to_string(), src("solver")),
         ("cycles", params.cycles.to_string(), src("cycles")),
+        (
+            "gpu",
+            args.gpu
+                .to_possible_value()
+                .map_or_else(String::new, |v| v.get_name().to_string()),
+            src("gpu"),
+        ),
         ("confidence", on(args.confidence), src("confidence")),
         (
             "confidence_property",
@@ -1021,6 +1058,25 @@ fn print_details(
         "memory      {:.0} MiB estimated before the octree was built",
         stats.memory_estimate as f64 / (1024.0 * 1024.0)
     );
+    if let Some(gpu) = &stats.gpu {
+        let _ = writeln!(
+            err,
+            "gpu         {gpu} relaxed the depths above the base (copy in, sweeps, bandwidth):"
+        );
+        for g in &stats.gpu_relaxations {
+            let secs = g.kernels.as_secs_f64();
+            let rate = g.bytes_per_sweep as f64 * f64::from(g.sweeps) / secs.max(1e-9) / 1e9;
+            let _ = writeln!(
+                err,
+                "  {:>2}  {:>12} nodes x {}  {:>8.3} s {:>8.3} s  {rate:>7.0} GB/s",
+                g.depth,
+                g.nodes,
+                g.sweeps,
+                g.transfer.as_secs_f64(),
+                secs
+            );
+        }
+    }
     let _ = writeln!(err, "iso-value   {}", stats.iso_value);
     let _ = writeln!(
         err,

@@ -34,6 +34,10 @@ pub fn error(e: &Error) -> Option<String> {
             flag(field)
         )),
         Error::ResourceLimit(m) => Some(shortfall(m)),
+        Error::Gpu(reason) => Some(format!(
+            "no usable GPU: {reason}; run without --gpu, or with --gpu auto to fall back to \
+             the CPU"
+        )),
         Error::MissingDensity => Some(
             "the mesh has no per-vertex density; reconstruct it with --density to get one".into(),
         ),

@@ -76,6 +76,10 @@ pub enum Error {
     /// A mesh given to trimming has no per-vertex density.
     #[error("the mesh has no per-vertex density; reconstruct it with the density on (Params::density) to get one")]
     MissingDensity,
+    /// A GPU was asked for ([`crate::Params::gpu`]) and none can be used: the reason names
+    /// what is missing (the build's GPU support, the driver, a device, NVRTC).
+    #[error("no usable GPU: {0}")]
+    Gpu(String),
     /// The output path cannot be used.
     #[error("{}: {message}", path.display())]
     Output {
@@ -201,6 +205,12 @@ pub enum Warning {
     ContradictoryNormals(Diagnosis),
     /// The mesh falls into many pieces: noise reconstructed as small bubbles.
     ManyPieces(Diagnosis),
+    /// The GPU asked for ([`crate::Gpu::Auto`], or a level it could not take) was not used;
+    /// the CPU did the work, with the same result.
+    GpuNotUsed {
+        /// Why.
+        reason: String,
+    },
 }
 
 /// What the advice of a [`Warning`] asks for, for a front end to spell
@@ -246,6 +256,12 @@ impl std::fmt::Display for Warning {
                 "{dropped} of {total} points dropped (non-finite coordinates, zero-length \
                  normals or unusable weights)"
             ),
+            Warning::GpuNotUsed { reason } => {
+                write!(
+                    f,
+                    "the GPU was not used ({reason}); the CPU did the work instead"
+                )
+            }
             Warning::FragmentsRemoved { pieces } => write!(
                 f,
                 "removed {pieces} small piece(s) of the mesh (each under 0.1 % of its area), \

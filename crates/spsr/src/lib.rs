@@ -21,6 +21,7 @@ mod density;
 mod error;
 mod evaluate;
 pub mod extract;
+mod gpu;
 pub mod io;
 pub mod mesh;
 pub mod metrics;
@@ -41,8 +42,9 @@ mod vec3;
 
 pub use bspline::{Boundary, Degree};
 pub use error::{gib, Error, FarOutliers, MemoryLimit, MemoryShortfall, Remedy, Result, Warning};
+pub use gpu::GpuRelaxation;
 pub use mesh::Mesh;
-pub use params::{Noise, Params, PointWeights, Resolution, Solver, MAX_DEPTH};
+pub use params::{Gpu, Noise, Params, PointWeights, Resolution, Solver, MAX_DEPTH};
 pub use pipeline::diagnose::{self, Diagnosis};
 pub use pipeline::{
     reconstruct, reconstruct_and_trim, reconstruct_implicit, reconstruct_owned,

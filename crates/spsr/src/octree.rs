@@ -67,6 +67,12 @@ impl Level {
         }
     }
 
+    /// The key of each brood's parent (empty at the root level).
+    #[cfg(feature = "gpu")]
+    pub fn brood_keys(&self) -> &[[u32; 3]] {
+        &self.brood_key
+    }
+
     /// Brood index of node `n`'s children at the next level, or [`NONE`].
     #[inline]
     pub fn child(&self, n: u32) -> u32 {
@@ -121,6 +127,19 @@ pub static WINDOW: WindowTable = {
     }
     WindowTable { slot, bits }
 };
+
+#[cfg(feature = "gpu")]
+impl WindowTable {
+    /// The brood slot (of the 27 around a brood) of each child position and window offset.
+    pub fn slots(&self) -> &[[u8; 125]; 8] {
+        &self.slot
+    }
+
+    /// The child bits within that brood, laid out as [`WindowTable::slots`].
+    pub fn child_bits(&self) -> &[[u8; 125]; 8] {
+        &self.bits
+    }
+}
 
 /// Window index of an offset in `[-2,2]^3`.
 #[inline]
@@ -463,6 +482,12 @@ pub struct NodeRank {
 }
 
 impl NodeRank {
+    /// The bitmap of members (bit `m & 63` of word `m >> 6`) and the members before each word.
+    #[cfg(feature = "gpu")]
+    pub fn words(&self) -> (&[u64], &[u32]) {
+        (&self.bits, &self.before)
+    }
+
     /// The set of `members` (strictly increasing) among `len` nodes; member `k` has rank `k`.
     pub fn new(len: usize, members: impl Iterator<Item = u32>) -> Self {
         let words = len.div_ceil(64);

@@ -91,6 +91,23 @@ pub struct Params {
     /// bounding cube ([`crate::Reconstruction::grid`]; negative inside). Default none.
     #[serde(default)]
     pub grid_res: Option<u32>,
+    /// Where the solver relaxes the depths above the base: on the CPU (default), on an NVIDIA
+    /// GPU (an error where none can be used), or on a GPU where one can be used (issue 17;
+    /// the build needs the cargo feature `gpu`). The mesh is the same bit for bit.
+    #[serde(default)]
+    pub gpu: Gpu,
+}
+
+/// Whether the solver uses a GPU ([`Params::gpu`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+pub enum Gpu {
+    /// The CPU only (default).
+    #[default]
+    Off,
+    /// A GPU; the run fails ([`crate::Error::Gpu`]) where none can be used.
+    On,
+    /// A GPU where one can be used, else the CPU with a warning ([`crate::Warning::GpuNotUsed`]).
+    Auto,
 }
 
 /// The shape of the solver's cycles over the depths (issue 18). Each cycle relaxes every depth
@@ -221,6 +238,7 @@ impl Default for Params {
             report_residuals: false,
             resolution: Resolution::Depth,
             grid_res: None,
+            gpu: Gpu::Off,
         }
     }
 }

@@ -10,12 +10,15 @@
 use rayon::prelude::*;
 
 use crate::bspline::Basis;
+use crate::gpu::Device;
 use crate::octree::{func_index, neighbor_in, window_index, Level, Octree, DEPTH_OFFSET, NONE};
 use crate::shared_slice::SharedSlice;
 use crate::system::{cluster_offsets, divergence_constraints, prolong, Clusters, DepthTables};
 use crate::Solver;
 
 mod cycles;
+#[cfg(feature = "gpu")]
+mod device;
 pub use cycles::{DepthResidual, SolveReport};
 
 /// The screening target τ at the samples (PR18 convention: χ ≈ 1 inside, 0 outside).
@@ -62,6 +65,8 @@ pub struct Problem<'a> {
     pub report: bool,
     /// Called with a stage name at each level.
     pub progress: &'a (dyn Fn(&str) + Sync),
+    /// The GPU that relaxes the levels above the base, if any (`crate::gpu`).
+    pub gpu: Option<&'a Device>,
 }
 
 /// Operator of one level.
@@ -79,6 +84,9 @@ struct Op<'a> {
     cwin: Vec<usize>,
     /// Whether constants are in the system's kernel.
     singular: bool,
+    /// The GPU that relaxes the level, if any.
+    #[cfg_attr(not(feature = "gpu"), allow(dead_code))]
+    gpu: Option<&'a Device>,
 }
 
 impl<'a> Op<'a> {
@@ -115,6 +123,7 @@ impl<'a> Op<'a> {
             win,
             cwin,
             singular: p.singular,
+            gpu: p.gpu,
         }
     }
 
@@ -379,6 +388,20 @@ impl<'a> Op<'a> {
         out
     }
 
+    /// `iters` Gauss–Seidel sweeps ([`Op::gauss_seidel_cpu`]), on the GPU when the problem
+    /// has one (the same result to the last bit). A level the GPU cannot relax (too large for
+    /// its memory, say) is relaxed on the CPU, and the device keeps the reason.
+    fn gauss_seidel<R: Copy + Into<f64> + Sync>(&self, r: &[R], x: &mut [f32], iters: u32) {
+        #[cfg(feature = "gpu")]
+        if let Some(dev) = self.gpu {
+            match self.gauss_seidel_gpu(dev, r, x, iters) {
+                Ok(()) => return,
+                Err(reason) => dev.record_failure(reason),
+            }
+        }
+        self.gauss_seidel_cpu(r, x, iters);
+    }
+
     /// Multi-colour Gauss–Seidel sweeps (ALGORITHM.md §7.1), relaxed block by block.
     ///
     /// Nodes are coloured by their function index modulo `degree + 1` per axis: two nodes of
@@ -393,10 +416,9 @@ impl<'a> Op<'a> {
     /// block the node colours one after the other: a block's data is read once per sweep
     /// rather than once per node colour. The order depends only on the tree, so the result
     /// does not depend on the thread count.
-    fn gauss_seidel<R: Copy + Into<f64> + Sync>(&self, r: &[R], x: &mut [f32], iters: u32) {
+    fn gauss_seidel_cpu<R: Copy + Into<f64> + Sync>(&self, r: &[R], x: &mut [f32], iters: u32) {
         let blocks = self.colour_blocks();
-        let m = i64::from(self.degree) + 1;
-        let node_colours = (m * m * m) as u32;
+        let node_colours = self.node_colours();
         let mut chi = self.cluster_values(|n| f64::from(x[n]));
         let xs = SharedSlice::new(x);
         let cs = SharedSlice::new(&mut chi);
@@ -408,14 +430,7 @@ impl<'a> Op<'a> {
                             for k in 0..8 {
                                 let n = 8 * b + k;
                                 let i = self.index(n);
-                                let colour = if self.degree == 1 {
-                                    k
-                                } else {
-                                    (i[0].rem_euclid(m)
-                                        + m * (i[1].rem_euclid(m) + m * i[2].rem_euclid(m)))
-                                        as u32
-                                };
-                                if colour != c {
+                                if self.node_colour(n, i) != c {
                                     continue;
                                 }
                                 // SAFETY: only this block's task touches the coefficients
@@ -426,6 +441,23 @@ impl<'a> Op<'a> {
                     }
                 });
             }
+        }
+    }
+
+    /// Number of node colours: `(degree + 1)³`.
+    fn node_colours(&self) -> u32 {
+        let m = u32::from(self.degree) + 1;
+        m * m * m
+    }
+
+    /// The colour of node `n` (function index `i`): see [`Op::gauss_seidel_cpu`].
+    #[inline]
+    fn node_colour(&self, n: u32, i: [i64; 3]) -> u32 {
+        if self.degree == 1 {
+            n & 7
+        } else {
+            let m = i64::from(self.degree) + 1;
+            (i[0].rem_euclid(m) + m * (i[1].rem_euclid(m) + m * i[2].rem_euclid(m))) as u32
         }
     }
 

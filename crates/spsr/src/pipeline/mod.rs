@@ -29,7 +29,7 @@ use crate::evaluate::Evaluator;
 use crate::octree::{Octree, DEPTH_OFFSET};
 use crate::solver::Solution;
 use crate::trim::{TrimParams, TrimStats};
-use crate::{resources, Error, Mesh, Noise, Params, PointCloud, Result};
+use crate::{gpu, resources, Error, Gpu, Mesh, Noise, Params, PointCloud, Result};
 
 pub mod density;
 pub mod diagnose;
@@ -101,6 +101,10 @@ pub struct Stats {
     pub solve: Option<crate::SolveReport>,
     /// How the depth was chosen, when it was not given ([`crate::Resolution`]).
     pub depth_choice: Option<DepthChoice>,
+    /// The GPU that relaxed the depths, when one did ([`Params::gpu`]).
+    pub gpu: Option<String>,
+    /// Each relaxation the GPU ran, in order, with its times.
+    pub gpu_relaxations: Vec<crate::GpuRelaxation>,
 }
 
 /// The solved implicit function χ and what extraction needs besides: the output of stages
@@ -324,6 +328,20 @@ fn reconstruct_input(
     Ok((Reconstruction { mesh, stats, grid }, trimmed, kept))
 }
 
+/// The GPU [`Params::gpu`] asks for: none for `Off`; for `On`, the device or the error that
+/// says why none can be used; for `Auto`, the device or a warning that says why not.
+fn open_gpu(params: &Params) -> Result<(Option<gpu::Device>, Option<Warning>)> {
+    let open = || gpu::Device::open(params.degree.get());
+    match params.gpu {
+        Gpu::Off => Ok((None, None)),
+        Gpu::On => open().map(|d| (Some(d), None)).map_err(Error::Gpu),
+        Gpu::Auto => Ok(match open() {
+            Ok(d) => (Some(d), None),
+            Err(reason) => (None, Some(Warning::GpuNotUsed { reason })),
+        }),
+    }
+}
+
 /// Stages 1–7: the implicit function χ and its iso-value, with the run's counts (the timings
 /// so far stay in `run`).
 pub(crate) fn solve_implicit(
@@ -332,6 +350,8 @@ pub(crate) fn solve_implicit(
     run: &mut Run,
 ) -> Result<(Implicit, Stats)> {
     params.validate()?;
+    // Opened before any heavy stage, so that a GPU that cannot be used fails the run at once.
+    let (gpu, gpu_warning) = open_gpu(params)?;
     let cloud = input.cloud();
     if cloud.positions.len() != cloud.normals.len() {
         return Err(Error::LengthMismatch {
@@ -401,8 +421,22 @@ pub(crate) fn solve_implicit(
     });
     let system::Screening { clusters, data } = screening;
     let mut solution = run.stage("solving", || {
-        solve::solve(&tree, fem, &clusters, field.v, params, run.progress)
+        solve::solve(
+            &tree,
+            fem,
+            &clusters,
+            field.v,
+            params,
+            gpu.as_ref(),
+            run.progress,
+        )
     });
+    warnings.extend(gpu_warning);
+    if let Some(reason) = gpu.as_ref().and_then(|g| g.take_failure()) {
+        warnings.push(Warning::GpuNotUsed {
+            reason: format!("{reason}; that depth and the rest were relaxed on the CPU"),
+        });
+    }
     let solve_report = solution.report.take();
     drop(clusters);
     run.add_parts(&solution.timings);
@@ -428,6 +462,8 @@ pub(crate) fn solve_implicit(
             ..Diagnosis::default()
         },
         solve: solve_report,
+        gpu: gpu.as_ref().map(|g| g.name().to_string()),
+        gpu_relaxations: gpu.as_ref().map(|g| g.take_timings()).unwrap_or_default(),
         ..Stats::default()
     };
     let implicit = Implicit {

@@ -4,6 +4,7 @@
 use rayon::prelude::*;
 
 use crate::bspline::{Basis, Boundary, Degree};
+use crate::gpu::Device;
 use crate::octree::{Octree, DEPTH_OFFSET};
 use crate::solver::{self, Problem, Solution};
 use crate::system::{Clusters, DepthTables};
@@ -16,6 +17,7 @@ pub fn solve(
     clusters: &[Clusters],
     v: Vec<Vec<[f32; 3]>>,
     params: &Params,
+    gpu: Option<&Device>,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Solution {
     let base = params.base_depth().max(1).min(params.depth);
@@ -40,6 +42,7 @@ pub fn solve(
             cycles: params.cycles,
             report: params.report_residuals,
             progress,
+            gpu,
         },
         v,
     )

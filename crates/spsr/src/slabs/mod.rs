@@ -167,6 +167,10 @@ fn check_supported(params: &Params) -> Result<()> {
     if params.cycles != 1 {
         return refuse("cycles", &params.cycles.to_string());
     }
+    // The slabs relax on the CPU; `Gpu::Auto` falls back to it as it does without a GPU.
+    if params.gpu == crate::Gpu::On {
+        return refuse("gpu", "on");
+    }
     // The depth of a width or of the spacing is resolved over the whole cloud in memory
     // (`pipeline::resolution::resolve`); a slab run takes a plain depth.
     if let Some(res) = params.grid_res {

@@ -173,6 +173,8 @@ fn problem<'a>(
         cycles: 1,
         report: false,
         progress: &|_| {},
+        // Slab mode relaxes on the CPU (`check_supported` refuses `Gpu::On`).
+        gpu: None,
     }
 }
 

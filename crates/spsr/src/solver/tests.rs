@@ -206,6 +206,7 @@ impl Fixture {
             cycles: 1,
             report: false,
             progress: &|_| {},
+            gpu: None,
         }
     }
 
@@ -547,5 +548,67 @@ fn the_hierarchical_stiffness_is_symmetric() {
             (s1 - s2).abs() < 1e-9 * s1.abs().max(1.0),
             "{what}: {s1} vs {s2}"
         );
+    }
+}
+
+/// Issue 17: on a machine with a usable GPU (and a build with the feature `gpu`), the GPU's
+/// sweeps give the CPU's coefficients bit for bit, on every level, from zero and from a
+/// nonzero start, and so does the whole solve, with every cycle shape. Skipped, with a
+/// message, where no GPU can be used.
+#[cfg(feature = "gpu")]
+#[test]
+fn the_gpu_relaxes_to_the_cpus_bits() {
+    for (what, f) in fixtures() {
+        let dev = match Device::open(f.fem.degree.get()) {
+            Ok(dev) => dev,
+            Err(reason) => {
+                eprintln!("skipped: no usable GPU ({reason})");
+                return;
+            }
+        };
+        let p = f.problem();
+        for t in f.base_level + 1..=f.max_level() {
+            let op = Op::new(&p, t);
+            let r: Vec<f64> = pseudo_random(op.level.len(), u64::from(t));
+            let start: Vec<f32> = pseudo_random(op.level.len(), 7 + u64::from(t))
+                .iter()
+                .map(|&v| v as f32)
+                .collect();
+            for x0 in [vec![0.0f32; op.level.len()], start] {
+                let mut cpu = x0.clone();
+                op.gauss_seidel_cpu(&r, &mut cpu, 3);
+                let mut gpu = x0;
+                op.gauss_seidel_gpu(&dev, &r, &mut gpu, 3)
+                    .expect("the GPU relaxes the level");
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+                assert_eq!(bits(&cpu), bits(&gpu), "{what}, level {t}");
+            }
+        }
+        for solver in [crate::Solver::Cascadic, crate::Solver::VCycle] {
+            let cpu = solve(
+                &Problem {
+                    solver,
+                    cycles: 2,
+                    ..f.problem()
+                },
+                f.v.clone(),
+            );
+            let gpu = solve(
+                &Problem {
+                    solver,
+                    cycles: 2,
+                    gpu: Some(&dev),
+                    ..f.problem()
+                },
+                f.v.clone(),
+            );
+            assert_eq!(dev.take_failure(), None, "{what}");
+            assert_eq!(
+                solution_bits(&cpu),
+                solution_bits(&gpu),
+                "{what} {solver:?}"
+            );
+        }
+        eprintln!("{what}: the GPU ({}) gave the CPU's bits", dev.name());
     }
 }

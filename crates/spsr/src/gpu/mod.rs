@@ -1,0 +1,174 @@
+//! The GPU back end (issue 17), behind the cargo feature `gpu`: the solver's Gauss–Seidel
+//! relaxation on an NVIDIA card, giving the CPU's coefficients bit for bit.
+//!
+//! The binding is `cudarc`, chosen because it loads the CUDA driver and NVRTC when the program
+//! runs (`dlopen`), so that the crate builds, and a build with the feature runs on the CPU, on
+//! machines without CUDA; the kernels are CUDA C compiled by NVRTC when a device is opened
+//! for the card at hand, with floating-point contraction off so that every product and sum
+//! rounds as the CPU's does. Without the feature, [`Device::open`] says that this build has no
+//! GPU support, and [`crate::Params::gpu`] set to `On` is an error.
+//!
+//! Only the relaxation runs on the card so far; the right-hand sides, the constraints and the
+//! extraction stay on the CPU (`docs/gpu.md` gives the measured profile and what is left).
+
+#[cfg(feature = "gpu")]
+use crate::octree::WINDOW;
+
+#[cfg(feature = "gpu")]
+mod cuda;
+#[cfg(feature = "gpu")]
+pub use cuda::Device;
+
+/// A GPU that cannot be opened in a build without the cargo feature `gpu`.
+#[cfg(not(feature = "gpu"))]
+#[derive(Debug)]
+pub struct Device {
+    never: std::convert::Infallible,
+}
+
+#[cfg(not(feature = "gpu"))]
+impl Device {
+    /// Always an error: this build has no GPU support.
+    pub fn open(_degree: u8) -> Result<Device, String> {
+        Err(
+            "this spsr was built without GPU support (build it with the cargo feature `gpu`)"
+                .into(),
+        )
+    }
+
+    /// The card's name.
+    pub fn name(&self) -> &str {
+        match self.never {}
+    }
+
+    /// Why a level fell back to the CPU, if one did.
+    pub fn take_failure(&self) -> Option<String> {
+        match self.never {}
+    }
+
+    /// The relaxations run so far.
+    pub fn take_timings(&self) -> Vec<GpuRelaxation> {
+        match self.never {}
+    }
+}
+
+/// What one level's relaxation on the GPU cost ([`crate::Stats::gpu`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct GpuRelaxation {
+    /// The unit depth.
+    pub depth: u32,
+    /// Nodes relaxed per sweep.
+    pub nodes: usize,
+    /// Sweeps.
+    pub sweeps: u32,
+    /// Copying the level's system to the card (and the coefficients back is not included).
+    pub transfer: std::time::Duration,
+    /// The sweeps' kernels.
+    pub kernels: std::time::Duration,
+    /// The bytes one sweep must read or write at least: each array the kernel reads once, the
+    /// coefficients and the clusters' values written once. Over `kernels / sweeps`, the
+    /// bandwidth the sweeps reach.
+    pub bytes_per_sweep: u64,
+}
+
+#[cfg(feature = "gpu")]
+/// One octree depth's system as the relaxation kernel reads it: the level's neighbour
+/// tables, the stiffness stencil and 1-D tables, the screening clusters, and the order in
+/// which its nodes are relaxed.
+pub struct LevelSystem<'a> {
+    /// Degree of the finite elements (1 or 2).
+    pub degree: u8,
+    /// Unit-cube depth of the level (a node's function index is its key minus `2^depth`).
+    pub depth: u32,
+    /// The 27 broods around each brood (`octree::Level::brood_nbrs`).
+    pub brood_nbrs: &'a [[u32; 27]],
+    /// The key of each brood's parent (`octree::Level::key`).
+    pub brood_key: &'a [[u32; 3]],
+    /// Lowest function index per axis.
+    pub lo: i64,
+    /// Highest function index per axis.
+    pub hi: i64,
+    /// The interior stiffness stencil, by window index.
+    pub stencil: &'a [f64; 125],
+    /// The same-depth 1-D mass table, five offsets per index `lo..=hi`.
+    pub mass: Vec<f64>,
+    /// The same-depth 1-D stiffness table, laid out as `mass`.
+    pub stiff: Vec<f64>,
+    /// The cluster of each node: a bitmap and the members before each word.
+    pub rank_bits: &'a [u64],
+    /// See `rank_bits`.
+    pub rank_before: &'a [u32],
+    /// Screening weight per cluster.
+    pub omega: &'a [f64],
+    /// First function index per axis of each cluster's window.
+    pub first: &'a [[i32; 3]],
+    /// Basis values per axis of each cluster.
+    pub vals: &'a [[[f32; 3]; 3]],
+    /// The nodes to relax, class after class: nodes of one class are relaxed at once.
+    pub order: Vec<u32>,
+    /// Where each class of `order` ends.
+    pub class_ends: Vec<usize>,
+}
+
+#[cfg(feature = "gpu")]
+impl LevelSystem<'_> {
+    /// See [`GpuRelaxation::bytes_per_sweep`].
+    pub fn bytes_per_sweep(&self) -> u64 {
+        let size = |n: usize, each: usize| (n * each) as u64;
+        let nodes = self.order.len();
+        // Per node relaxed: its place in the order, right-hand side, coefficient read and
+        // written; per brood: neighbours and key; per cluster: ω, window, values, χ read and
+        // written; the rank bitmap.
+        size(nodes, 4 + 8 + 4 + 4)
+            + size(self.brood_nbrs.len(), 27 * 4 + 3 * 4)
+            + size(self.omega.len(), 8 + 12 + 36 + 8 + 8)
+            + size(self.rank_bits.len(), 8 + 4)
+    }
+}
+
+#[cfg(feature = "gpu")]
+/// The kernel's source for elements of degree `degree`, with the window tables it reads.
+pub fn kernel_source(degree: u8) -> String {
+    let list = |rows: &[[u8; 125]; 8]| {
+        rows.iter()
+            .flat_map(|r| r.iter())
+            .map(|v| v.to_string())
+            .collect::<Vec<_>>()
+            .join(",")
+    };
+    format!(
+        "#define DEGREE {degree}\n\
+         __constant__ unsigned char WSLOT[1000] = {{{}}};\n\
+         __constant__ unsigned char WBITS[1000] = {{{}}};\n{}",
+        list(WINDOW.slots()),
+        list(WINDOW.child_bits()),
+        include_str!("relax.cu")
+    )
+}
+
+#[cfg(all(test, feature = "gpu"))]
+mod tests {
+    use super::kernel_source;
+    use cudarc::nvrtc::{compile_ptx_with_opts, CompileOptions};
+
+    /// The kernels compile for both degrees wherever NVRTC can be loaded (it needs no GPU);
+    /// skipped, with a message, where it cannot.
+    #[test]
+    fn the_kernels_compile() {
+        // SAFETY: only probes whether the shared library can be loaded.
+        if !unsafe { cudarc::nvrtc::sys::is_culib_present() } {
+            eprintln!("skipped: NVRTC (libnvrtc) cannot be loaded here");
+            return;
+        }
+        for degree in [1, 2] {
+            let opts = CompileOptions {
+                fmad: Some(false),
+                options: vec!["--gpu-architecture=compute_90".into()],
+                ..Default::default()
+            };
+            if let Err(e) = compile_ptx_with_opts(kernel_source(degree), opts) {
+                panic!("degree {degree}: {e:?}");
+            }
+        }
+    }
+}
