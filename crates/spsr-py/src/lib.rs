@@ -13,6 +13,7 @@
 //! | [`params`] | keywords → `Params` / `TrimParams`; the library's defaults (`_defaults`) |
 //! | [`detach`] | running library code without the GIL, interruptibly |
 //! | [`reconstruct`] | `spsr.reconstruct` |
+//! | [`implicit`] | the kept implicit function (`Mesh.implicit`) and the grid |
 //! | [`mesh_ops`] | `spsr.trim`, `spsr.eval` |
 //! | [`normals`] | `spsr.estimate_normals` |
 //! | [`render`] | `spsr.render` |
@@ -27,6 +28,7 @@ mod cli;
 mod detach;
 mod errors;
 mod files;
+mod implicit;
 mod mesh_ops;
 mod normals;
 mod params;
@@ -54,6 +56,7 @@ fn _spsr(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(slabs::slab_step, m)?)?;
     m.add_function(wrap_pyfunction!(slabs::slab_finish, m)?)?;
     m.add_function(wrap_pyfunction!(slabs::slab_remove, m)?)?;
+    m.add_class::<implicit::Implicit>()?;
     m.add("MAX_DEPTH", spsr::MAX_DEPTH)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

@@ -5,14 +5,15 @@
 //! converts, and checks what has no library field (a degree that is not 1 or 2, an unknown
 //! boundary name, a trimming threshold that is not a number or `"auto"`).
 
+use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use spsr::normals::NormalParams;
 use spsr::trim::{Threshold, TrimParams};
-use spsr::{Boundary, Degree, Error, Params, PointWeights};
+use spsr::{Boundary, Degree, Error, Params, PointWeights, Resolution};
 
-use crate::errors::{invalid, py_err, Call};
+use crate::errors::{invalid, py_err, value_error, Call};
 
 /// The boundary conditions by their Python names.
 const BOUNDARIES: [(&str, Boundary); 3] = [
@@ -68,7 +69,10 @@ pub fn weights_arg(confidence: bool, property: Option<String>) -> PointWeights {
 #[derive(FromPyObject)]
 #[pyo3(from_item_all)]
 pub struct MethodKeywords {
-    depth: i64,
+    /// An integer, `"auto"` or None (the library's depth, or the one `width` sets).
+    depth: Py<PyAny>,
+    width: Option<f64>,
+    grid_res: Option<i64>,
     full_depth: Option<i64>,
     samples_per_node: Option<f64>,
     point_weight: Option<f64>,
@@ -109,13 +113,21 @@ impl MethodKeywords {
                     .ok_or_else(|| invalid("noise", format!("'{name}'"), "'adaptive' or 'off'"))?,
             ),
         };
+        let (depth, resolution) = resolution_arg(self.depth.bind(py), self.width)?;
+        let given_depth = match resolution {
+            Resolution::Depth => Some(depth),
+            _ => None,
+        };
+        let depth = given_depth.map_or(Params::default().depth, int_arg);
         let params = Params {
-            depth: int_arg(self.depth),
-            // As the command line: the library's 5, or the depth when that is smaller.
-            full_depth: self.full_depth.map_or(
-                Params::default().full_depth.min(int_arg(self.depth)),
-                int_arg,
-            ),
+            depth,
+            resolution,
+            grid_res: grid_res_arg(self.grid_res)?,
+            // As the command line: the library's 5, or the depth when that is smaller (a
+            // depth the library chooses keeps the full depth no deeper).
+            full_depth: self
+                .full_depth
+                .map_or(Params::default().full_depth.min(depth), int_arg),
             samples_per_node: self
                 .samples_per_node
                 .unwrap_or(Params::default().samples_per_node),
@@ -142,11 +154,10 @@ impl MethodKeywords {
             solver,
             cycles: int_arg(self.cycles),
             report_residuals: false,
-            resolution: spsr::Resolution::Depth,
-            grid_res: None,
         };
         let given = [
-            ("depth", Some(self.depth)),
+            ("depth", given_depth),
+            ("grid_res", self.grid_res),
             ("full_depth", self.full_depth),
             ("iters", Some(self.iters)),
             ("cycles", Some(self.cycles)),
@@ -156,6 +167,62 @@ impl MethodKeywords {
             crate::errors::to_py_err(py, shown_as_given(e, &given), Call::Reconstruct)
         })?;
         Ok(params)
+    }
+}
+
+/// `depth=` and `width=` as the library's depth and [`Resolution`]: a width, `"auto"` (in
+/// any case), an integer (returned as given, for [`int_arg`]), or None (the library's depth).
+/// A depth and a width together are refused, as on the command line; another string is a
+/// bad value (`ValueError`), another type a `TypeError`.
+fn resolution_arg(depth: &Bound<'_, PyAny>, width: Option<f64>) -> PyResult<(i64, Resolution)> {
+    let default = i64::from(Params::default().depth);
+    let expected = format!("an integer from 1 to {}, or 'auto'", spsr::MAX_DEPTH);
+    let shown = || depth.repr().map_or_else(|_| "?".into(), |r| r.to_string());
+    if let Some(w) = width {
+        if !depth.is_none() {
+            return Err(value_error(format!(
+                "depth={} and width={w} cannot be used together: a width sets the depth (the \
+                 smallest whose cells are no wider); give one",
+                shown()
+            )));
+        }
+        return Ok((default, Resolution::Width(w)));
+    }
+    if depth.is_none() {
+        return Ok((default, Resolution::Depth));
+    }
+    if let Ok(s) = depth.extract::<String>() {
+        if s.trim().eq_ignore_ascii_case("auto") {
+            return Ok((default, Resolution::Auto));
+        }
+        return Err(invalid("depth", shown(), &expected));
+    }
+    match depth.extract::<i64>() {
+        Ok(d) => Ok((d, Resolution::Depth)),
+        // Another type, as for the other keywords: a TypeError.
+        Err(_) => Err(PyTypeError::new_err(format!(
+            "depth must be an integer or 'auto', got {}",
+            depth
+                .get_type()
+                .name()
+                .map_or_else(|_| "?".into(), |n| n.to_string())
+        ))),
+    }
+}
+
+/// `grid_res=` as the library's `u32`: a negative value becomes 0, which the library refuses
+/// as too small ([`shown_as_given`] shows the value given); one beyond `u32` is refused here.
+fn grid_res_arg(res: Option<i64>) -> PyResult<Option<u32>> {
+    match res {
+        None => Ok(None),
+        Some(r) => match u32::try_from(r.max(0)) {
+            Ok(r) => Ok(Some(r)),
+            Err(_) => Err(invalid(
+                "grid_res",
+                r,
+                "a grid that fits in memory (R³ float32 values)",
+            )),
+        },
     }
 }
 
@@ -267,6 +334,13 @@ fn reconstruct_defaults<'py>(py: Python<'py>, trim: &TrimParams) -> PyResult<Bou
     let p = Params::default();
     let d = PyDict::new(py);
     d.set_item("depth", p.depth)?;
+    // `Resolution::Depth`: no width (a width is `Resolution::Width`).
+    let width = match p.resolution {
+        Resolution::Width(w) => Some(w),
+        _ => None,
+    };
+    d.set_item("width", width)?;
+    d.set_item("grid_res", p.grid_res)?;
     d.set_item("full_depth", p.full_depth)?;
     d.set_item("samples_per_node", p.samples_per_node)?;
     d.set_item(

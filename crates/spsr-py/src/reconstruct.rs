@@ -9,6 +9,7 @@ use spsr::Stats;
 use crate::arrays::{cloud_in, mesh_out};
 use crate::detach::{run_detached, threads_arg};
 use crate::errors::{self, py_err, Call};
+use crate::implicit::{grid_out, Implicit};
 use crate::mesh_ops::trim_stats_out;
 use crate::params::{threshold_arg, trim_params, MethodKeywords};
 
@@ -16,7 +17,7 @@ use crate::params::{threshold_arg, trim_params, MethodKeywords};
 /// every keyword, with its default; the method's as one dict, `params`).
 #[pyfunction]
 #[pyo3(signature = (
-    points, normals, columns, *, params, threads, trim, min_island_area, hole_area
+    points, normals, columns, *, params, threads, trim, min_island_area, hole_area, keep_implicit
 ))]
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct<'py>(
@@ -29,6 +30,7 @@ pub fn reconstruct<'py>(
     trim: Bound<'py, PyAny>,
     min_island_area: f64,
     hole_area: f64,
+    keep_implicit: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     // Parameters first, before any array is converted.
     let params = params.params(py)?;
@@ -44,16 +46,38 @@ pub fn reconstruct<'py>(
     };
     let threads = threads_arg(threads)?;
     let cloud = cloud_in(py, &points, Some(&normals), columns, Call::Reconstruct)?;
-    let (result, trimmed) = run_detached(py, threads, move |progress| match &trim {
-        None => spsr::reconstruct_owned(cloud, &params, progress).map(|r| (r, None)),
-        Some(t) => {
-            spsr::reconstruct_and_trim(cloud, &params, t, progress).map(|(r, s)| (r, Some(s)))
-        }
-    })?
-    .map_err(py_err(py, Call::Reconstruct))?;
+    let depth = params.depth;
+    let (result, trimmed, implicit) =
+        run_detached(py, threads, move |progress| match (&trim, keep_implicit) {
+            (None, false) => {
+                spsr::reconstruct_owned(cloud, &params, progress).map(|r| (r, None, None))
+            }
+            (None, true) => spsr::reconstruct_implicit(cloud, &params, progress)
+                .map(|(r, f)| (r, None, Some(f))),
+            (Some(t), false) => spsr::reconstruct_and_trim(cloud, &params, t, progress)
+                .map(|(r, s)| (r, Some(s), None)),
+            (Some(t), true) => spsr::reconstruct_and_trim_implicit(cloud, &params, t, progress)
+                .map(|(r, s, f)| (r, Some(s), Some(f))),
+        })?
+        .map_err(py_err(py, Call::Reconstruct))?;
     let stats = stats_out(py, &result.stats, trimmed.as_ref())?;
+    // The depth the run used: the one given, or the one a width or `"auto"` chose.
+    let choice = result.stats.depth_choice.as_ref();
+    stats.set_item("depth", choice.map_or(depth, |c| c.depth))?;
+    stats.set_item(
+        "depth_choice",
+        choice.map(|c| c.message(&|field: &str| field.to_string())),
+    )?;
     let out = mesh_out(py, result.mesh)?;
     out.set_item("stats", stats)?;
+    match result.grid {
+        Some(g) => out.set_item("grid", grid_out(py, g)?)?,
+        None => out.set_item("grid", py.None())?,
+    }
+    match implicit {
+        Some(f) => out.set_item("implicit", Py::new(py, Implicit::new(f))?)?,
+        None => out.set_item("implicit", py.None())?,
+    }
     Ok(out)
 }
 

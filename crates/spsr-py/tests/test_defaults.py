@@ -12,7 +12,7 @@ from spsr import _spsr
 
 # Keywords with no library default behind them: data, and choices the Python layer makes.
 PYTHON_ONLY = {
-    "reconstruct": {"normals", "colors", "weights", "point_attributes", "threads"},
+    "reconstruct": {"normals", "colors", "weights", "point_attributes", "threads", "keep_implicit"},
     "trim": {"threads"},
     "estimate_normals": {"orient", "viewpoint", "scan_origins", "threads", "return_info"},
     "eval": {"reference", "sphere", "threads"},
@@ -22,6 +22,8 @@ PYTHON_ONLY = {
 # Keywords whose Python default is None, meaning "the library's default, adjusted": the
 # docstring says what it is. full_depth: the library's 5, or the depth when that is smaller.
 NONE_MEANS_LIBRARY = {
+    # None: the library's 8, unless width= sets the depth (both together are an error).
+    ("reconstruct", "depth"),
     ("reconstruct", "full_depth"),
     # None: the library's 1.5, and a value given turns the noise adaptation off.
     ("reconstruct", "samples_per_node"),
@@ -99,6 +101,7 @@ def test_defaults_match_the_documented_values():
     assert (r["samples_per_node"], r["scale"], r["iters"], r["data_pull"]) == (1.5, 1.1, 8, 32.0)
     assert r["confidence"] is False and r["confidence_property"] is None and r["attributes"] is True
     assert (r["noise"], r["keep_outliers"], r["keep_normals"]) == ("adaptive", False, False)
+    assert r["width"] is None and r["grid_res"] is None
     assert DEFAULTS["trim"] == {"threshold": "auto", "min_island_area": 0.001, "hole_area": 0.001}
     assert DEFAULTS["estimate_normals"] == {"neighbours": None}
     assert DEFAULTS["eval"] == {"samples": 1_000_000, "seed": 1}

@@ -150,6 +150,17 @@ def test_keywords_are_checked_before_anything_runs(tiles, tmp_path):
         spsr.distributed.reconstruct(tiles, out, slabs=0)
     with pytest.raises(ValueError, match="max_memory"):
         spsr.distributed.reconstruct(tiles, out, max_memory="lots")
+    # A slab run takes a plain depth and makes no grid (issue 18).
+    with pytest.raises(ValueError, match=r"^width= is not supported on a cluster: the depth is then chosen"):
+        spsr.distributed.reconstruct(tiles, out, width=0.05)
+    with pytest.raises(ValueError, match=r"^depth='auto' is not supported on a cluster: .* give depth="):
+        spsr.distributed.reconstruct(tiles, out, depth="auto")
+    with pytest.raises(ValueError, match=r"^grid_res= is not supported on a cluster"):
+        spsr.distributed.reconstruct(tiles, out, grid_res=16)
+    with pytest.raises(ValueError, match=r"^keep_implicit= is not supported on a cluster"):
+        spsr.distributed.reconstruct(tiles, out, keep_implicit=True)
+    with pytest.raises(ValueError, match="depth='deep'"):
+        spsr.distributed.reconstruct(tiles, out, depth="deep")
     assert os.listdir(tmp_path) == []
 
 
@@ -177,6 +188,13 @@ def test_the_module_refuses_what_a_cluster_cannot_do(tiles, tmp_path):
     assert r.returncode == 2 and "--trim" in r.stderr
     r = module(*tiles, "-o", str(tmp_path / "out.ply"), "--depth", "0")
     assert r.returncode == 2 and "--depth" in r.stderr
+    for flags, name in [
+        (["--width", "0.05"], "--width"),
+        (["--depth", "auto"], "--depth auto"),
+        (["--grid", str(tmp_path / "g.npz"), "--grid-res", "8"], "--grid"),
+    ]:
+        r = module(*tiles, "-o", str(tmp_path / "out.ply"), *flags)
+        assert r.returncode == 2 and f"{name} is not supported on a cluster" in r.stderr, r.stderr
     r = module("--workers", "none", *tiles, "-o", str(tmp_path / "out.ply"))
     assert r.returncode == 2 and "--workers" in r.stderr
     r = module("--help")

@@ -82,7 +82,7 @@ def test_messages_name_keywords_not_flags(sphere_mesh):
 
 @pytest.mark.parametrize(
     "kw",
-    [{"depth": "8"}, {"depth": 8.5}, {"density": 1}, {"boundary": 3}, {"scale": "big"}, {"max_memory": True}],
+    [{"depth": 8.5}, {"density": 1}, {"boundary": 3}, {"scale": "big"}, {"max_memory": True}],
 )
 def test_wrong_types(kw):
     with pytest.raises(TypeError):

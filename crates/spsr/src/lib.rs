@@ -47,9 +47,9 @@ pub use mesh::Mesh;
 pub use params::{Gpu, Noise, Params, PointWeights, Resolution, Solver, MAX_DEPTH};
 pub use pipeline::diagnose::{self, Diagnosis};
 pub use pipeline::{
-    reconstruct, reconstruct_and_trim, reconstruct_implicit, reconstruct_owned,
-    reconstruct_with_progress, resolution::resolve, stage_plan, DepthChoice, DepthLimit,
-    DepthReason, Grid, ImplicitFunction, NoiseSummary, Reconstruction, Stats,
+    reconstruct, reconstruct_and_trim, reconstruct_and_trim_implicit, reconstruct_implicit,
+    reconstruct_owned, reconstruct_with_progress, resolution::resolve, stage_plan, DepthChoice,
+    DepthLimit, DepthReason, Grid, ImplicitFunction, NoiseSummary, Reconstruction, Stats,
 };
 pub use points::{PointCloud, ScanOrigin};
 pub use resources::{memory_budget, peak_rss};

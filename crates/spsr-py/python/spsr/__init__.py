@@ -57,6 +57,7 @@ else:
 __all__ = [
     "MAX_DEPTH",
     "FileFormatError",
+    "Grid",
     "Mesh",
     "PointCloud",
     "estimate_normals",
@@ -250,9 +251,13 @@ class Mesh:
         Colours interpolated from the points' colours, in the points' colour type.
     attributes : dict of str to numpy.ndarray
         Other per-vertex values interpolated from the points (or read from a file).
+    grid : Grid or None
+        The implicit function on a grid, for ``reconstruct(..., grid_res=R)``.
     stats : dict or None
         For meshes returned by :func:`reconstruct`: ``points``, ``dropped``, ``samples``,
-        ``iso_value``, ``mean_sample_depth``, ``nodes_per_depth``, ``stages`` (name and
+        ``depth`` (the depth used: the one given, or the one ``width`` or ``depth="auto"``
+        chose), ``depth_choice`` (how ``width`` or ``depth="auto"`` chose it, in one
+        sentence, or None), ``iso_value``, ``mean_sample_depth``, ``nodes_per_depth``, ``stages`` (name and
         seconds of each stage), ``peak_memory`` (bytes after each stage, or None),
         ``warnings``, ``diagnosis`` (the checks of the result: ``pieces``, ``closed``,
         ``boundary_edges``, ``on_cube``, the vertices on the bounding cube's faces, and
@@ -269,7 +274,9 @@ class Mesh:
     Mesh(4 vertices, 4 faces)
     """
 
-    __slots__ = ("vertices", "faces", "normals", "density", "colors", "attributes", "stats")
+    __slots__ = (
+        "vertices", "faces", "normals", "density", "colors", "attributes", "stats", "grid", "_implicit"
+    )
 
     vertices: np.ndarray
     faces: np.ndarray
@@ -278,6 +285,8 @@ class Mesh:
     colors: Optional[np.ndarray]
     attributes: Dict[str, np.ndarray]
     stats: Optional[Dict[str, Any]]
+    grid: Optional["Grid"]
+    _implicit: Any
 
     def __init__(
         self,
@@ -314,6 +323,8 @@ class Mesh:
             name: array for name, array in _columns(None, attributes, n, "vertices")
         }
         self.stats = None
+        self.grid = None
+        self._implicit = None
 
     @classmethod
     def _from_native(cls, d: Dict[str, Any]) -> "Mesh":
@@ -324,7 +335,62 @@ class Mesh:
         mesh.density = d["density"]
         mesh.colors, mesh.attributes = _split_colors(d["attributes"])
         mesh.stats = d.get("stats")
+        grid = d.get("grid")
+        mesh.grid = None if grid is None else Grid(grid["values"], grid["origin"], grid["spacing"])
+        mesh._implicit = d.get("implicit")
         return mesh
+
+    def implicit(
+        self, points: ArrayLike, *, gradients: bool = False, threads: Optional[int] = None
+    ) -> Union[np.ndarray, Tuple[np.ndarray, np.ndarray]]:
+        """The implicit function minus the iso-value at any points, evaluated exactly on the
+        reconstruction's octree (not interpolated from a grid); needs a mesh from
+        ``reconstruct(..., keep_implicit=True)``.
+
+        Negative inside, positive outside, zero on the surface (the sign convention of
+        :class:`Grid` and of signed distances); the values agree with ``grid_res``'s grid at
+        its sample points (to float32 rounding). The function is about 1 inside and 0
+        outside, so its values are not distances.
+
+        Parameters
+        ----------
+        points : array_like, shape (N, 3)
+            Query points in the input's units. Points outside the bounding cube take the
+            value at the nearest point of the cube; points with a non-finite coordinate
+            get NaN.
+        gradients : bool, default False
+            Also return the gradient, per input unit; it points outward (along the
+            surface's normal).
+        threads : int, optional
+            Worker threads (default: all cores). The values do not depend on it.
+
+        Returns
+        -------
+        numpy.ndarray of float64, shape (N,)
+            The values; with ``gradients``, ``(values, gradients)``, gradients of shape
+            (N, 3).
+
+        Raises
+        ------
+        ValueError
+            The mesh keeps no implicit function, or ``points`` is not an (N, 3) array.
+
+        Examples
+        --------
+        >>> mesh = spsr.reconstruct(points, normals, keep_implicit=True)
+        >>> inside = mesh.implicit(queries) < 0
+        """
+        if self._implicit is None:
+            raise ValueError(
+                "this mesh keeps no implicit function: reconstruct it with keep_implicit=True "
+                "(the function holds the octree and its coefficients, so it is kept only when "
+                "asked for)"
+            )
+        q = _rows3(points, "points")
+        result: Union[np.ndarray, Tuple[np.ndarray, np.ndarray]] = self._implicit.evaluate(
+            q, bool(gradients), threads
+        )
+        return result
 
     def _native(self) -> Tuple[Any, ...]:
         n = self.vertices.shape[0]
@@ -335,9 +401,11 @@ class Mesh:
     def __repr__(self) -> str:
         extra = [
             name
-            for name in ("normals", "density", "colors")
+            for name in ("normals", "density", "colors", "grid")
             if getattr(self, name) is not None
         ] + sorted(self.attributes)
+        if self._implicit is not None:
+            extra.append("implicit")
         more = f"; {', '.join(extra)}" if extra else ""
         return f"Mesh({self.vertices.shape[0]} vertices, {self.faces.shape[0]} faces{more})"
 
@@ -374,6 +442,60 @@ class Mesh:
                 c = np.round(c * 255).astype(np.uint8)
             kwargs["vertex_colors"] = c
         return trimesh.Trimesh(vertices=self.vertices, faces=self.faces, **kwargs)
+
+
+class Grid:
+    """The implicit function minus the iso-value, sampled on a regular grid over the bounding
+    cube: ``reconstruct(..., grid_res=R).grid``, the arrays that ``spsr reconstruct --grid
+    FILE.npz --grid-res R`` writes.
+
+    The grid divides the bounding cube into R x R x R cells and samples the centre of each:
+    sample ``(i, j, k)`` lies at ``origin + spacing * (i, j, k)``. Each value is the
+    function evaluated on the octree, not interpolated. Negative inside, positive outside.
+
+    Attributes
+    ----------
+    values : numpy.ndarray of float32, shape (R, R, R)
+        Indexed ``[x, y, z]`` (C order: z varies fastest).
+    origin : numpy.ndarray of float64, shape (3,)
+        The centre of cell (0, 0, 0), in the input's units.
+    spacing : float
+        The distance between neighbouring samples (the cube's side / R), in the input's
+        units.
+
+    Examples
+    --------
+    >>> g = spsr.reconstruct(points, normals, grid_res=64).grid
+    >>> inside = g.values < 0                          # occupancy, (64, 64, 64) booleans
+    >>> np.savez("grid.npz", values=g.values, origin=g.origin, spacing=g.spacing)  # as --grid
+    """
+
+    __slots__ = ("values", "origin", "spacing")
+
+    values: np.ndarray
+    origin: np.ndarray
+    spacing: float
+
+    def __init__(self, values: np.ndarray, origin: ArrayLike, spacing: float) -> None:
+        self.values = values
+        self.origin = np.asarray(origin, dtype=np.float64)
+        self.spacing = float(spacing)
+
+    @property
+    def res(self) -> int:
+        """R, the samples along each axis."""
+        return int(self.values.shape[0])
+
+    def points(self) -> np.ndarray:
+        """The positions of the samples: float64, shape (R, R, R, 3), indexed as ``values``."""
+        axis = np.arange(self.res, dtype=np.float64) * self.spacing
+        x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
+        return np.stack([x, y, z], axis=-1) + self.origin
+
+    def __repr__(self) -> str:
+        r = self.res
+        o = ", ".join(f"{v:.6g}" for v in self.origin)
+        return f"Grid({r}x{r}x{r}, origin ({o}), spacing {self.spacing:.6g})"
 
 
 class PointCloud:
@@ -482,7 +604,8 @@ def reconstruct(
     points: Union[ArrayLike, PointCloud],
     normals: Optional[ArrayLike] = None,
     *,
-    depth: int = 8,
+    depth: Union[int, str, None] = None,
+    width: Optional[float] = None,
     full_depth: Optional[int] = None,
     samples_per_node: Optional[float] = None,
     point_weight: Optional[float] = None,
@@ -511,6 +634,8 @@ def reconstruct(
     threads: Optional[int] = None,
     solver: str = "cascadic",
     cycles: int = 1,
+    grid_res: Optional[int] = None,
+    keep_implicit: bool = False,
 ) -> Mesh:
     """Reconstruct a watertight triangle mesh from oriented points.
 
@@ -530,9 +655,18 @@ def reconstruct(
         Outward normals, one per point; need not be unit length (with ``confidence`` their
         length is the point's weight). Points with non-finite values or zero normals are
         dropped with a ``RuntimeWarning``.
-    depth : int, default 8
+    depth : int or "auto", optional
         Maximum octree depth; the finest cells are 1/2**depth of the bounding cube. At most
-        :data:`MAX_DEPTH` (18). PoissonRecon 6 and 18.
+        :data:`MAX_DEPTH` (18). Default 8, as PoissonRecon 6 and 18. ``"auto"`` chooses
+        it from the data: the shallowest depth whose finest cells are no wider than the
+        points' typical spacing (the median nearest-neighbour distance of 4096 of them),
+        lowered until the run fits ``max_memory`` (or the memory available).
+        ``stats["depth"]`` is the depth used and ``stats["depth_choice"]`` says why.
+    width : float, optional
+        The finest cells' width in the input's units, instead of ``depth`` (giving both is
+        an error): the depth is the smallest whose cells are no wider, and the bounding cube
+        is widened about its centre so that they are exactly this wide, as PoissonRecon's
+        ``--width`` (so that runs at one width share one cell size).
     full_depth : int, optional
         The octree is complete down to this depth, where the coarse solve happens.
         Default 5, or ``depth`` when that is smaller.
@@ -609,6 +743,17 @@ def reconstruct(
         density is computed for it; ``Mesh.density`` is set only with ``density=True``.
     min_island_area, hole_area : float, default 0.001
         With ``trim``: see :func:`trim`.
+    grid_res : int, optional
+        Also sample the implicit function minus the iso-value at the cell centres of an
+        R x R x R grid over the bounding cube, into ``Mesh.grid`` (a :class:`Grid`: negative
+        inside, positive outside), as ``spsr reconstruct --grid FILE.npz --grid-res R``. At
+        least 2; refused when R**3 float32 values exceed ``max_memory`` (or the memory
+        available).
+    keep_implicit : bool, default False
+        Keep the solved implicit function with the mesh, so that :meth:`Mesh.implicit`
+        evaluates it at any points afterwards. It holds the octree and its coefficients
+        (about the run's peak memory, less the points), freed with the mesh, so it is
+        kept only when asked for.
     threads : int, optional
         Worker threads (default: all cores). The result does not depend on it.
 
@@ -616,13 +761,15 @@ def reconstruct(
     -------
     Mesh
         ``vertices`` (float64, (V, 3)), ``faces`` (int32, (M, 3)), ``density``,
-        ``normals``, ``colors`` and ``attributes`` as requested, and ``stats``.
+        ``normals``, ``colors`` and ``attributes`` as requested, ``grid`` with
+        ``grid_res``, and ``stats``.
 
     Raises
     ------
     ValueError
-        Bad arrays or parameter values, too few usable points (at least 4), points that
-        span no volume.
+        Bad arrays or parameter values (``depth`` and ``width`` together, a ``grid_res``
+        under 2 or too large for the memory), too few usable points (at least 4), points
+        that span no volume.
     MemoryError
         The estimated memory of the run exceeds ``max_memory``.
     KeyboardInterrupt
@@ -671,6 +818,8 @@ def reconstruct(
         columns,
         params=_method_keywords(
             depth=depth,
+            width=width,
+            grid_res=grid_res,
             full_depth=full_depth,
             samples_per_node=samples_per_node,
             point_weight=point_weight,
@@ -697,6 +846,7 @@ def reconstruct(
         trim=trim,
         min_island_area=min_island_area,
         hole_area=hole_area,
+        keep_implicit=bool(keep_implicit),
     )
     if weight_name is not None:
         out["attributes"] = [(k, v) for k, v in out["attributes"] if k != weight_name]
@@ -838,7 +988,8 @@ def trim(
     Returns
     -------
     Mesh
-        The trimmed mesh; ``stats["trim"]`` holds the threshold used (and the median and MAD
+        The trimmed mesh, with the input's ``grid`` and implicit function (trimming
+        changes the surface, not the function); ``stats["trim"]`` holds the threshold used (and the median and MAD
         for ``"auto"``), the areas and the counts of cut vertices, islands and holes.
 
     Raises
@@ -851,6 +1002,9 @@ def trim(
     stats = {"trim": out.pop("trim")}
     result = Mesh._from_native(out)
     result.stats = stats
+    # Trimming changes the surface, not the function it was extracted from.
+    result.grid = m.grid
+    result._implicit = m._implicit
     return result
 
 

@@ -11,10 +11,12 @@ _Columns = Sequence[Tuple[str, np.ndarray]]
 # (vertices, faces, normals, density, columns)
 _MeshArgs = Tuple[np.ndarray, np.ndarray, Optional[np.ndarray], Optional[np.ndarray], _Columns]
 
-# `params`: the method's keywords of spsr.reconstruct (depth, full_depth, samples_per_node,
-# point_weight, degree, boundary, scale, iters, confidence, density, linear_fit, max_memory
-# in bytes, two_level_splat, attributes, data_pull, vertex_normals, confidence_property,
-# noise, keep_outliers, keep_normals, solver, cycles), every one given.
+# `params`: the method's keywords of spsr.reconstruct (depth (an int, "auto" or None),
+# width, grid_res, full_depth, samples_per_node, point_weight, degree, boundary, scale,
+# iters, confidence, density, linear_fit, max_memory in bytes, two_level_splat, attributes,
+# data_pull, vertex_normals, confidence_property, noise, keep_outliers, keep_normals, solver,
+# cycles), every one given. The result's "grid" is None or a dict (values, origin, spacing);
+# its "implicit" is None or an ImplicitFunction (with keep_implicit).
 def reconstruct(
     points: np.ndarray,
     normals: np.ndarray,
@@ -25,7 +27,20 @@ def reconstruct(
     trim: Optional[object],
     min_island_area: float,
     hole_area: float,
+    keep_implicit: bool,
 ) -> Dict[str, Any]: ...
+
+# The solved implicit function a reconstruction kept (Mesh.implicit).
+class ImplicitFunction:
+    @property
+    def iso_value(self) -> float: ...
+    @property
+    def cube(self) -> Tuple[Tuple[float, float, float], float]: ...
+    # Values (N,), or (values, gradients (N, 3)) with `gradients`.
+    def evaluate(
+        self, points: np.ndarray, gradients: bool, threads: Optional[int] = None
+    ) -> Union[np.ndarray, Tuple[np.ndarray, np.ndarray]]: ...
+
 def trim(
     mesh: _MeshArgs,
     threshold: object,

@@ -64,6 +64,17 @@ _REFUSED = {
     "the mesh afterwards with spsr.trim on a machine that holds it",
     "min_island_area": "it belongs to trim=, which slab runs do not support yet",
     "hole_area": "it belongs to trim=, which slab runs do not support yet",
+    "keep_implicit": "the implicit function lives in the slabs' tasks and is not kept; "
+    "reconstruct in-core to evaluate it",
+}
+# Keywords of spsr.reconstruct that a slab run takes only at their defaults, and why: the
+# depth of a width or of the spacing is resolved over the whole cloud in memory, and the
+# slabs never hold the whole implicit function for a grid.
+_WHOLE_CLOUD = "the depth is then chosen over the whole cloud in memory"
+_GIVE_DEPTH = "give depth= instead (spsr.reconstruct reports the depth it chose in stats['depth'])"
+_DEFAULT_ONLY = {
+    "width": f"{_WHOLE_CLOUD}; {_GIVE_DEPTH}",
+    "grid_res": "the slabs never hold the whole implicit function; reconstruct in-core for a grid",
 }
 # Keywords of spsr.reconstruct that are not parameters of the method.
 _NOT_PARAMS = {"points", "normals", "threads"}
@@ -98,6 +109,10 @@ def _params_json(params: Dict[str, Any]) -> str:
             raise ValueError(f"{name}= is not supported on a cluster: {_REFUSED[name]}")
         if name not in kw:
             raise TypeError(f"reconstruct() got an unexpected keyword argument '{name}'")
+        if name in _DEFAULT_ONLY and value is not None:
+            raise ValueError(f"{name}= is not supported on a cluster: {_DEFAULT_ONLY[name]}")
+        if name == "depth" and isinstance(value, str) and value.strip().lower() == "auto":
+            raise ValueError(f"depth='auto' is not supported on a cluster: {_WHOLE_CLOUD}; {_GIVE_DEPTH}")
         kw[name] = value
     return _spsr.slab_params(_method_keywords(**kw))
 
@@ -243,7 +258,9 @@ def reconstruct(
     **params
         The method's parameters, as keywords of :func:`spsr.reconstruct` (``depth``,
         ``degree``, ``samples_per_node``, ``noise``, ``max_memory`` ...), with the same
-        defaults. ``colors``, ``weights``, ``point_attributes`` and ``trim`` are refused.
+        defaults. ``colors``, ``weights``, ``point_attributes``, ``trim`` and
+        ``keep_implicit`` are refused, and so are ``width``, ``depth="auto"`` and
+        ``grid_res`` (a slab run takes a plain depth and makes no grid).
 
     Returns
     -------
@@ -399,6 +416,22 @@ def _exit_code(e: BaseException) -> int:
     return 4
 
 
+def _flag_refusal(params: str) -> Optional[str]:
+    """Why a cluster cannot run the command line's parameters (as JSON), checked before a
+    cluster starts; None when it can."""
+    import json
+
+    p = json.loads(params)
+    resolution = p.get("resolution", "Depth")
+    if isinstance(resolution, dict) and "Width" in resolution:
+        return f"--width is not supported on a cluster: {_WHOLE_CLOUD}; give --depth D instead"
+    if resolution == "Auto":
+        return f"--depth auto is not supported on a cluster: {_WHOLE_CLOUD}; give --depth D instead"
+    if p.get("grid_res") is not None:
+        return f"--grid is not supported on a cluster: {_DEFAULT_ONLY['grid_res']}"
+    return None
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     """The command line; returns the exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -414,6 +447,10 @@ def main(argv: Optional[List[str]] = None) -> int:
     run = _spsr.slab_args(["python -m spsr.distributed", *rest])
     if isinstance(run, int):
         return run
+    refusal = _flag_refusal(run["params"])
+    if refusal is not None:
+        print(f"spsr: error: {refusal}", file=sys.stderr)
+        return 2
     d = _distributed()
     start = time.perf_counter()
     cluster = None

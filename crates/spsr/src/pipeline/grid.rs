@@ -31,13 +31,33 @@ pub struct Grid {
     pub values: Vec<f32>,
 }
 
-/// Bytes a grid of resolution `res` holds.
+/// The most bytes one allocation may hold.
+const ADDRESSABLE: u64 = isize::MAX as u64;
+
+/// Bytes a grid of resolution `res` holds (`u64::MAX` when more than that).
 pub fn grid_bytes(res: u32) -> u64 {
-    4 * u64::from(res).pow(3)
+    u64::from(res)
+        .checked_pow(3)
+        .and_then(|n| n.checked_mul(4))
+        .unwrap_or(u64::MAX)
+}
+
+/// The largest resolution whose grid fits in `limit` bytes (0 when none does).
+fn largest_res(limit: u64) -> u32 {
+    // The cube root in floating point, then corrected by a step either way.
+    let mut r = ((limit / 4) as f64).cbrt().min(f64::from(u32::MAX)) as u32;
+    while r > 0 && grid_bytes(r) > limit {
+        r -= 1;
+    }
+    while r < u32::MAX && grid_bytes(r + 1) <= limit {
+        r += 1;
+    }
+    r
 }
 
 /// Refuses a grid resolution under [`MIN_GRID_RES`] or whose values would not fit the
-/// memory limit (`params.max_memory`, else the memory available).
+/// memory limit (`params.max_memory`, else the memory available, and never more than one
+/// allocation can hold).
 pub fn check_res(res: u32, params: &Params) -> Result<()> {
     if res < MIN_GRID_RES {
         return Err(Error::invalid(
@@ -46,23 +66,19 @@ pub fn check_res(res: u32, params: &Params) -> Result<()> {
             format!("at least {MIN_GRID_RES} samples along each axis"),
         ));
     }
-    if let Some((limit, _)) = tree::memory_limit(params) {
-        if grid_bytes(res) > limit {
-            let most = (1..=res)
-                .rev()
-                .find(|&r| grid_bytes(r) <= limit)
-                .unwrap_or(0);
-            return Err(Error::invalid(
-                "grid_res",
-                res,
-                format!(
-                    "at most {most}: {res}³ float32 values need {}, more than the memory limit \
-                     of {}",
-                    crate::gib(grid_bytes(res)),
-                    crate::gib(limit)
-                ),
-            ));
-        }
+    // Without a limit, still no more than one allocation can hold.
+    let limit = tree::memory_limit(params).map_or(ADDRESSABLE, |(l, _)| l.min(ADDRESSABLE));
+    if grid_bytes(res) > limit {
+        let most = largest_res(limit);
+        return Err(Error::invalid(
+            "grid_res",
+            res,
+            format!(
+                "at most {most}: {res}³ float32 values need {}, more than the memory limit of {}",
+                crate::gib(grid_bytes(res)),
+                crate::gib(limit)
+            ),
+        ));
     }
     Ok(())
 }
@@ -157,5 +173,35 @@ impl Implicit {
             spacing,
             values,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn huge_resolutions_are_refused_without_overflow() {
+        assert_eq!(grid_bytes(10), 4000);
+        assert_eq!(grid_bytes(u32::MAX), u64::MAX);
+        assert_eq!(largest_res(4000), 10);
+        assert_eq!(largest_res(3999), 9);
+        assert_eq!(largest_res(3), 0);
+        let limited = Params {
+            max_memory: Some(1 << 30),
+            ..Params::default()
+        };
+        // 2^22 cubed times 4 wraps to 0 in 64 bits.
+        for res in [1u32 << 22, u32::MAX] {
+            let e = check_res(res, &limited).unwrap_err().to_string();
+            assert!(e.contains("at most 645"), "{e}");
+        }
+        // With no memory limit given, one allocation still bounds the grid.
+        let unlimited = Params {
+            max_memory: Some(u64::MAX),
+            ..Params::default()
+        };
+        assert!(check_res(u32::MAX, &unlimited).is_err());
+        assert!(check_res(1000, &unlimited).is_ok());
     }
 }

@@ -178,6 +178,23 @@ pub fn reconstruct_implicit(
     }
 }
 
+/// As [`reconstruct_and_trim`], keeping the solved implicit function as
+/// [`reconstruct_implicit`] does (the function is not trimmed: it is defined over the whole
+/// bounding cube).
+pub fn reconstruct_and_trim_implicit(
+    points: PointCloud,
+    params: &Params,
+    trim: &TrimParams,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<(Reconstruction, TrimStats, ImplicitFunction)> {
+    params.validate()?;
+    trim.validate()?;
+    match reconstruct_input(Input::Owned(points), params, Some(trim), true, progress)? {
+        (out, Some(trimmed), Some(implicit)) => Ok((out, trimmed, ImplicitFunction(implicit))),
+        _ => unreachable!("reconstruct_input trims and keeps the function when asked"),
+    }
+}
+
 /// Reconstructs, then trims the mesh where its density is low (ALGORITHM.md §10): the one
 /// call behind the front ends' `trim` option. Both sets of parameters are checked before any
 /// work; the density is computed for the trimming and kept on the mesh only when

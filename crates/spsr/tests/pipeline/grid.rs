@@ -175,3 +175,27 @@ fn the_grid_file_is_a_numpy_archive_of_the_three_arrays() {
     }
     assert_eq!(&bytes[bytes.len() - 22..bytes.len() - 18], b"PK\x05\x06");
 }
+
+#[test]
+fn a_trimmed_run_keeps_the_same_function_and_the_same_trimmed_mesh() {
+    let cloud = sphere(5000, CENTRE, 1.0, 5);
+    let trim = spsr::trim::TrimParams::default();
+    let p = Params {
+        grid_res: None,
+        ..params(2)
+    };
+    let (plain, plain_stats) =
+        spsr::reconstruct_and_trim(cloud.clone(), &p, &trim, &|_| {}).unwrap();
+    let (kept, kept_stats, f) =
+        spsr::reconstruct_and_trim_implicit(cloud.clone(), &p, &trim, &|_| {}).unwrap();
+    assert_eq!(kept.mesh.vertices, plain.mesh.vertices);
+    assert_eq!(kept.mesh.triangles, plain.mesh.triangles);
+    assert_eq!(kept_stats.threshold, plain_stats.threshold);
+    let (_, g) = spsr::reconstruct_implicit(cloud, &p, &|_| {}).unwrap();
+    let at = [
+        CENTRE,
+        [2.0, 2.0, 2.0],
+        [CENTRE[0] + 1.0, CENTRE[1], CENTRE[2]],
+    ];
+    assert_eq!(f.values(&at), g.values(&at));
+}
