@@ -49,7 +49,7 @@ Exit codes:
      reference without normals)
   2  bad usage (unknown flag, invalid parameter value, unusable output path)
   3  resource limit (estimated memory above --max-memory or the available memory; a full
-     disk; worker threads could not be started)";
+     disk; worker threads could not be started; no usable GPU with --gpu)";
 
 /// Command-line arguments of `spsr`.
 #[derive(Debug, Parser)]

@@ -94,6 +94,8 @@ pub struct MethodKeywords {
     keep_normals: bool,
     solver: String,
     cycles: i64,
+    /// False, True or `"auto"` (also `"off"` and `"on"`).
+    gpu: Py<PyAny>,
 }
 
 impl MethodKeywords {
@@ -154,6 +156,7 @@ impl MethodKeywords {
             solver,
             cycles: int_arg(self.cycles),
             report_residuals: false,
+            gpu: gpu_arg(self.gpu.bind(py))?,
         };
         let given = [
             ("depth", given_depth),
@@ -167,6 +170,30 @@ impl MethodKeywords {
             crate::errors::to_py_err(py, shown_as_given(e, &given), Call::Reconstruct)
         })?;
         Ok(params)
+    }
+}
+
+/// `gpu=`: False or None (the CPU), True (a GPU or an error), `"auto"`; `"off"` and `"on"`
+/// too, in any case.
+fn gpu_arg(gpu: &Bound<'_, PyAny>) -> PyResult<spsr::Gpu> {
+    let expected = "False, True or 'auto'";
+    if gpu.is_none() {
+        return Ok(spsr::Gpu::Off);
+    }
+    if let Ok(on) = gpu.extract::<bool>() {
+        return Ok(if on { spsr::Gpu::On } else { spsr::Gpu::Off });
+    }
+    let shown = gpu.repr().map_or_else(|_| "?".into(), |r| r.to_string());
+    match gpu.extract::<String>() {
+        Ok(s) => match s.trim().to_ascii_lowercase().as_str() {
+            "auto" => Ok(spsr::Gpu::Auto),
+            "on" => Ok(spsr::Gpu::On),
+            "off" => Ok(spsr::Gpu::Off),
+            _ => Err(invalid("gpu", shown, expected)),
+        },
+        Err(_) => Err(pyo3::exceptions::PyTypeError::new_err(format!(
+            "gpu must be {expected}, not {shown}"
+        ))),
     }
 }
 
@@ -359,6 +386,15 @@ fn reconstruct_defaults<'py>(py: Python<'py>, trim: &TrimParams) -> PyResult<Bou
     d.set_item("iters", p.iters)?;
     d.set_item("solver", p.solver.name())?;
     d.set_item("cycles", p.cycles)?;
+    // The Python spelling: False for the CPU (the library's default).
+    d.set_item(
+        "gpu",
+        match p.gpu {
+            spsr::Gpu::Off => false.into_pyobject(py)?.to_owned().into_any(),
+            spsr::Gpu::On => true.into_pyobject(py)?.to_owned().into_any(),
+            spsr::Gpu::Auto => "auto".into_pyobject(py)?.into_any(),
+        },
+    )?;
     d.set_item("confidence", p.weights == PointWeights::NormalLength)?;
     let property = match &p.weights {
         PointWeights::Property(name) => Some(name.as_str()),

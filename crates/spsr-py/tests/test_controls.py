@@ -2,6 +2,8 @@
 Mesh.implicit, with the command line's rules and the library's conventions (negative
 inside)."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -169,3 +171,39 @@ def test_bad_controls(kw, message):
 def test_a_depth_of_another_type_is_a_type_error():
     with pytest.raises(TypeError, match=r"^depth must be an integer or 'auto', got float$"):
         spsr.reconstruct(POINTS, NORMALS, depth=6.5)
+
+
+# --- gpu= (issue 17) -------------------------------------------------------------------------
+
+
+def _gpu_usable():
+    try:
+        spsr.reconstruct(*fibonacci_sphere(2000), depth=4, gpu=True)
+        return True
+    except RuntimeError:
+        return False
+
+
+def test_gpu_true_without_a_usable_gpu_is_a_clear_runtime_error():
+    if _gpu_usable():
+        pytest.skip("a GPU is usable here")
+    with pytest.raises(RuntimeError, match="no usable GPU"):
+        spsr.reconstruct(*fibonacci_sphere(2000), depth=5, gpu=True)
+
+
+def test_gpu_auto_gives_the_cpu_mesh_and_says_when_it_fell_back():
+    pts, nrm = fibonacci_sphere(3000)
+    cpu = spsr.reconstruct(pts, nrm, depth=5)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        auto = spsr.reconstruct(pts, nrm, depth=5, gpu="auto")
+    fell_back = any("GPU was not used" in str(w.message) for w in caught)
+    assert fell_back != _gpu_usable()
+    assert np.array_equal(cpu.vertices, auto.vertices)
+    assert np.array_equal(cpu.faces, auto.faces)
+
+
+@pytest.mark.parametrize("bad, error", [("sometimes", ValueError), (3, TypeError), (1.0, TypeError)])
+def test_bad_gpu_values_are_refused(bad, error):
+    with pytest.raises(error, match="gpu"):
+        spsr.reconstruct(*fibonacci_sphere(500), depth=4, gpu=bad)

@@ -634,6 +634,7 @@ def reconstruct(
     threads: Optional[int] = None,
     solver: str = "cascadic",
     cycles: int = 1,
+    gpu: Union[bool, str] = False,
     grid_res: Optional[int] = None,
     keep_implicit: bool = False,
 ) -> Mesh:
@@ -702,6 +703,11 @@ def reconstruct(
     cycles : int, default 1
         Solver cycles; the first is the cascade, each further one passes the finer depths'
         solution back to the coarser ones and relaxes every depth again.
+    gpu : bool or "auto", default False
+        Relax the solver's depths on an NVIDIA GPU; the mesh is the same bit for bit. True
+        raises ``RuntimeError`` where no GPU can be used (a wheel built without the cargo
+        feature ``gpu``, no driver, no NVRTC); ``"auto"`` falls back to the CPU with a
+        ``RuntimeWarning``.
     confidence : bool, default False
         Use each normal's length as the point's weight.
     density : bool, default False
@@ -841,6 +847,7 @@ def reconstruct(
             confidence_property=confidence_property,
             solver=solver,
             cycles=cycles,
+            gpu=gpu,
         ),
         threads=threads,
         trim=trim,

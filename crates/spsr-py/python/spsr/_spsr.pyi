@@ -15,7 +15,7 @@ _MeshArgs = Tuple[np.ndarray, np.ndarray, Optional[np.ndarray], Optional[np.ndar
 # width, grid_res, full_depth, samples_per_node, point_weight, degree, boundary, scale,
 # iters, confidence, density, linear_fit, max_memory in bytes, two_level_splat, attributes,
 # data_pull, vertex_normals, confidence_property, noise, keep_outliers, keep_normals, solver,
-# cycles), every one given. The result's "grid" is None or a dict (values, origin, spacing);
+# cycles, gpu (False, True or "auto")), every one given. The result's "grid" is None or a dict (values, origin, spacing);
 # its "implicit" is None or an ImplicitFunction (with keep_implicit).
 def reconstruct(
     points: np.ndarray,
