@@ -1,5 +1,7 @@
 //! Triangle meshes produced by the reconstruction, and their topological checks.
 
+use rayon::prelude::*;
+
 use crate::attributes::{self, Attribute, Colors};
 use crate::vec3::{cross, dot, norm, sub};
 
@@ -66,6 +68,60 @@ fn uf_union(parent: &mut [u32], a: u32, b: u32) {
     }
 }
 
+/// Scratch space for checking one vertex's link ([`Mesh::topology`]).
+#[derive(Default)]
+struct LinkScratch {
+    link: Vec<(u32, u32)>,
+    ids: Vec<u32>,
+    parent: Vec<u32>,
+    degree: Vec<u32>,
+}
+
+impl LinkScratch {
+    /// Whether the link of vertex `v` (the opposite edges of its incident `faces`) is one
+    /// path or one cycle, with no degenerate triangle: the vertex is manifold.
+    fn is_disk_or_fan(&mut self, v: usize, faces: &[u32], tris: &[[u32; 3]]) -> bool {
+        let LinkScratch {
+            link,
+            ids,
+            parent,
+            degree,
+        } = self;
+        link.clear();
+        ids.clear();
+        for &f in faces {
+            let t = tris[f as usize];
+            let k = t.iter().position(|&x| x as usize == v).unwrap_or(0);
+            let (a, b) = (t[(k + 1) % 3], t[(k + 2) % 3]);
+            link.push((a, b));
+            ids.push(a);
+            ids.push(b);
+        }
+        ids.sort_unstable();
+        ids.dedup();
+        parent.clear();
+        parent.extend(0..ids.len() as u32);
+        degree.clear();
+        degree.resize(ids.len(), 0);
+        let mut ok = true;
+        for &(a, b) in link.iter() {
+            let ia = ids.binary_search(&a).unwrap_or(0) as u32;
+            let ib = ids.binary_search(&b).unwrap_or(0) as u32;
+            if ia == ib {
+                ok = false; // degenerate triangle
+            }
+            degree[ia as usize] += 1;
+            degree[ib as usize] += 1;
+            uf_union(parent, ia, ib);
+        }
+        if degree.iter().any(|&d| d > 2) {
+            ok = false;
+        }
+        let root = uf_find(parent, 0);
+        ok && (0..ids.len() as u32).all(|i| uf_find(parent, i) == root)
+    }
+}
+
 impl Mesh {
     /// The vertex attribute called `name` (ASCII case ignored), if any.
     pub fn attribute(&self, name: &str) -> Option<&Attribute> {
@@ -97,7 +153,7 @@ impl Mesh {
                 edges.push((a.min(b), a.max(b), a < b));
             }
         }
-        edges.sort_unstable();
+        edges.par_sort_unstable();
         let mut n_edges = 0usize;
         let mut boundary = 0usize;
         let mut non_manifold = 0usize;
@@ -143,56 +199,18 @@ impl Mesh {
                 fill[v as usize] += 1;
             }
         }
-        let mut referenced = 0usize;
-        let mut non_manifold_vertices = 0usize;
-        let mut link: Vec<(u32, u32)> = Vec::new();
-        let mut ids: Vec<u32> = Vec::new();
-        let mut lparent: Vec<u32> = Vec::new();
-        let mut degree: Vec<u32> = Vec::new();
-        for v in 0..nv {
-            let faces = &inc[start[v] as usize..start[v + 1] as usize];
-            if faces.is_empty() {
-                continue;
-            }
-            referenced += 1;
-            link.clear();
-            ids.clear();
-            for &f in faces {
-                let t = tris[f as usize];
-                let k = t.iter().position(|&x| x as usize == v).unwrap_or(0);
-                let (a, b) = (t[(k + 1) % 3], t[(k + 2) % 3]);
-                link.push((a, b));
-                ids.push(a);
-                ids.push(b);
-            }
-            ids.sort_unstable();
-            ids.dedup();
-            lparent.clear();
-            lparent.extend(0..ids.len() as u32);
-            degree.clear();
-            degree.resize(ids.len(), 0);
-            let mut ok = true;
-            for &(a, b) in &link {
-                let ia = ids.binary_search(&a).unwrap_or(0) as u32;
-                let ib = ids.binary_search(&b).unwrap_or(0) as u32;
-                if ia == ib {
-                    ok = false; // degenerate triangle
-                }
-                degree[ia as usize] += 1;
-                degree[ib as usize] += 1;
-                uf_union(&mut lparent, ia, ib);
-            }
-            if degree.iter().any(|&d| d > 2) {
-                ok = false;
-            }
-            let root = uf_find(&mut lparent, 0);
-            if (0..ids.len() as u32).any(|i| uf_find(&mut lparent, i) != root) {
-                ok = false;
-            }
-            if !ok {
-                non_manifold_vertices += 1;
-            }
-        }
+        // Each vertex's link checked in parallel (a count, so the result does not depend on
+        // the thread count), with scratch space per task.
+        let incident = |v: usize| &inc[start[v] as usize..start[v + 1] as usize];
+        let referenced = (0..nv).filter(|&v| !incident(v).is_empty()).count();
+        let non_manifold_vertices = (0..nv)
+            .into_par_iter()
+            .map_init(LinkScratch::default, |scratch, v| {
+                let faces = incident(v);
+                !faces.is_empty() && !scratch.is_disk_or_fan(v, faces, &tris)
+            })
+            .filter(|&bad| bad)
+            .count();
         // Components through shared vertices.
         let mut parent: Vec<u32> = (0..nv as u32).collect();
         for t in &tris {
