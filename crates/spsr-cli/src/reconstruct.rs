@@ -1048,6 +1048,18 @@ fn print_details(
         stats.points, stats.dropped
     );
     let _ = writeln!(err, "samples     {}", stats.samples);
+    if let Some(n) = &stats.noise {
+        let _ = writeln!(
+            err,
+            "noise       {:.3e} ({:.2} finest cells), measured on {:.0} % of the samples; \
+             splat depth lowered on {:.0} % of them, by {:.2} levels on average",
+            n.median,
+            n.median_cells,
+            100.0 * n.measured,
+            100.0 * n.adapted,
+            n.mean_lowering
+        );
+    }
     let nodes: usize = stats.nodes_per_depth.iter().sum();
     let _ = writeln!(err, "octree      {nodes} nodes; per depth:");
     for (depth, n) in stats.nodes_per_depth.iter().enumerate() {

@@ -112,6 +112,18 @@ fn stats_out<'py>(
     diagnosis.set_item("on_cube", d.on_cube)?;
     diagnosis.set_item("contradicted_normals", d.contradicted_normals)?;
     stats.set_item("diagnosis", diagnosis)?;
+    match &s.noise {
+        Some(n) => {
+            let noise = PyDict::new(py);
+            noise.set_item("median", n.median)?;
+            noise.set_item("median_cells", n.median_cells)?;
+            noise.set_item("measured", n.measured)?;
+            noise.set_item("adapted", n.adapted)?;
+            noise.set_item("mean_lowering", n.mean_lowering)?;
+            stats.set_item("noise", noise)?
+        }
+        None => stats.set_item("noise", py.None())?,
+    }
     match trimmed {
         Some(t) => {
             // `reconstruct_and_trim` times the trimming as its last stage.

@@ -285,5 +285,10 @@ def test_noise_keyword_and_hand_tuning():
     tuned = spsr.reconstruct(noisy, normals, depth=7, samples_per_node=1.5)
     assert np.array_equal(off.vertices, tuned.vertices)
     assert len(adaptive.faces) < len(off.faces)
+    # The noise measured is the noise put in, in the input's units.
+    noise = adaptive.stats["noise"]
+    assert 0.015 < noise["median"] < 0.025, noise
+    assert noise["adapted"] > 0.5 and noise["mean_lowering"] > 0
+    assert off.stats["noise"] is None
     with pytest.raises(ValueError, match="noise"):
         spsr.reconstruct(points, normals, noise="sometimes")

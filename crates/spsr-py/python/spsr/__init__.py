@@ -261,7 +261,12 @@ class Mesh:
         seconds of each stage), ``peak_memory`` (bytes after each stage, or None),
         ``warnings``, ``diagnosis`` (the checks of the result: ``pieces``, ``closed``,
         ``boundary_edges``, ``on_cube``, the vertices on the bounding cube's faces, and
-        ``contradicted_normals``, the share of the normals against the surface)
+        ``contradicted_normals``, the share of the normals against the surface),
+        ``noise`` (what the noise adaptation measured and changed: ``median``, the
+        median noise in the input's units, ``median_cells``, the same in finest cells,
+        ``measured``, the share of samples it was measured on, ``adapted``, the share
+        whose splat depth was lowered, and ``mean_lowering``, by how many depths on
+        average; None with ``noise="off"``)
         and ``trim`` (the trimming's figures, or None). For meshes returned by
         :func:`trim`: ``trim``.
 

@@ -398,6 +398,7 @@ pub(crate) fn solve_implicit(
         run.stage(NOISE, || {
             noise::adapt(&sampled.samples, &mut sampled.depths, params.depth)
         })
+        .in_units(frame.width)
     });
     let refined = run.stage("octree", || tree::build(&sampled, params, input_points))?;
     let field = run.stage("splatting", || splat::splat(&refined, &sampled, params))?;

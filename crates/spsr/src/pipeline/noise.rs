@@ -12,23 +12,31 @@
 //! into the cells of every depth. For a sample, the 3×3×3 cells around it are examined from
 //! the finest depth upwards; the first depth at which that neighbourhood is *flat* (its
 //! covariance's smallest eigenvalue below `FLAT²` times the middle one, with at least
-//! `MIN_SAMPLES` samples) gives a plane, and the sample its offset from it. Over a clean
-//! surface the offsets vary smoothly (curvature, a crease nearby); noise makes them vary from
-//! sample to sample. So the noise `σ` is the spread of the offsets among the samples sharing
-//! a cell one depth finer, where the smooth part hardly varies. (The plane's own residual
-//! √λ_min measures noise as well, and more exactly, but also the curvature and creases of
-//! clean shapes: on the rocker arm and the fandisk it cost 6–18 % in accuracy.) Where no
-//! depth is flat or too few samples share the cell, nothing is measured.
+//! `MIN_SAMPLES` samples) gives a plane. Over that plane, a quadratic height field
+//! `r ≈ a + bu + cv + du² + euv + fv²` is fitted by least squares to the offsets `r` of all
+//! the samples of the neighbourhood, and the noise `σ` is the standard deviation of what it
+//! leaves (`n − 6` degrees of freedom). The fit takes out the surface's position, slope and
+//! curvature, so a clean curved surface reads almost no noise, and noise reads as itself, a
+//! Gaussian's σ. Two earlier estimates measured clean shapes as noisy: the plane's own
+//! residual `√λ_min` (curvature and creases: 6–18 % less accurate on the clean rocker arm
+//! and fandisk), then the spread of the plane offsets within finer cells, which on clean
+//! clouds could be measured only where few samples share a fine cell, that is where the
+//! surface bends (3–8 % less accurate on the clean bunny, fandisk and rocker arm at depths 8
+//! and 9). Where no depth is flat, nothing is measured.
 //!
 //! **Choosing.** A sample whose density gives cells of width `h` (depth `d`) and whose noise
 //! is `σ` is splatted at depth `d' = d − ½ log2(1 + r²)`, `r = (κσ/h)^p`, the same as
 //! multiplying its samples per node by `1 + r²`: where the noise is well below the spacing
-//! nothing changes, where it is larger the cells grow with it. `κ = 3.5` and `p = 1.3` were
-//! fitted at depth 9 on the bunny with noise of 0.25 % and 0.5 % of its diagonal and the noise
-//! ramp, against the accuracy on the clean rocker arm and fandisk (bench/noise/run.py). The
-//! noise is smoothed first: each sample takes the median noise of the measured samples in the
-//! 3×3×3 cells around it one level above the typical measuring depth, so that a chance
-//! arrangement does not change the depth of a few samples alone.
+//! nothing changes, where it is larger the cells grow with it. `κ = 2` and `p = 1.3` were
+//! chosen at depth 9 on the bunny with noise of 0.25 % and 0.5 % of its diagonal, the bunny
+//! and fandisk noise ramps and the rocker arm with 0.5 % noise (bench/noise/run.py; `κ = 2.5`
+//! smooths the rocker arm's thin ring away, `κ = 1.5` leaves the bunny bumpy). The noise is
+//! smoothed first, twice: each sample takes the median noise of the measured samples in the
+//! 3×3×3 cells around it one level above the typical measuring depth, then the median of
+//! those medians two levels coarser, so that the splat depth varies slowly across the
+//! surface. (Splat depths that vary from sample to sample cost accuracy: on clouds with
+//! uniform noise, one depth change for all samples did 5–7 % better than the same changes
+//! chosen per sample from one smoothing pass.)
 
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
@@ -43,7 +51,7 @@ const FLAT: f64 = 0.5;
 const MIN_SAMPLES: f64 = 20.0;
 
 /// Splat cells grow with `(CELLS_PER_NOISE σ / h)^NOISE_POWER` (see the module docs).
-const CELLS_PER_NOISE: f64 = 3.5;
+const CELLS_PER_NOISE: f64 = 2.0;
 
 /// See [`CELLS_PER_NOISE`].
 const NOISE_POWER: f64 = 1.3;
@@ -51,16 +59,27 @@ const NOISE_POWER: f64 = 1.3;
 /// What the noise stage found, for the user.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct NoiseSummary {
-    /// Median noise over the samples where it was measured, in unit-cube units: the spread of
-    /// the samples' offsets within cells, which reads about half the standard deviation of
-    /// Gaussian noise (the cells cut off its tails).
+    /// Median noise over the samples where it was measured, in the input's units (in
+    /// unit-cube units until [`NoiseSummary::in_units`]).
     pub median: f64,
+    /// The same in cells of the finest depth.
+    pub median_cells: f64,
     /// Share of the samples where it was measured.
     pub measured: f64,
     /// Share of the samples whose splat depth was lowered.
     pub adapted: f64,
     /// Mean lowering of the splat depth over the adapted samples, in levels.
     pub mean_lowering: f64,
+}
+
+impl NoiseSummary {
+    /// The summary with its median in the units of a cube `width` wide.
+    pub fn in_units(self, width: f64) -> Self {
+        NoiseSummary {
+            median: self.median * width,
+            ..self
+        }
+    }
 }
 
 /// One cell's moments.
@@ -115,6 +134,7 @@ impl Moments {
         (l[1] > 0.0 && lo <= FLAT * FLAT * l[1]).then_some(Plane {
             centre: m,
             normal: v[0],
+            tangents: [v[1], v[2]],
         })
     }
 }
@@ -124,14 +144,23 @@ impl Moments {
 struct Plane {
     centre: [f64; 3],
     normal: [f64; 3],
+    tangents: [[f64; 3]; 2],
 }
 
 impl Plane {
     fn offset(&self, p: [f64; 3]) -> f64 {
-        (0..3)
-            .map(|a| (p[a] - self.centre[a]) * self.normal[a])
-            .sum()
+        dot_from(p, self.centre, self.normal)
     }
+
+    /// `p`'s coordinates along the plane's tangents, from its centre.
+    fn along(&self, p: [f64; 3]) -> [f64; 2] {
+        self.tangents.map(|t| dot_from(p, self.centre, t))
+    }
+}
+
+/// `(p − o) · v`.
+fn dot_from(p: [f64; 3], o: [f64; 3], v: [f64; 3]) -> f64 {
+    (0..3).map(|a| (p[a] - o[a]) * v[a]).sum()
 }
 
 fn pack(c: [i64; 3]) -> u64 {
@@ -176,7 +205,7 @@ fn unpack(k: u64) -> [i64; 3] {
     ]
 }
 
-/// The noise of each occupied cell's 3×3×3 neighbourhood, where it is flat.
+/// The plane of each occupied cell's 3×3×3 neighbourhood, where it is flat.
 fn flat_cells(level: &Level) -> FxHashMap<u64, Plane> {
     let keys: Vec<u64> = level.keys().copied().collect();
     keys.par_iter()
@@ -204,55 +233,193 @@ fn flat_cells(level: &Level) -> FxHashMap<u64, Plane> {
 }
 
 /// Each sample's noise `σ` and the depth its plane was fitted at, `None` where no depth is
-/// flat or too few samples share its fine cell.
+/// flat or the quadratic fit is not determined.
 ///
-/// The plane of the finest flat neighbourhood leaves each sample an offset `r`. Over a
-/// smooth clean surface the offsets vary smoothly (curvature, a crease nearby); noise makes
-/// them vary from sample to sample. So the noise is the spread of the offsets among the
-/// samples of one cell of the next finer depth, where the smooth part hardly varies.
+/// Each sample belongs to the cell of its finest flat depth; the noise of that cell is the
+/// residual of the quadratic height field fitted, over the cell's plane, to the offsets of
+/// the samples in the cell's 3×3×3 neighbourhood (the module docs say why).
 fn measure(samples: &[Sample], top: u32) -> Vec<Option<(f64, u32)>> {
     let levels = levels(samples, top);
     let flat: Vec<FxHashMap<u64, Plane>> = levels.iter().map(flat_cells).collect();
     drop(levels);
-    // Each sample's plane depth and offset.
-    let offsets: Vec<Option<(u32, f64)>> = samples
+    // Each sample's finest flat depth and cell there.
+    let home: Vec<Option<(u32, u64)>> = samples
         .par_iter()
         .map(|s| {
             (1..top).rev().find_map(|d| {
-                flat[d as usize]
-                    .get(&pack(cell_of(s.pos, d)))
-                    .map(|plane| (d, plane.offset(s.pos)))
+                let k = pack(cell_of(s.pos, d));
+                flat[d as usize].contains_key(&k).then_some((d, k))
             })
         })
         .collect();
-    // Offsets' sums per (plane depth, fine cell).
-    let mut spread: FxHashMap<(u32, u64), (f64, f64, f64)> = FxHashMap::default();
-    for (s, o) in samples.iter().zip(&offsets) {
-        if let Some((d, r)) = *o {
-            let e = spread
-                .entry((d, pack(cell_of(s.pos, d + 1))))
-                .or_insert((0.0, 0.0, 0.0));
-            e.0 += 1.0;
-            e.1 += r;
-            e.2 += r * r;
-        }
-    }
-    samples
-        .par_iter()
-        .zip(&offsets)
-        .map(|(s, o)| {
-            let (d, _) = (*o)?;
-            let (n, sum, sum2) = spread[&(d, pack(cell_of(s.pos, d + 1)))];
-            (n >= FINE_SAMPLES).then(|| {
-                let var = (sum2 - sum * sum / n).max(0.0) / (n - 1.0);
-                (var.sqrt(), d)
+    // The samples of every cell at the depths some sample's plane was fitted at.
+    let mut wanted: Vec<(u32, u64)> = home.iter().flatten().copied().collect();
+    wanted.par_sort_unstable();
+    wanted.dedup();
+    let mut noise: FxHashMap<(u32, u64), f64> = FxHashMap::default();
+    for cells in wanted.chunk_by(|a, b| a.0 == b.0) {
+        let d = cells[0].0;
+        let index = CellIndex::new(samples, d);
+        let w = 1.0 / (1u64 << d) as f64;
+        let found: Vec<((u32, u64), f64)> = cells
+            .par_iter()
+            .filter_map(|&(d, k)| {
+                let plane = &flat[d as usize][&k];
+                let mut fit = QuadricFit::default();
+                for_each_neighbour(unpack(k), |q| {
+                    for &i in index.members(pack(q)) {
+                        let p = samples[i as usize].pos;
+                        let [u, v] = plane.along(p).map(|x| x / w);
+                        fit.add(u, v, plane.offset(p) / w);
+                    }
+                });
+                fit.residual().map(|r| ((d, k), r * w))
             })
+            .collect();
+        noise.extend(found);
+    }
+    home.iter()
+        .map(|h| {
+            let (d, k) = (*h)?;
+            noise.get(&(d, k)).map(|&s| (s, d))
         })
         .collect()
 }
 
-/// Fewest samples in a fine cell for the spread of their offsets to count.
-const FINE_SAMPLES: f64 = 3.0;
+/// The samples of each occupied cell of one depth: their indices sorted by cell, and each
+/// cell's range of them.
+struct CellIndex {
+    order: Vec<u32>,
+    ranges: FxHashMap<u64, (usize, usize)>,
+}
+
+impl CellIndex {
+    fn new(samples: &[Sample], d: u32) -> Self {
+        let mut keyed: Vec<(u64, u32)> = samples
+            .par_iter()
+            .enumerate()
+            .map(|(i, s)| (pack(cell_of(s.pos, d)), i as u32))
+            .collect();
+        keyed.par_sort_unstable();
+        let mut ranges = FxHashMap::default();
+        let mut start = 0;
+        for run in keyed.chunk_by(|a, b| a.0 == b.0) {
+            ranges.insert(run[0].0, (start, start + run.len()));
+            start += run.len();
+        }
+        CellIndex {
+            order: keyed.into_iter().map(|(_, i)| i).collect(),
+            ranges,
+        }
+    }
+
+    /// The samples in cell `key` (none when it is empty).
+    fn members(&self, key: u64) -> &[u32] {
+        self.ranges
+            .get(&key)
+            .map_or(&[], |&(a, b)| &self.order[a..b])
+    }
+}
+
+/// Calls `f` with each of the 3×3×3 cells around `c` (itself included) inside the cube's
+/// positive octant.
+fn for_each_neighbour(c: [i64; 3], mut f: impl FnMut([i64; 3])) {
+    for dz in -1..=1 {
+        for dy in -1..=1 {
+            for dx in -1..=1 {
+                let q = [c[0] + dx, c[1] + dy, c[2] + dz];
+                if q.iter().all(|&v| v >= 0) {
+                    f(q);
+                }
+            }
+        }
+    }
+}
+
+/// The sums a least-squares fit of the samples' offsets `r` from a plane by a quadratic
+/// height field over the plane, `r ≈ βᵀx` with `x = [1, u, v, u², uv, v²]`, needs.
+#[derive(Debug, Clone, Copy, Default)]
+struct QuadricFit {
+    /// `Σ xxᵀ`.
+    xx: [[f64; 6]; 6],
+    /// `Σ x r`.
+    xr: [f64; 6],
+    /// `Σ r²`.
+    rr: f64,
+    n: f64,
+}
+
+impl QuadricFit {
+    fn add(&mut self, u: f64, v: f64, r: f64) {
+        let x = [1.0, u, v, u * u, u * v, v * v];
+        for i in 0..6 {
+            for j in i..6 {
+                self.xx[i][j] += x[i] * x[j];
+            }
+            self.xr[i] += x[i] * r;
+        }
+        self.rr += r * r;
+        self.n += 1.0;
+    }
+
+    /// The standard deviation of the offsets about the fitted height field: what remains
+    /// once the surface's position, slope and curvature are taken out. `None` with too few
+    /// samples or samples that do not span the plane.
+    fn residual(&self) -> Option<f64> {
+        if self.n < MIN_SAMPLES {
+            return None;
+        }
+        let mut a = self.xx;
+        for i in 0..6 {
+            for j in 0..i {
+                a[i][j] = a[j][i];
+            }
+        }
+        let beta = cholesky_solve(a, self.xr)?;
+        let rss = self.rr - (0..6).map(|i| beta[i] * self.xr[i]).sum::<f64>();
+        Some((rss.max(0.0) / (self.n - 6.0)).sqrt())
+    }
+}
+
+/// Solves `a x = b` for a symmetric positive definite `a`; `None` when a pivot is not
+/// clearly positive (the system is close to singular).
+fn cholesky_solve<const N: usize>(mut a: [[f64; N]; N], mut b: [f64; N]) -> Option<[f64; N]> {
+    let trace: f64 = (0..N).map(|i| a[i][i]).sum();
+    for j in 0..N {
+        let mut d = a[j][j];
+        for k in 0..j {
+            d -= a[j][k] * a[j][k];
+        }
+        if d.is_nan() || d <= 1e-12 * trace {
+            return None;
+        }
+        let d = d.sqrt();
+        a[j][j] = d;
+        for i in j + 1..N {
+            let mut s = a[i][j];
+            for k in 0..j {
+                s -= a[i][k] * a[j][k];
+            }
+            a[i][j] = s / d;
+        }
+    }
+    for i in 0..N {
+        for k in 0..i {
+            b[i] -= a[i][k] * b[k];
+        }
+        b[i] /= a[i][i];
+    }
+    for i in (0..N).rev() {
+        for k in i + 1..N {
+            b[i] -= a[k][i] * b[k];
+        }
+        b[i] /= a[i][i];
+    }
+    Some(b)
+}
+
+/// The second smoothing pass is this many depths coarser than the first.
+const SECOND_SMOOTHING: u32 = 2;
 
 /// Smooths the noise: each sample takes the median noise of the measured samples (those
 /// not NaN) in the 3×3×3 cells around it at depth `d`; 0 where none was measured.
@@ -358,6 +525,11 @@ pub fn adapt_at(
             .max(1)
     });
     let sigma = smooth(samples, &raw, smooth_depth);
+    let sigma = smooth(
+        samples,
+        &sigma,
+        smooth_depth.saturating_sub(SECOND_SMOOTHING).max(1),
+    );
     let mut sigmas: Vec<f64> = raw.into_iter().filter(|s| !s.is_nan()).collect();
     let median = median_by(&mut sigmas, f64::total_cmp).unwrap_or(0.0);
     let lowered: Vec<f64> = depths
@@ -377,6 +549,7 @@ pub fn adapt_at(
     let adapted = lowered.iter().filter(|&&l| l > ADAPTED).count();
     NoiseSummary {
         median,
+        median_cells: median * f64::from(max_depth).exp2(),
         measured: at.len() as f64 / n as f64,
         adapted: adapted as f64 / n as f64,
         mean_lowering: if adapted > 0 {

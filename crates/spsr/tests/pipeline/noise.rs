@@ -54,13 +54,13 @@ fn noisy_points_give_a_smoother_single_surface() {
     assert_eq!(topo.components, 1);
     let (e_off, e_on) = (radial_error(&off.mesh), radial_error(&on.mesh));
     assert!(e_on < 0.8 * e_off, "adaptive {e_on} against off {e_off}");
-    // The measured noise follows the noise put in (unit-cube units: the cube's side is 1.1
-    // times the points' extent); the spread within the finer cells reads about half of it.
+    // The measured noise (in the input's units) is the noise put in: the residual of a
+    // quadratic height field fitted around each sample leaves the noise and nothing of the
+    // sphere's curvature.
     let summary = on.stats.noise.expect("the noise stage ran");
-    let width = 1.1 * (2.0 + 6.0 * sigma);
-    let measured = summary.median * width;
+    let measured = summary.median;
     assert!(
-        (0.3 * sigma..sigma).contains(&measured),
+        (0.8 * sigma..1.2 * sigma).contains(&measured),
         "measured noise {measured}, put in {sigma}"
     );
     assert!(summary.adapted > 0.5, "{summary:?}");
@@ -92,7 +92,11 @@ fn noise_adaptation_is_invariant_under_translation_and_scaling() {
     let sa = a.stats.noise.unwrap();
     let sb = b.stats.noise.unwrap();
     assert!(
-        (sa.median - sb.median).abs() <= 1e-6 * sa.median,
+        (sa.median_cells - sb.median_cells).abs() <= 1e-6 * sa.median_cells,
+        "{sa:?} {sb:?}"
+    );
+    assert!(
+        (250.0 * sa.median - sb.median).abs() <= 1e-6 * sb.median,
         "{sa:?} {sb:?}"
     );
     assert!((sa.adapted - sb.adapted).abs() <= 0.01, "{sa:?} {sb:?}");
@@ -188,4 +192,31 @@ fn consistent_normals_are_left_alone() {
     let cloud = noisy_sphere(20_000, 0.02, 0.2, 9);
     let out = spsr::reconstruct(&cloud, &params(Noise::Adaptive)).unwrap();
     assert!(out.stats.warnings.is_empty(), "{:?}", out.stats.warnings);
+}
+
+/// Curvature and creases are not noise: a clean scan of a curved shape, reconstructed at a
+/// depth whose cells hold several points, keeps the reference's splat depths nearly
+/// everywhere. (The estimate once took the spread of offsets from a plane, and read the
+/// curvature of clean 100,000-point bunny, fandisk and rocker arm scans at depths 8 and 9 as
+/// noise, costing 3–8 % in accuracy.)
+#[test]
+fn clean_curved_shapes_read_no_noise_at_coarse_depths() {
+    let bunny = crate::common::bunny();
+    let torus = crate::common::torus(40_000, 1.0, 0.15, 5);
+    for (name, cloud) in [("bunny", &bunny), ("torus", &torus)] {
+        for depth in [6, 7, 8] {
+            let p = Params {
+                depth,
+                ..Params::default()
+            };
+            let on = spsr::reconstruct(cloud, &p).unwrap();
+            let summary = on.stats.noise.expect("the noise stage ran");
+            // Splat depths lowered by under 0.01 levels on average over all samples.
+            let lowering = summary.adapted * summary.mean_lowering;
+            assert!(
+                summary.median_cells < 0.25 && lowering < 0.01,
+                "{name} at depth {depth}: {summary:?}"
+            );
+        }
+    }
 }
