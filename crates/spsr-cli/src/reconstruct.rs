@@ -1107,27 +1107,48 @@ fn print_details(
         100.0 * d.contradicted_normals
     );
     let _ = writeln!(err, "output      {}", args.output.display());
-    let _ = writeln!(err, "timings:");
+    // Bytes moved at the least and flops, by the library's floor model (`spsr::Work`); the
+    // files count at their size on disk.
+    let file_size = |p: &std::path::Path| std::fs::metadata(p).map_or(0, |m| m.len());
+    let read_bytes: u64 = args.inputs().iter().map(|p| file_size(p)).sum();
+    let mesh = &result.mesh;
+    let _ = writeln!(
+        err,
+        "timings:{:>38}{:>20}{:>24}",
+        "", "floor: moved", "done      rate"
+    );
     let stages = std::iter::once(("reading", reading))
         .chain(stats.stages.iter().map(|(n, d)| (n.as_str(), *d)))
         .chain(std::iter::once(("writing", writing)));
     let memory = std::iter::once(None)
         .chain(stats.peak_memory.iter().copied())
         .chain(std::iter::once(None));
-    for ((name, d), mem) in stages.zip(memory) {
-        match mem {
-            Some(bytes) => {
-                let mib = bytes as f64 / (1024.0 * 1024.0);
-                let _ = writeln!(
-                    err,
-                    "  {name:<32} {:>9.3} s   peak {mib:>8.0} MiB",
-                    d.as_secs_f64()
-                );
-            }
-            None => {
-                let _ = writeln!(err, "  {name:<32} {:>9.3} s", d.as_secs_f64());
-            }
-        }
+    let work = std::iter::once(Some(spsr::work::reading(read_bytes, stats.points)))
+        .chain((0..stats.stages.len()).map(|k| stats.work.get(k).copied().flatten()))
+        .chain(std::iter::once(Some(spsr::work::writing(
+            file_size(&args.output),
+            mesh.vertices.len(),
+            mesh.triangles.len(),
+        ))));
+    for (((name, d), mem), work) in stages.zip(memory).zip(work) {
+        let mem = match mem {
+            Some(bytes) => format!("peak {:>8.0} MiB", bytes as f64 / (1024.0 * 1024.0)),
+            None => String::new(),
+        };
+        let work = match work {
+            Some(w) => format!(
+                "{:>9.3} GB {:>9.3} Gflop {:>7.2} GB/s",
+                w.bytes / 1e9,
+                w.flops / 1e9,
+                w.rate_gbs(d)
+            ),
+            None => String::new(),
+        };
+        let line = format!(
+            "  {name:<32} {:>9.3} s   {mem:<17}   {work}",
+            d.as_secs_f64()
+        );
+        let _ = writeln!(err, "{}", line.trim_end());
     }
     let _ = writeln!(err, "  {:<32} {:>9.3} s", "total", total.as_secs_f64());
     if let Some(report) = &stats.solve {

@@ -102,6 +102,13 @@ fn stats_out<'py>(
         .collect();
     stats.set_item("stages", &stages)?;
     stats.set_item("peak_memory", s.peak_memory.clone())?;
+    let work: Vec<Option<(f64, f64)>> = s
+        .work
+        .iter()
+        .map(|w| w.map(|w| (w.bytes, w.flops)))
+        .collect();
+    stats.set_item("work", work)?;
+    stats.set_item("clusters_per_depth", s.clusters_per_depth.clone())?;
     let warnings: Vec<String> = s.warnings.iter().map(errors::warning).collect();
     stats.set_item("warnings", warnings)?;
     let d = &s.diagnosis;

@@ -46,10 +46,12 @@ pub use gpu::GpuRelaxation;
 pub use mesh::Mesh;
 pub use params::{Gpu, Noise, Params, PointWeights, Resolution, Solver, MAX_DEPTH};
 pub use pipeline::diagnose::{self, Diagnosis};
+/// The floor model of each stage's work (issue 20): bytes moved and flops done.
+pub use pipeline::work;
 pub use pipeline::{
     reconstruct, reconstruct_and_trim, reconstruct_and_trim_implicit, reconstruct_implicit,
     reconstruct_owned, reconstruct_with_progress, resolution::resolve, stage_plan, DepthChoice,
-    DepthLimit, DepthReason, Grid, ImplicitFunction, NoiseSummary, Reconstruction, Stats,
+    DepthLimit, DepthReason, Grid, ImplicitFunction, NoiseSummary, Reconstruction, Stats, Work,
 };
 pub use points::{PointCloud, ScanOrigin};
 pub use resources::{memory_budget, peak_rss};

@@ -259,7 +259,9 @@ class Mesh:
         chose), ``depth_choice`` (how ``width`` or ``depth="auto"`` chose it, in one
         sentence, or None), ``iso_value``, ``mean_sample_depth``, ``nodes_per_depth``, ``stages`` (name and
         seconds of each stage), ``peak_memory`` (bytes after each stage, or None),
-        ``warnings``, ``diagnosis`` (the checks of the result: ``pieces``, ``closed``,
+        ``work`` (per stage, the bytes it must move at the least and the flops it does by
+        the floor model of ``spsr::work``, as ``(bytes, flops)``, or None for a stage without
+        a model), ``clusters_per_depth``, ``warnings``, ``diagnosis`` (the checks of the result: ``pieces``, ``closed``,
         ``boundary_edges``, ``on_cube``, the vertices on the bounding cube's faces, and
         ``contradicted_normals``, the share of the normals against the surface),
         ``noise`` (what the noise adaptation measured and changed: ``median``, the

@@ -45,12 +45,14 @@ pub mod solve;
 pub mod splat;
 pub mod system;
 pub mod tree;
+pub mod work;
 
 use diagnose::{Diagnosis, NormalProbe};
 pub use grid::{Grid, ImplicitFunction};
 pub use noise::NoiseSummary;
 pub use prepare::Frame;
 pub use resolution::{DepthChoice, DepthLimit, DepthReason};
+pub use work::Work;
 
 /// The output of [`reconstruct`].
 #[derive(Debug, Clone)]
@@ -75,12 +77,17 @@ pub struct Stats {
     pub samples: usize,
     /// Octree nodes per depth (index 0 is the unit cube).
     pub nodes_per_depth: Vec<usize>,
+    /// Screening clusters per depth (same indexing; 0 below the base depth).
+    pub clusters_per_depth: Vec<usize>,
     /// The iso-value γ.
     pub iso_value: f64,
     /// Weighted mean of the samples' estimated depths.
     pub mean_sample_depth: f64,
     /// Wall time of each stage, in order.
     pub stages: Vec<(String, Duration)>,
+    /// The bytes each stage must move and the flops it does, by the floor model of
+    /// [`work`]; same order as `stages`, `None` for a stage without a model.
+    pub work: Vec<Option<Work>>,
     /// What the user should hear about the input (dropped points, far outliers).
     pub warnings: Vec<Warning>,
     /// The peak memory estimated before the octree was built (bytes), which
@@ -308,6 +315,7 @@ fn reconstruct_input(
         .grid_res
         .map(|res| run.stage(GRID, || implicit.grid(res)));
     let (mut mesh, kept) = run.stage("extraction", || extract::extract(implicit, &solved, keep))?;
+    let extracted = (mesh.vertices.len(), mesh.triangles.len());
     if params.noise == Noise::Adaptive {
         let removed = run.stage(FRAGMENTS, || fragments::remove_fragments(&mut mesh));
         if removed > 0 {
@@ -342,6 +350,19 @@ fn reconstruct_input(
         stats.warnings.extend(stats.diagnosis.warning());
     }
     (stats.stages, stats.peak_memory) = run.finish();
+    let sizes = work::Sizes {
+        points: stats.points,
+        samples: stats.samples,
+        nodes_per_depth: stats.nodes_per_depth.clone(),
+        clusters_per_depth: stats.clusters_per_depth.clone(),
+        base_depth: params.base_depth().max(1).min(params.depth),
+        degree: params.degree.get(),
+        iters: params.iters,
+        splat_levels: if params.two_level_splat { 2 } else { 1 },
+        vertices: extracted.0,
+        faces: extracted.1,
+    };
+    stats.work = work::of_stages(stats.stages.iter().map(|(n, _)| n.as_str()), &sizes);
     Ok((Reconstruction { mesh, stats, grid }, trimmed, kept))
 }
 
@@ -456,6 +477,10 @@ pub(crate) fn solve_implicit(
         });
     }
     let solve_report = solution.report.take();
+    let clusters_per_depth = clusters[DEPTH_OFFSET as usize..]
+        .iter()
+        .map(|c| c.node.len())
+        .collect();
     drop(clusters);
     run.add_parts(&solution.timings);
     let eval = Evaluator::new(&tree, fem, &solution);
@@ -470,6 +495,7 @@ pub(crate) fn solve_implicit(
             .iter()
             .map(|l| l.len())
             .collect(),
+        clusters_per_depth,
         iso_value: iso,
         mean_sample_depth: field.mean_depth,
         warnings,

@@ -144,9 +144,9 @@ pub(super) fn solve(
         measuring: std::time::Duration::ZERO,
         started: std::time::Instant::now(),
     };
-    c.first_pass(tcons, v);
+    // The first cycle is timed by parts, with the cascade's names (issue 20's profile).
+    c.first_pass(tcons, v, &mut laps);
     c.end_cycle();
-    laps.lap("cycle 1: cascade".into());
     for k in 2..=p.cycles.max(1) {
         if max == tb {
             break;
@@ -180,8 +180,10 @@ impl<'a> Cycles<'a> {
         self.ops[t].as_ref().expect("operators above the base")
     }
 
-    /// The cascade, keeping each level's fixed right-hand side for the cycles to come.
-    fn first_pass(&mut self, mut tcons: Vec<Vec<f32>>, mut v: Vec<Vec<[f32; 3]>>) {
+    /// The cascade, keeping each level's fixed right-hand side for the cycles to come; each
+    /// depth's parts are laps of `laps`, as in [`super::cascade`], with the fixed right-hand
+    /// side and the residual's measurement as parts of their own.
+    fn first_pass(&mut self, mut tcons: Vec<Vec<f32>>, mut v: Vec<Vec<[f32; 3]>>, laps: &mut Laps) {
         let p = self.p;
         let (tb, max) = (self.tb, self.max);
         self.x_base = self.base.solve(&self.b_base);
@@ -189,33 +191,43 @@ impl<'a> Cycles<'a> {
             let after = self.base_residual(&self.b_base.clone());
             self.record(tb, "base", 1.0, after);
         }
+        laps.lap(format!(
+            "depth {}: conjugate gradients",
+            tb as u32 - DEPTH_OFFSET
+        ));
         self.pcum[tb] = self.x_base.clone();
         let mut vc: Vec<[f32; 3]> = std::mem::take(&mut v[tb]);
         if vc.is_empty() {
             vc = vec![[0.0; 3]; p.tree.levels[tb].len()];
         }
         for t in tb + 1..=max {
-            (p.progress)(&format!("solving depth {}", t as u32 - DEPTH_OFFSET));
+            let dd = t as u32 - DEPTH_OFFSET;
+            (p.progress)(&format!("solving depth {dd}"));
             let op = self.ops[t].as_ref().expect("operators above the base");
             let r = right_hand_side(op, p.fem, &tcons[t], &self.pcum[t - 1], &vc);
+            laps.lap(format!("depth {dd}: right-hand side"));
             let b = fixed_right_hand_side(op, &tcons[t], &vc);
             tcons[t] = Vec::new();
             if t == max {
                 vc = Vec::new();
             }
+            laps.lap(format!("depth {dd}: fixed right-hand side"));
             let mut x = vec![0.0f32; op.level.len()];
             op.gauss_seidel(&r, &mut x, p.iters);
             self.work += f64::from(p.iters) * op.level.len() as f64;
+            laps.lap(format!("depth {dd}: Gauss-Seidel"));
             if self.report.is_some() {
                 let clock = std::time::Instant::now();
                 let after = relative_residual(op, &r, &x);
                 self.measuring += clock.elapsed();
                 record(&mut self.report, 1, t, "up", 1.0, after);
+                laps.lap(format!("depth {dd}: residual"));
             }
             if t < max {
                 self.pcum[t] = prolong_solution(op, &self.pcum[t - 1], &x);
                 vc = prolong_field(op, &vc, std::mem::take(&mut v[t]));
             }
+            laps.lap(format!("depth {dd}: prolongation"));
             self.b[t] = b;
             self.x[t] = x;
         }
