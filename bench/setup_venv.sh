@@ -2,6 +2,7 @@
 # Creates (or completes) the benchmark's Python environment, outside the repository because it
 # is large (about 1.5 GB) and slow to build:
 #   numpy, matplotlib          needed by the harness (inputs it generates, plots)
+#   scipy                      bench/noise: nearest-neighbour distances of scans without a truth
 #   pypoisson2                 PoissonRecon 18.74; ships as source only: needs cmake and a C++
 #                              compiler, about 12 minutes to compile on 2 cores
 #   open3d                     its own, older copy of PoissonRecon; needs libusb-1.0 at import
@@ -21,6 +22,7 @@ PIPLOG="$VENV/spsr-bench-pip.log"
 # Versions the committed results were made with.
 NUMPY="numpy==2.4.6"
 MATPLOTLIB="matplotlib==3.11.2"
+SCIPY="scipy==1.17.1"
 PYPOISSON2="pypoisson2==1.0.0"
 OPEN3D="open3d==0.20.0"
 PYMESHLAB="pymeshlab==2025.7.post1"
@@ -68,6 +70,7 @@ install() {
 
 install numpy "$NUMPY" required
 install matplotlib "$MATPLOTLIB" required
+install scipy "$SCIPY" required
 
 # pypoisson2 builds PoissonRecon with cmake.
 if ! has poisson && ! command -v cmake >/dev/null; then

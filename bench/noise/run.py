@@ -2,7 +2,9 @@
 """Issue 16's measurements: the noise-adaptive defaults against PoissonRecon 18.74 at its defaults,
 against spsr with the adaptation off (today's behaviour) and, on the noise ramps, against every
 single --samples-per-node of {1.5, 3, 5, 10, 20}. Chamfer distance to the ground truth (spsr eval,
-relative to the truth's bounding-box diagonal), pieces, and wall time, per input and depth.
+relative to the truth's bounding-box diagonal; for the real scans, which have no truth, the
+symmetric Chamfer distance between the input points and the mesh), pieces, and wall time, per input
+and depth.
 
     ~/.cache/spsr-bench-venv/bin/python bench/noise/run.py [--depths 8 9 10] [--inputs ...]
         [--reps 1] [--name issue16-noise]
@@ -32,6 +34,8 @@ CACHE = os.path.expanduser("~/.cache/spsr-bench-inputs")
 NOISY = ["bunny_100k_noise0p25", "bunny_100k_noise0p5", "bunny_100k_noiseramp",
          "spot_100k_noise0p5", "rocker_arm_100k_noise0p5", "fandisk_100k_noiseramp"]
 CLEAN = ["bunny_100k", "spot_100k", "fandisk_100k", "rocker_arm_100k"]
+# Real scanner data without a ground truth (../shared/data/real): scored against their own points.
+REAL = ["real/kitten", "real/oni", "real/cube"]
 RAMPS = ["bunny_100k_noiseramp", "fandisk_100k_noiseramp"]
 SINGLE_S = [1.5, 3, 5, 10, 20]
 
@@ -93,7 +97,43 @@ def source(data, name):
     return cloud, gt_path
 
 
-def score(mesh, gt, samples):
+def read_mesh_ply(path):
+    """The harness's PLY mesh reader (bench/run.py), loaded by path: this file is also run.py."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("bench_run", os.path.join(ROOT, "bench", "run.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.read_mesh_ply(path)
+
+
+def score_real(mesh, cloud, samples):
+    """For scans without a ground truth: the symmetric Chamfer distance between the input points
+    and the mesh (mean of the points' distance to the nearest of `samples` area-uniform samples of
+    the mesh, fixed seed, and of those samples' distance to the nearest point), relative to the
+    points' bounding-box diagonal; pieces from spsr eval's topology."""
+    from scipy.spatial import cKDTree
+    p, _ = read_ply(cloud)
+    v, f = read_mesh_ply(mesh)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    rng = np.random.default_rng(16)
+    t = rng.choice(len(f), size=samples, p=area / area.sum())
+    r1, r2 = rng.random(samples), rng.random(samples)
+    s1 = np.sqrt(r1)[:, None]
+    q = (1 - s1) * a[t] + s1 * (1 - r2[:, None]) * b[t] + s1 * r2[:, None] * c[t]
+    d_pm = cKDTree(q).query(p)[0].mean()
+    d_mp = cKDTree(p).query(q)[0].mean()
+    diag = float(np.linalg.norm(p.max(0) - p.min(0)))
+    topo = subprocess.run([SPSR, "eval", mesh, "--reference", mesh, "--json", "--samples", "1000"],
+                          capture_output=True, text=True)
+    j = json.loads(topo.stdout.strip().splitlines()[-1]) if topo.returncode == 0 else {}
+    return {"chamfer": 0.5 * (d_pm + d_mp) / diag, "pieces": j.get("components"), "closed": j.get("closed"),
+            "scored_against": "points"}
+
+
+def score(mesh, gt, samples, cloud=None):
+    if gt is None:
+        return score_real(mesh, cloud, samples)
     args = [SPSR, "eval", mesh, "--json", "--samples", str(samples)]
     args += ["--reference", gt] if gt else []
     r = subprocess.run(args, capture_output=True, text=True)
@@ -123,7 +163,7 @@ def run_tool(tool, cloud, depth, out):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", default=os.path.join(ROOT, "..", "shared", "data"))
-    ap.add_argument("--inputs", nargs="+", default=NOISY + CLEAN)
+    ap.add_argument("--inputs", nargs="+", default=NOISY + CLEAN + REAL)
     ap.add_argument("--depths", nargs="+", type=int, default=[8, 9, 10])
     ap.add_argument("--reps", type=int, default=1)
     ap.add_argument("--samples", type=int, default=300_000)
@@ -149,7 +189,7 @@ def main():
                     if r.returncode:
                         row["error"] = (r.stderr or r.stdout).strip()[-300:]
                     elif rep == 0:
-                        row.update(score(out, gt, args.samples))
+                        row.update(score(out, gt, args.samples, cloud))
                     rows.append(row)
                     print(json.dumps(row), flush=True)
     os.makedirs(os.path.join(ROOT, "bench", "results"), exist_ok=True)
@@ -189,6 +229,10 @@ def table(rows):
             best, rbest = "", ""
         med = lambda t: f"{sorted(times[(inp, d, t)])[len(times[(inp, d, t)]) // 2]:.1f}" if (inp, d, t) in times else "—"
         lines.append(f"| {inp} | {d} | {s} | {o} | {f} | {ratio} | {best} | {rbest} | {med('spsr')} / {med('spsr-off')} / {med('reference')} |")
+    if any(inp.startswith("real/") for inp, _ in keys):
+        lines.append("")
+        lines.append("Real scans (`real/`) have no ground truth: their distance is the symmetric Chamfer "
+                     "distance between the input points and the mesh, relative to the points' diagonal.")
     return "\n".join(lines) + "\n"
 
 

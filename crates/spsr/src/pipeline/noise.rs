@@ -24,6 +24,15 @@
 //! surface bends (3–8 % less accurate on the clean bunny, fandisk and rocker arm at depths 8
 //! and 9). Where no depth is flat, nothing is measured.
 //!
+//! **Resolved or not.** A neighbourhood stops being flat below some depth for one of two
+//! reasons: noise thicker than `FLAT` allows, or shape (a bend, a horn) that the sampling
+//! hardly resolves. On a sparse scan the quadratic fit then reads the unresolved shape as
+//! noise (CGAL's 1,435-point oni lost a horn to it). So a sample's residual counts only when
+//! its next finer neighbourhood held at least `RESOLVE_SAMPLES` samples and was *not* flat:
+//! there the samples were dense enough to show the surface, and it was thick. Where the
+//! finer neighbourhood held too few samples to tell, the sample's noise is 0. Clean scans,
+//! dense or sparse, then keep the reference's splat depths.
+//!
 //! **Choosing.** A sample whose density gives cells of width `h` (depth `d`) and whose noise
 //! is `σ` is splatted at depth `d' = d − ½ log2(1 + r²)`, `r = (κσ/h)^p`, the same as
 //! multiplying its samples per node by `1 + r²`: where the noise is well below the spacing
@@ -49,6 +58,9 @@ const FLAT: f64 = 0.5;
 
 /// Fewest samples in a neighbourhood for its plane fit to count.
 const MIN_SAMPLES: f64 = 20.0;
+
+/// Fewest samples in a neighbourhood for its bend to count as noise (see `measure`).
+const RESOLVE_SAMPLES: f64 = 15.0;
 
 /// Splat cells grow with `(CELLS_PER_NOISE σ / h)^NOISE_POWER` (see the module docs).
 const CELLS_PER_NOISE: f64 = 2.0;
@@ -118,9 +130,9 @@ impl Moments {
         }
     }
 
-    /// The fitted plane (centroid and unit normal), when the moments look like a flat patch.
-    fn flat_plane(&self, count: f64) -> Option<Plane> {
-        if count < MIN_SAMPLES || self.w <= 0.0 {
+    /// What the moments of `count` samples look like; `None` with too few samples.
+    fn patch(&self, count: f64) -> Option<Patch> {
+        if count < RESOLVE_SAMPLES || self.w <= 0.0 {
             return None;
         }
         let m = self.s.map(|c| c / self.w);
@@ -131,11 +143,37 @@ impl Moments {
         });
         let (l, v) = eigen_sym3(&cov);
         let lo = l[0].max(0.0);
-        (l[1] > 0.0 && lo <= FLAT * FLAT * l[1]).then_some(Plane {
-            centre: m,
-            normal: v[0],
-            tangents: [v[1], v[2]],
+        let flat = l[1] > 0.0 && lo <= FLAT * FLAT * l[1];
+        if flat && count < MIN_SAMPLES {
+            return None;
+        }
+        Some(if flat {
+            Patch::Flat(Plane {
+                centre: m,
+                normal: v[0],
+                tangents: [v[1], v[2]],
+            })
+        } else {
+            Patch::Bent
         })
+    }
+}
+
+/// A neighbourhood with enough samples to tell its shape.
+#[derive(Debug, Clone, Copy)]
+enum Patch {
+    /// Flat, with the plane fitted to it.
+    Flat(Plane),
+    /// Not flat: noise or shape thicker than `FLAT` allows.
+    Bent,
+}
+
+impl Patch {
+    fn plane(&self) -> Option<&Plane> {
+        match self {
+            Patch::Flat(p) => Some(p),
+            Patch::Bent => None,
+        }
     }
 }
 
@@ -205,8 +243,8 @@ fn unpack(k: u64) -> [i64; 3] {
     ]
 }
 
-/// The plane of each occupied cell's 3×3×3 neighbourhood, where it is flat.
-fn flat_cells(level: &Level) -> FxHashMap<u64, Plane> {
+/// The patch of each occupied cell's 3×3×3 neighbourhood, where it holds enough samples.
+fn patches(level: &Level) -> FxHashMap<u64, Patch> {
     let keys: Vec<u64> = level.keys().copied().collect();
     keys.par_iter()
         .filter_map(|&k| {
@@ -227,7 +265,7 @@ fn flat_cells(level: &Level) -> FxHashMap<u64, Plane> {
                     }
                 }
             }
-            m.flat_plane(n).map(|s| (k, s))
+            m.patch(n).map(|s| (k, s))
         })
         .collect()
 }
@@ -237,10 +275,11 @@ fn flat_cells(level: &Level) -> FxHashMap<u64, Plane> {
 ///
 /// Each sample belongs to the cell of its finest flat depth; the noise of that cell is the
 /// residual of the quadratic height field fitted, over the cell's plane, to the offsets of
-/// the samples in the cell's 3×3×3 neighbourhood (the module docs say why).
+/// the samples in the cell's 3×3×3 neighbourhood, and counts only where the next finer
+/// neighbourhood resolved the surface (else 0; the module docs say why).
 fn measure(samples: &[Sample], top: u32) -> Vec<Option<(f64, u32)>> {
     let levels = levels(samples, top);
-    let flat: Vec<FxHashMap<u64, Plane>> = levels.iter().map(flat_cells).collect();
+    let flat: Vec<FxHashMap<u64, Patch>> = levels.iter().map(patches).collect();
     drop(levels);
     // Each sample's finest flat depth and cell there.
     let home: Vec<Option<(u32, u64)>> = samples
@@ -248,7 +287,24 @@ fn measure(samples: &[Sample], top: u32) -> Vec<Option<(f64, u32)>> {
         .map(|s| {
             (1..top).rev().find_map(|d| {
                 let k = pack(cell_of(s.pos, d));
-                flat[d as usize].contains_key(&k).then_some((d, k))
+                flat[d as usize]
+                    .get(&k)
+                    .and_then(Patch::plane)
+                    .map(|_| (d, k))
+            })
+        })
+        .collect();
+    // Whether noise is what kept each sample's next finer neighbourhood from being flat:
+    // it held enough samples, and was bent. Where it held too few, the surface is not
+    // resolved finer than the plane's depth, and the plane's residual may be shape.
+    let resolved: Vec<bool> = samples
+        .par_iter()
+        .zip(&home)
+        .map(|(s, h)| {
+            h.is_some_and(|(d, _)| {
+                flat[d as usize + 1]
+                    .get(&pack(cell_of(s.pos, d + 1)))
+                    .is_some_and(|p| p.plane().is_none())
             })
         })
         .collect();
@@ -264,7 +320,7 @@ fn measure(samples: &[Sample], top: u32) -> Vec<Option<(f64, u32)>> {
         let found: Vec<((u32, u64), f64)> = cells
             .par_iter()
             .filter_map(|&(d, k)| {
-                let plane = &flat[d as usize][&k];
+                let plane = flat[d as usize][&k].plane().expect("a flat cell");
                 let mut fit = QuadricFit::default();
                 for_each_neighbour(unpack(k), |q| {
                     for &i in index.members(pack(q)) {
@@ -279,9 +335,11 @@ fn measure(samples: &[Sample], top: u32) -> Vec<Option<(f64, u32)>> {
         noise.extend(found);
     }
     home.iter()
-        .map(|h| {
+        .zip(&resolved)
+        .map(|(h, &resolved)| {
             let (d, k) = (*h)?;
-            noise.get(&(d, k)).map(|&s| (s, d))
+            let sigma = noise.get(&(d, k))?;
+            Some((if resolved { *sigma } else { 0.0 }, d))
         })
         .collect()
 }
