@@ -277,9 +277,10 @@ def test_far_outliers_are_left_out_by_default():
 
 
 def test_noise_keyword_and_hand_tuning():
-    points, normals = fibonacci_sphere(5_000)
+    # Noise of about one point spacing, which the samples resolve (docs/noise.md).
+    points, normals = fibonacci_sphere(20_000)
     rng = np.random.default_rng(3)
-    noisy = points + rng.normal(scale=0.02, size=points.shape)
+    noisy = points + rng.normal(scale=0.04, size=points.shape)
     adaptive = spsr.reconstruct(noisy, normals, depth=7)
     off = spsr.reconstruct(noisy, normals, depth=7, noise="off")
     tuned = spsr.reconstruct(noisy, normals, depth=7, samples_per_node=1.5)
@@ -287,8 +288,15 @@ def test_noise_keyword_and_hand_tuning():
     assert len(adaptive.faces) < len(off.faces)
     # The noise measured is the noise put in, in the input's units.
     noise = adaptive.stats["noise"]
-    assert 0.015 < noise["median"] < 0.025, noise
+    assert 0.028 < noise["median"] < 0.048, noise
     assert noise["adapted"] > 0.5 and noise["mean_lowering"] > 0
     assert off.stats["noise"] is None
     with pytest.raises(ValueError, match="noise"):
         spsr.reconstruct(points, normals, noise="sometimes")
+    # Noise well under the point spacing cannot be told from the shape between the points:
+    # it is left alone, as PoissonRecon does.
+    sparse, sparse_normals = fibonacci_sphere(5_000)
+    faint = sparse + rng.normal(scale=0.02, size=sparse.shape)
+    left = spsr.reconstruct(faint, sparse_normals, depth=7)
+    assert left.stats["noise"]["adapted"] == 0
+    assert np.array_equal(left.vertices, spsr.reconstruct(faint, sparse_normals, depth=7, noise="off").vertices)

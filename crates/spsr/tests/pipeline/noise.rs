@@ -210,7 +210,11 @@ fn clean_curved_shapes_read_no_noise_at_coarse_depths() {
     sparse.positions = keep.iter().map(|&i| bunny.positions[i]).collect();
     sparse.normals = keep.iter().map(|&i| bunny.normals[i]).collect();
     sparse.attributes.clear();
-    for (name, cloud) in [("bunny", &bunny), ("torus", &torus), ("sparse bunny", &sparse)] {
+    for (name, cloud) in [
+        ("bunny", &bunny),
+        ("torus", &torus),
+        ("sparse bunny", &sparse),
+    ] {
         for depth in [6, 7, 8] {
             let p = Params {
                 depth,
