@@ -248,23 +248,14 @@ fn patches(level: &Level) -> FxHashMap<u64, Patch> {
     let keys: Vec<u64> = level.keys().copied().collect();
     keys.par_iter()
         .filter_map(|&k| {
-            let c = unpack(k);
             let mut m = Moments::default();
             let mut n = 0.0;
-            for dz in -1..=1 {
-                for dy in -1..=1 {
-                    for dx in -1..=1 {
-                        let q = [c[0] + dx, c[1] + dy, c[2] + dz];
-                        if q.iter().any(|&v| v < 0) {
-                            continue;
-                        }
-                        if let Some((qm, qn)) = level.get(&pack(q)) {
-                            m.add(qm);
-                            n += qn;
-                        }
-                    }
+            for_each_neighbour(unpack(k), |q| {
+                if let Some((qm, qn)) = level.get(&pack(q)) {
+                    m.add(qm);
+                    n += qn;
                 }
-            }
+            });
             m.patch(n).map(|s| (k, s))
         })
         .collect()
@@ -494,20 +485,11 @@ fn smooth(samples: &[Sample], sigma: &[f64], d: u32) -> Vec<f64> {
         .par_iter()
         .map_init(Vec::new, |buf: &mut Vec<f64>, &k| {
             buf.clear();
-            let c = unpack(k);
-            for dz in -1..=1 {
-                for dy in -1..=1 {
-                    for dx in -1..=1 {
-                        let q = [c[0] + dx, c[1] + dy, c[2] + dz];
-                        if q.iter().any(|&v| v < 0) {
-                            continue;
-                        }
-                        if let Some(v) = by_cell.get(&pack(q)) {
-                            buf.extend_from_slice(v);
-                        }
-                    }
+            for_each_neighbour(unpack(k), |q| {
+                if let Some(v) = by_cell.get(&pack(q)) {
+                    buf.extend_from_slice(v);
                 }
-            }
+            });
             if buf.is_empty() {
                 return (k, 0.0);
             }
