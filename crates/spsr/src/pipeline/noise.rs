@@ -71,7 +71,8 @@ const NOISE_POWER: f64 = 1.3;
 /// What the noise stage found, for the user.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct NoiseSummary {
-    /// Median noise over the samples where it was measured, in the input's units (in
+    /// Median noise over the samples where it was measured, counting as 0 those whose
+    /// surface the samples do not resolve (see the module docs), in the input's units (in
     /// unit-cube units until [`NoiseSummary::in_units`]).
     pub median: f64,
     /// The same in cells of the finest depth.
