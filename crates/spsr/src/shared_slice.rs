@@ -27,6 +27,16 @@ impl<T: Copy> SharedSlice<T> {
         *self.ptr.add(i)
     }
 
+    /// Elements `i..i + N`.
+    ///
+    /// # Safety
+    /// No concurrent write to any of them.
+    #[inline]
+    pub unsafe fn get_array<const N: usize>(&self, i: usize) -> [T; N] {
+        debug_assert!(i + N <= self.len);
+        self.ptr.add(i).cast::<[T; N]>().read()
+    }
+
     /// # Safety
     /// No concurrent access to element `i`.
     #[inline]

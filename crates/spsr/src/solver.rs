@@ -80,6 +80,8 @@ struct Op<'a> {
     degree: u8,
     /// Same-level window offsets used by the stiffness stencil.
     win: Vec<(usize, [i64; 3])>,
+    /// The interior stencil by neighbouring brood.
+    brood: BroodStencil,
     /// Offsets of cells whose clusters touch a function.
     cwin: Vec<usize>,
     /// Whether constants are in the system's kernel.
@@ -121,6 +123,7 @@ impl<'a> Op<'a> {
             cl: &p.clusters[t as usize],
             degree: p.fem.degree.get(),
             win,
+            brood: BroodStencil::new(&tab.stencil, p.fem.degree.get()),
             cwin,
             singular: p.singular,
             gpu: p.gpu,
@@ -134,23 +137,17 @@ impl<'a> Op<'a> {
 
     /// `Σ_j L_ij x_j` for row `n`, reading coefficients through `x`.
     #[inline]
-    fn stiffness_row(&self, n: u32, i: [i64; 3], x: impl Fn(usize) -> f64) -> f64 {
-        let mut s = 0.0;
+    fn stiffness_row(&self, n: u32, i: [i64; 3], x: &(impl Coefficients + ?Sized)) -> f64 {
         if self.tab.range.interior(i, 3) {
-            for &(w, _) in &self.win {
-                let m = neighbor_in(self.level, n, w);
-                if m != NONE {
-                    s += self.tab.stencil[w] * x(m as usize);
-                }
-            }
-        } else {
-            for &(w, o) in &self.win {
-                let m = neighbor_in(self.level, n, w);
-                if m != NONE {
-                    let xm = x(m as usize);
-                    if xm != 0.0 {
-                        s += self.tab.stiffness(i, o) * xm;
-                    }
+            return self.brood.row(self.level, n, x);
+        }
+        let mut s = 0.0;
+        for &(w, o) in &self.win {
+            let m = neighbor_in(self.level, n, w);
+            if m != NONE {
+                let xm = x.at(m as usize);
+                if xm != 0.0 {
+                    s += self.tab.stiffness(i, o) * xm;
                 }
             }
         }
@@ -309,7 +306,7 @@ impl<'a> Op<'a> {
                     return 0.0;
                 }
                 let i = self.index(n);
-                let mut s = self.stiffness_row(n, i, |m| x[m]);
+                let mut s = self.stiffness_row(n, i, x);
                 self.for_each_cluster(n, i, |c, bv| {
                     s += self.cl.omega[c as usize] * bv * chi[c as usize]
                 });
@@ -511,7 +508,7 @@ impl<'a> Op<'a> {
         if !self.tab.range.contains(i) {
             return;
         }
-        let mut s = self.stiffness_row(n, i, |m| f64::from(x.get(m)));
+        let mut s = self.stiffness_row(n, i, &Live(x));
         let mut dg = if self.tab.range.interior(i, 3) {
             self.tab.stencil[62]
         } else {
@@ -531,6 +528,107 @@ impl<'a> Op<'a> {
         for &(c, bv) in &touched[..k] {
             chi.set(c as usize, chi.get(c as usize) + dx * bv);
         }
+    }
+}
+
+/// The interior stiffness stencil regrouped by neighbouring brood (issue 20). For a node at
+/// child position `c`, `rows[c]` lists the slots of the broods its window reaches and, for
+/// each, the stencil entries of that brood's eight nodes (zero outside the window). A row is
+/// then 8 (degree 1) or 27 (degree 2) reads of eight contiguous coefficients, summed lane by
+/// lane, instead of 27 or 125 scattered reads summed one after another.
+struct BroodStencil {
+    rows: [Vec<(u8, [f64; 8])>; 8],
+}
+
+impl BroodStencil {
+    fn new(stencil: &[f64; 125], degree: u8) -> Self {
+        let r = i64::from(degree);
+        let rows = std::array::from_fn(|c| {
+            let mut row = Vec::new();
+            for slot in 0..27u8 {
+                let db = [slot % 3, slot / 3 % 3, slot / 9].map(|v| i64::from(v) - 1);
+                let mut coef = [0.0; 8];
+                for (k, e) in coef.iter_mut().enumerate() {
+                    let o: [i64; 3] = std::array::from_fn(|a| {
+                        2 * db[a] + ((k >> a) & 1) as i64 - ((c >> a) & 1) as i64
+                    });
+                    if o.iter().all(|v| v.abs() <= r) {
+                        *e = stencil[window_index(o)];
+                    }
+                }
+                if coef.iter().any(|&e| e != 0.0) {
+                    row.push((slot, coef));
+                }
+            }
+            row
+        });
+        BroodStencil { rows }
+    }
+
+    /// `Σ_j L_nj x_j` for an interior node `n`: lane `k` sums the `k`-th nodes of the
+    /// neighbouring broods, and the lanes are added pairwise in a fixed order.
+    #[inline]
+    fn row(&self, level: &Level, n: u32, x: &(impl Coefficients + ?Sized)) -> f64 {
+        let nbrs = &level.brood_nbrs[(n >> 3) as usize];
+        let mut acc = [0.0f64; 8];
+        for (slot, coef) in &self.rows[(n & 7) as usize] {
+            let b = nbrs[usize::from(*slot)];
+            if b == NONE {
+                continue;
+            }
+            let v = x.brood(b as usize);
+            for k in 0..8 {
+                acc[k] += coef[k] * v[k];
+            }
+        }
+        ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
+    }
+}
+
+/// A level's coefficients, read one node or one brood (eight consecutive nodes) at a time.
+trait Coefficients {
+    fn at(&self, m: usize) -> f64;
+    fn brood(&self, b: usize) -> [f64; 8];
+}
+
+impl Coefficients for [f64] {
+    #[inline]
+    fn at(&self, m: usize) -> f64 {
+        self[m]
+    }
+    #[inline]
+    fn brood(&self, b: usize) -> [f64; 8] {
+        let v: &[f64; 8] = self[8 * b..8 * b + 8].try_into().expect("eight nodes");
+        *v
+    }
+}
+
+impl Coefficients for [f32] {
+    #[inline]
+    fn at(&self, m: usize) -> f64 {
+        f64::from(self[m])
+    }
+    #[inline]
+    fn brood(&self, b: usize) -> [f64; 8] {
+        let v: &[f32; 8] = self[8 * b..8 * b + 8].try_into().expect("eight nodes");
+        v.map(f64::from)
+    }
+}
+
+/// The coefficients a Gauss–Seidel sweep is updating. Built only in [`Op::relax`], whose
+/// caller guarantees that no other thread writes the coefficients a row reads.
+struct Live<'a>(&'a SharedSlice<f32>);
+
+impl Coefficients for Live<'_> {
+    #[inline]
+    fn at(&self, m: usize) -> f64 {
+        // SAFETY: see the type's comment.
+        f64::from(unsafe { self.0.get(m) })
+    }
+    #[inline]
+    fn brood(&self, b: usize) -> [f64; 8] {
+        // SAFETY: see the type's comment.
+        unsafe { self.0.get_array::<8>(8 * b) }.map(f64::from)
     }
 }
 

@@ -483,7 +483,7 @@ fn residual_squared<R: Copy + Into<f64> + Sync>(op: &Op, r: &[R], x: &[f32]) -> 
             if !op.tab.range.contains(i) {
                 return 0.0;
             }
-            let mut s = op.stiffness_row(n, i, |m| f64::from(x[m]));
+            let mut s = op.stiffness_row(n, i, &x[..]);
             op.for_each_cluster(n, i, |c, bv| {
                 s += op.cl.omega[c as usize] * bv * chi[c as usize];
             });
@@ -624,7 +624,7 @@ pub(super) fn apply_stiffness(p: &Problem, xs: &[Vec<f32>]) -> Vec<Vec<f64>> {
                 if !op.tab.range.contains(i) {
                     return 0.0;
                 }
-                let mut s = op.stiffness_row(n, i, |m| f64::from(x[m]));
+                let mut s = op.stiffness_row(n, i, &x[..]);
                 if t > tb {
                     s -= op.add_coarse_coupling::<true, false>(0.0, n, i, &prev, &[]);
                 }
