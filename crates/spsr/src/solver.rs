@@ -416,6 +416,7 @@ impl<'a> Op<'a> {
     fn gauss_seidel_cpu<R: Copy + Into<f64> + Sync>(&self, r: &[R], x: &mut [f32], iters: u32) {
         let blocks = self.colour_blocks();
         let node_colours = self.node_colours();
+        let residues = self.brood_residues();
         let mut chi = self.cluster_values(|n| f64::from(x[n]));
         let xs = SharedSlice::new(x);
         let cs = SharedSlice::new(&mut chi);
@@ -424,16 +425,14 @@ impl<'a> Op<'a> {
                 list.par_iter().for_each(|&(b0, b1)| {
                     for c in 0..node_colours {
                         for b in b0..b1 {
-                            for k in 0..8 {
-                                let n = 8 * b + k;
-                                let i = self.index(n);
-                                if self.node_colour(n, i) != c {
-                                    continue;
-                                }
-                                // SAFETY: only this block's task touches the coefficients
-                                // and cluster values within two nodes of its nodes (above).
-                                unsafe { self.relax(n, i, r[n as usize].into(), &xs, &cs) };
+                            let k = self.child_of_colour(c, residues.get(b as usize));
+                            if k == NO_CHILD {
+                                continue;
                             }
+                            let n = 8 * b + u32::from(k);
+                            // SAFETY: only this block's task touches the coefficients and
+                            // cluster values within two nodes of its nodes (above).
+                            unsafe { self.relax(n, self.index(n), r[n as usize].into(), &xs, &cs) };
                         }
                     }
                 });
@@ -441,21 +440,35 @@ impl<'a> Op<'a> {
         }
     }
 
+    /// For degree 2, each brood's first function index modulo 3 per axis, as one number
+    /// `rx + 3 ry + 9 rz` (empty for degree 1, whose colours are child positions).
+    fn brood_residues(&self) -> Vec<u8> {
+        if self.degree == 1 {
+            return Vec::new();
+        }
+        (0..(self.level.len() / 8) as u32)
+            .into_par_iter()
+            .map(|b| {
+                let i = self.index(8 * b);
+                (i[0].rem_euclid(3) + 3 * i[1].rem_euclid(3) + 9 * i[2].rem_euclid(3)) as u8
+            })
+            .collect()
+    }
+
+    /// The child position of the node of colour `c` in a brood whose residues are `res`
+    /// ([`Op::brood_residues`]), or [`NO_CHILD`]: a brood holds at most one node per colour.
+    #[inline]
+    fn child_of_colour(&self, c: u32, res: Option<&u8>) -> u8 {
+        match res {
+            None => c as u8,
+            Some(&res) => CHILD_OF_COLOUR[c as usize][usize::from(res)],
+        }
+    }
+
     /// Number of node colours: `(degree + 1)³`.
     fn node_colours(&self) -> u32 {
         let m = u32::from(self.degree) + 1;
         m * m * m
-    }
-
-    /// The colour of node `n` (function index `i`): see [`Op::gauss_seidel_cpu`].
-    #[inline]
-    fn node_colour(&self, n: u32, i: [i64; 3]) -> u32 {
-        if self.degree == 1 {
-            n & 7
-        } else {
-            let m = i64::from(self.degree) + 1;
-            (i[0].rem_euclid(m) + m * (i[1].rem_euclid(m) + m * i[2].rem_euclid(m))) as u32
-        }
     }
 
     /// The level's blocks `(first, end)` of broods, grouped by colour (the parity of the
@@ -631,6 +644,41 @@ impl Coefficients for Live<'_> {
         unsafe { self.0.get_array::<8>(8 * b) }.map(f64::from)
     }
 }
+
+/// No node of the asked colour in a brood ([`Op::child_of_colour`]).
+const NO_CHILD: u8 = 8;
+
+/// Degree 2: the child position with node colour `c` (`cx + 3 cy + 9 cz`, function index
+/// modulo 3 per axis) in a brood whose first node's residues are `r`, or [`NO_CHILD`]. Per
+/// axis the child at position `p ∈ {0, 1}` has residue `r + p` modulo 3.
+static CHILD_OF_COLOUR: [[u8; 27]; 27] = {
+    let mut t = [[NO_CHILD; 27]; 27];
+    let mut c = 0;
+    while c < 27 {
+        let mut r = 0;
+        while r < 27 {
+            let cc = [c % 3, c / 3 % 3, c / 9];
+            let rr = [r % 3, r / 3 % 3, r / 9];
+            let mut k = 0u8;
+            let mut ok = true;
+            let mut a = 0;
+            while a < 3 {
+                let p = (cc[a] + 3 - rr[a]) % 3;
+                if p > 1 {
+                    ok = false;
+                }
+                k |= (p as u8) << a;
+                a += 1;
+            }
+            if ok {
+                t[c][r] = k;
+            }
+            r += 1;
+        }
+        c += 1;
+    }
+    t
+};
 
 /// A sparse matrix with the same number of slots in every row.
 struct FixedRows {

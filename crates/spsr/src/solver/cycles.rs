@@ -483,7 +483,7 @@ fn residual_squared<R: Copy + Into<f64> + Sync>(op: &Op, r: &[R], x: &[f32]) -> 
             if !op.tab.range.contains(i) {
                 return 0.0;
             }
-            let mut s = op.stiffness_row(n, i, &x[..]);
+            let mut s = op.stiffness_row(n, i, x);
             op.for_each_cluster(n, i, |c, bv| {
                 s += op.cl.omega[c as usize] * bv * chi[c as usize];
             });

@@ -83,4 +83,16 @@ impl Op<'_> {
         }
         (order, ends)
     }
+
+    /// The colour of node `n` (function index `i`): see [`Op::gauss_seidel_cpu`], whose
+    /// sweep finds the node of each colour per brood with [`Op::child_of_colour`].
+    #[inline]
+    fn node_colour(&self, n: u32, i: [i64; 3]) -> u32 {
+        if self.degree == 1 {
+            n & 7
+        } else {
+            let m = i64::from(self.degree) + 1;
+            (i[0].rem_euclid(m) + m * (i[1].rem_euclid(m) + m * i[2].rem_euclid(m))) as u32
+        }
+    }
 }
