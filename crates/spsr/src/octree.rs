@@ -504,6 +504,25 @@ impl NodeRank {
         Self { bits, before }
     }
 
+    /// The members among brood `b`'s eight nodes (bit `k` for node `8b + k`) and the rank
+    /// of the first member: node `8b + k`'s rank is the second plus the members below bit `k`.
+    #[inline]
+    pub fn brood(&self, b: u32) -> (u8, u32) {
+        let k = (b >> 3) as usize;
+        let Some(&word) = self.bits.get(k) else {
+            return (0, 0);
+        };
+        let shift = (b & 7) * 8;
+        let members = (word >> shift) as u8;
+        if members == 0 {
+            return (0, 0);
+        }
+        (
+            members,
+            self.before[k] + (word & ((1u64 << shift) - 1)).count_ones(),
+        )
+    }
+
     /// Rank of node `m`, or [`NONE`] if it is not a member.
     #[inline]
     pub fn get(&self, m: u32) -> u32 {

@@ -82,8 +82,9 @@ struct Op<'a> {
     win: Vec<(usize, [i64; 3])>,
     /// The interior stencil by neighbouring brood.
     brood: BroodStencil,
-    /// Offsets of cells whose clusters touch a function.
-    cwin: Vec<usize>,
+    /// Per child position, the neighbouring broods whose nodes' clusters can touch a
+    /// function, with the mask of those nodes.
+    cbroods: [Vec<(u8, u8)>; 8],
     /// Whether constants are in the system's kernel.
     singular: bool,
     /// The GPU that relaxes the level, if any.
@@ -105,15 +106,6 @@ impl<'a> Op<'a> {
                 }
             }
         }
-        let co = cluster_offsets(p.fem.degree.get());
-        let mut cwin = Vec::new();
-        for &z in co {
-            for &y in co {
-                for &x in co {
-                    cwin.push(window_index([x, y, z]));
-                }
-            }
-        }
         Op {
             tree: p.tree,
             t,
@@ -124,7 +116,7 @@ impl<'a> Op<'a> {
             degree: p.fem.degree.get(),
             win,
             brood: BroodStencil::new(&tab.stencil, p.fem.degree.get()),
-            cwin,
+            cbroods: cluster_broods(p.fem.degree.get()),
             singular: p.singular,
             gpu: p.gpu,
         }
@@ -154,17 +146,26 @@ impl<'a> Op<'a> {
         s
     }
 
-    /// Calls `f(cluster, B_i(p_c))` for every screening cluster that touches function `i`.
+    /// Calls `f(cluster, B_i(p_c))` for every screening cluster that touches function `i`
+    /// (node `n`), brood by brood: one rank word per neighbouring brood gives its members.
     #[inline]
     fn for_each_cluster(&self, n: u32, i: [i64; 3], mut f: impl FnMut(u32, f64)) {
-        for &w in &self.cwin {
-            let m = neighbor_in(self.level, n, w);
-            if m == NONE {
+        let nbrs = &self.level.brood_nbrs[(n >> 3) as usize];
+        for &(slot, mask) in &self.cbroods[(n & 7) as usize] {
+            let b = nbrs[usize::from(slot)];
+            if b == NONE {
                 continue;
             }
-            let c = self.cl.of_node.get(m);
-            if c != NONE {
-                f(c, self.cl.basis_value(c as usize, i, self.degree));
+            let (members, first) = self.cl.of_node.brood(b);
+            let mut bits = members & mask;
+            while bits != 0 {
+                let k = bits.trailing_zeros();
+                let c = first + (members & ((1u8 << k) - 1)).count_ones();
+                let bv = self.cl.basis_value(c as usize, i, self.degree);
+                if bv != 0.0 {
+                    f(c, bv);
+                }
+                bits &= bits - 1;
             }
         }
     }
@@ -542,6 +543,32 @@ impl<'a> Op<'a> {
             chi.set(c as usize, chi.get(c as usize) + dx * bv);
         }
     }
+}
+
+/// For each child position, the neighbouring brood slots holding cells within the offsets
+/// of [`cluster_offsets`] (the cells whose clusters can touch the node's function), each with
+/// the mask of its nodes among them.
+fn cluster_broods(degree: u8) -> [Vec<(u8, u8)>; 8] {
+    let offsets = cluster_offsets(degree);
+    std::array::from_fn(|c| {
+        let mut out = Vec::new();
+        for slot in 0..27u8 {
+            let db = [slot % 3, slot / 3 % 3, slot / 9].map(|v| i64::from(v) - 1);
+            let mut mask = 0u8;
+            for k in 0..8usize {
+                let o: [i64; 3] = std::array::from_fn(|a| {
+                    2 * db[a] + ((k >> a) & 1) as i64 - ((c >> a) & 1) as i64
+                });
+                if o.iter().all(|v| offsets.contains(v)) {
+                    mask |= 1 << k;
+                }
+            }
+            if mask != 0 {
+                out.push((slot, mask));
+            }
+        }
+        out
+    })
 }
 
 /// The interior stiffness stencil regrouped by neighbouring brood (issue 20). For a node at
