@@ -13,7 +13,9 @@ use crate::bspline::Basis;
 use crate::gpu::Device;
 use crate::octree::{func_index, neighbor_in, window_index, Level, Octree, DEPTH_OFFSET, NONE};
 use crate::shared_slice::SharedSlice;
-use crate::system::{cluster_offsets, divergence_constraints, prolong, Clusters, DepthTables};
+use crate::system::{
+    cluster_offsets, divergence_constraints, prolong, BroodStencil, Clusters, DepthTables,
+};
 use crate::Solver;
 
 mod cycles;
@@ -80,8 +82,8 @@ struct Op<'a> {
     degree: u8,
     /// Same-level window offsets used by the stiffness stencil.
     win: Vec<(usize, [i64; 3])>,
-    /// The interior stencil by neighbouring brood.
-    brood: BroodStencil,
+    /// The interior stiffness stencil by neighbouring brood.
+    brood: BroodStencil<1>,
     /// Per child position, the neighbouring broods whose nodes' clusters can touch a
     /// function, with the mask of those nodes.
     cbroods: [Vec<(u8, u8)>; 8],
@@ -115,7 +117,7 @@ impl<'a> Op<'a> {
             cl: &p.clusters[t as usize],
             degree: p.fem.degree.get(),
             win,
-            brood: BroodStencil::new(&tab.stencil, p.fem.degree.get()),
+            brood: BroodStencil::new([&tab.stencil]),
             cbroods: cluster_broods(p.fem.degree.get()),
             singular: p.singular,
             gpu: p.gpu,
@@ -131,7 +133,7 @@ impl<'a> Op<'a> {
     #[inline]
     fn stiffness_row(&self, n: u32, i: [i64; 3], x: &(impl Coefficients + ?Sized)) -> f64 {
         if self.tab.range.interior(i, 3) {
-            return self.brood.row(self.level, n, x);
+            return self.brood.row(self.level, n, |b| [x.brood(b as usize)]);
         }
         let mut s = 0.0;
         for &(w, o) in &self.win {
@@ -569,60 +571,6 @@ fn cluster_broods(degree: u8) -> [Vec<(u8, u8)>; 8] {
         }
         out
     })
-}
-
-/// The interior stiffness stencil regrouped by neighbouring brood (issue 20). For a node at
-/// child position `c`, `rows[c]` lists the slots of the broods its window reaches and, for
-/// each, the stencil entries of that brood's eight nodes (zero outside the window). A row is
-/// then 8 (degree 1) or 27 (degree 2) reads of eight contiguous coefficients, summed lane by
-/// lane, instead of 27 or 125 scattered reads summed one after another.
-struct BroodStencil {
-    rows: [Vec<(u8, [f64; 8])>; 8],
-}
-
-impl BroodStencil {
-    fn new(stencil: &[f64; 125], degree: u8) -> Self {
-        let r = i64::from(degree);
-        let rows = std::array::from_fn(|c| {
-            let mut row = Vec::new();
-            for slot in 0..27u8 {
-                let db = [slot % 3, slot / 3 % 3, slot / 9].map(|v| i64::from(v) - 1);
-                let mut coef = [0.0; 8];
-                for (k, e) in coef.iter_mut().enumerate() {
-                    let o: [i64; 3] = std::array::from_fn(|a| {
-                        2 * db[a] + ((k >> a) & 1) as i64 - ((c >> a) & 1) as i64
-                    });
-                    if o.iter().all(|v| v.abs() <= r) {
-                        *e = stencil[window_index(o)];
-                    }
-                }
-                if coef.iter().any(|&e| e != 0.0) {
-                    row.push((slot, coef));
-                }
-            }
-            row
-        });
-        BroodStencil { rows }
-    }
-
-    /// `Σ_j L_nj x_j` for an interior node `n`: lane `k` sums the `k`-th nodes of the
-    /// neighbouring broods, and the lanes are added pairwise in a fixed order.
-    #[inline]
-    fn row(&self, level: &Level, n: u32, x: &(impl Coefficients + ?Sized)) -> f64 {
-        let nbrs = &level.brood_nbrs[(n >> 3) as usize];
-        let mut acc = [0.0f64; 8];
-        for (slot, coef) in &self.rows[(n & 7) as usize] {
-            let b = nbrs[usize::from(*slot)];
-            if b == NONE {
-                continue;
-            }
-            let v = x.brood(b as usize);
-            for k in 0..8 {
-                acc[k] += coef[k] * v[k];
-            }
-        }
-        ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
-    }
 }
 
 /// A level's coefficients, read one node or one brood (eight consecutive nodes) at a time.

@@ -279,6 +279,65 @@ fn stiffness_3d(mass: &Table1D, stiff: &Table1D, i: [i64; 3], o: [i64; 3]) -> f6
     k[0] * m[1] * m[2] + m[0] * k[1] * m[2] + m[0] * m[1] * k[2]
 }
 
+/// `K` same-depth 5×5×5 stencils regrouped by neighbouring brood (issue 20). For a node at
+/// child position `c`, `rows[c]` lists the slots of the broods its window reaches and, for
+/// each, the stencils' entries for that brood's eight nodes (zero outside the window). A row
+/// is then at most 27 reads of eight contiguous values, summed lane by lane, instead of 125
+/// scattered reads summed one after another.
+pub struct BroodStencil<const K: usize> {
+    rows: [Vec<(u8, [[f64; 8]; K])>; 8],
+}
+
+impl<const K: usize> BroodStencil<K> {
+    /// The stencils, indexed by [`window_index`].
+    pub fn new(stencils: [&[f64; 125]; K]) -> Self {
+        let rows = std::array::from_fn(|c| {
+            let mut row = Vec::new();
+            for slot in 0..27u8 {
+                let db = [slot % 3, slot / 3 % 3, slot / 9].map(|v| i64::from(v) - 1);
+                let mut coef = [[0.0; 8]; K];
+                for k in 0..8 {
+                    let o: [i64; 3] = std::array::from_fn(|a| {
+                        2 * db[a] + ((k >> a) & 1) as i64 - ((c >> a) & 1) as i64
+                    });
+                    if o.iter().all(|v| v.abs() <= 2) {
+                        for (e, st) in coef.iter_mut().zip(&stencils) {
+                            e[k] = st[window_index(o)];
+                        }
+                    }
+                }
+                if coef.iter().flatten().any(|&e| e != 0.0) {
+                    row.push((slot, coef));
+                }
+            }
+            row
+        });
+        BroodStencil { rows }
+    }
+
+    /// `Σ_j Σ_k S_k[n, j] y_k[j]` over the window of node `n` of `level`, where `brood(b)`
+    /// gives the `K` values of brood `b`'s eight nodes. Lane `l` sums the `l`-th nodes of the
+    /// broods; the lanes are added pairwise in a fixed order.
+    #[inline]
+    pub fn row(&self, level: &Level, n: u32, brood: impl Fn(u32) -> [[f64; 8]; K]) -> f64 {
+        let nbrs = &level.brood_nbrs[(n >> 3) as usize];
+        let mut acc = [0.0f64; 8];
+        for (slot, coef) in &self.rows[(n & 7) as usize] {
+            let b = nbrs[usize::from(*slot)];
+            if b == NONE {
+                continue;
+            }
+            let v = brood(b);
+            for (ck, vk) in coef.iter().zip(&v) {
+                for l in 0..8 {
+                    acc[l] += ck[l] * vk[l];
+                }
+            }
+        }
+        ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
+    }
+}
+
 /// Screening clusters of one level (ALGORITHM.md §3.7).
 #[derive(Debug, Default, Clone)]
 pub struct Clusters {
@@ -464,6 +523,7 @@ pub fn divergence_constraints(
         Some(next) if !v_finer.is_empty() => push_finer_v(level, next, d, tab, v_finer),
         _ => Vec::new(),
     };
+    let vbrood = BroodStencil::new([&tab.vstencil[0], &tab.vstencil[1], &tab.vstencil[2]]);
     (0..level.len() as u32)
         .into_par_iter()
         .map(|n| {
@@ -477,7 +537,9 @@ pub fn divergence_constraints(
                 g += restrict_one(tree, level, next, fem, d, n, i, gf);
             }
             let mut b = g;
-            if !v.is_empty() {
+            if !v.is_empty() && interior {
+                b += vbrood.row(level, n, |m| v_brood(v, m));
+            } else if !v.is_empty() {
                 for w in 0..125 {
                     let m = neighbor_in(level, n, w);
                     if m == NONE {
@@ -488,12 +550,6 @@ pub fn divergence_constraints(
                         continue;
                     }
                     let vm = [f64::from(vm[0]), f64::from(vm[1]), f64::from(vm[2])];
-                    if interior {
-                        b += vm[0] * tab.vstencil[0][w]
-                            + vm[1] * tab.vstencil[1][w]
-                            + vm[2] * tab.vstencil[2][w];
-                        continue;
-                    }
                     let o = [
                         (w % 5) as i64 - 2,
                         ((w / 5) % 5) as i64 - 2,
@@ -518,6 +574,15 @@ pub fn divergence_constraints(
 /// its parent's 5×5×5 window). Broods are coloured by their parent's key modulo 5 per axis:
 /// parents of one colour are at least 5 apart, so their windows never overlap and a colour is
 /// pushed in parallel without races, in an order that does not depend on the thread count.
+/// The V of brood `b`'s eight nodes, component by component.
+#[inline]
+fn v_brood(v: &[[f32; 3]], b: u32) -> [[f64; 8]; 3] {
+    let nodes: &[[f32; 3]; 8] = v[8 * b as usize..8 * b as usize + 8]
+        .try_into()
+        .expect("eight nodes");
+    std::array::from_fn(|a| std::array::from_fn(|k| f64::from(nodes[k][a])))
+}
+
 fn push_finer_v(
     level: &Level,
     next: &Level,
