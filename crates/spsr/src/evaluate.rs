@@ -62,19 +62,44 @@ impl<'a> Evaluator<'a> {
 
     fn sum<const GRAD: bool>(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
         let (t, n) = self.leaf(p);
+        self.sum_in::<GRAD>(t, n, &|d| self.windows(d, p))
+    }
+
+    /// χ (and ∇χ) at a point of leaf `(t, n)` whose per-axis windows at unit depth `d` are
+    /// `win(d)`. The windows are asked for only when a level has coefficients, and the terms
+    /// are summed in one fixed order, so any `win` that returns the same windows gives the
+    /// same bits.
+    fn sum_in<const GRAD: bool>(
+        &self,
+        t: u32,
+        n: u32,
+        win: &impl Fn(u32) -> [Window; 3],
+    ) -> (f64, [f64; 3]) {
         let mut acc = (0.0, [0.0; 3]);
         let base = self.sol.base_level;
         if t > base {
             let par = self.tree.parent(t, n);
-            self.window_sum::<GRAD>(t - 1, par, p, &self.sol.p[t as usize - 1], &mut acc);
+            self.window_sum::<GRAD>(t - 1, par, win, &self.sol.p[t as usize - 1], &mut acc);
         }
         if t >= base {
-            self.window_sum::<GRAD>(t, n, p, &self.sol.x[t as usize], &mut acc);
+            self.window_sum::<GRAD>(t, n, win, &self.sol.x[t as usize], &mut acc);
         }
         if t < self.t_max && t >= base {
-            self.finer_sum::<GRAD>(t, n, p, &mut acc);
+            self.finer_sum::<GRAD>(t, n, win, &mut acc);
         }
         acc
+    }
+
+    /// χ (and ∇χ) at the corner `c` of the finest grid (integer coordinates at
+    /// [`Evaluator::max_depth`]), with the per-axis windows taken from `table`. Equal to
+    /// [`Evaluator::value_grad`] at `c · 2^-max_depth`, bit for bit: the leaf is the one
+    /// [`Evaluator::leaf`] finds (the point times `2^max_depth` is exactly `c`) and the table
+    /// holds the windows [`Basis::window`] gives there.
+    fn corner_sum<const GRAD: bool>(&self, c: [u32; 3], table: &CornerWindows) -> (f64, [f64; 3]) {
+        let n = 1u64 << self.max_depth();
+        let key = c.map(|x| u64::from(x).min(n - 1) + n);
+        let (t, node) = self.tree.descend(key, self.t_max, self.t_max);
+        self.sum_in::<GRAD>(t, node, &|d| table.get(d, c))
     }
 
     fn windows(&self, d: u32, p: [f64; 3]) -> [Window; 3] {
@@ -89,7 +114,7 @@ impl<'a> Evaluator<'a> {
         &self,
         t: u32,
         node: u32,
-        p: [f64; 3],
+        win: &impl Fn(u32) -> [Window; 3],
         coeff: &[f32],
         acc: &mut (f64, [f64; 3]),
     ) {
@@ -99,7 +124,7 @@ impl<'a> Evaluator<'a> {
         let d = t - DEPTH_OFFSET;
         let level = &self.tree.levels[t as usize];
         let own = func_index(level.key(node), d);
-        let w = self.windows(d, p);
+        let w = win(d);
         let k = i64::from(self.fem.degree.get());
         for z in 0..=k {
             for y in 0..=k {
@@ -123,7 +148,7 @@ impl<'a> Evaluator<'a> {
         &self,
         t: u32,
         node: u32,
-        p: [f64; 3],
+        win: &impl Fn(u32) -> [Window; 3],
         acc: &mut (f64, [f64; 3]),
     ) {
         let coeff = &self.sol.x[t as usize + 1];
@@ -133,7 +158,7 @@ impl<'a> Evaluator<'a> {
         let d = t - DEPTH_OFFSET;
         let level = &self.tree.levels[t as usize];
         let own = func_index(level.key(node), d);
-        let w = self.windows(d + 1, p);
+        let w = win(d + 1);
         let k = i64::from(self.fem.degree.get());
         for z in 0..=k {
             for y in 0..=k {
@@ -181,22 +206,82 @@ fn accumulate<const GRAD: bool>(w: &[Window; 3], k: [i64; 3], c: f64, acc: &mut 
     acc.1[2] += c * vx * vy * w[2].derivs[z];
 }
 
+/// The per-axis B-spline windows at every coordinate of the finest corner grid, for each unit
+/// depth: corners on a lattice share their 1-D windows, so extraction looks them up instead
+/// of locating and evaluating the B-splines three times per level per corner.
+pub struct CornerWindows {
+    /// Corners per axis (`2^max_depth + 1`).
+    side: usize,
+    /// Window of depth `d` at coordinate `c`, at `d · side + c`.
+    windows: Vec<Window>,
+}
+
+/// Deepest corner grid given a window table (beyond it the table would outgrow the caches it
+/// is meant to stay in; such grids evaluate the windows directly).
+const MAX_TABLE_DEPTH: u32 = 14;
+
+impl CornerWindows {
+    /// The table for the corner grid of `eval`'s deepest level, or `None` when too deep.
+    fn new(eval: &Evaluator) -> Option<Self> {
+        let dm = eval.max_depth();
+        if dm > MAX_TABLE_DEPTH {
+            return None;
+        }
+        let side = (1usize << dm) + 1;
+        let s = 1.0 / (1u64 << dm) as f64;
+        let windows = (0..=dm)
+            .flat_map(|d| (0..side).map(move |c| eval.fem.window(d, c as f64 * s)))
+            .collect();
+        Some(Self { side, windows })
+    }
+
+    #[inline]
+    fn get(&self, d: u32, c: [u32; 3]) -> [Window; 3] {
+        let row = &self.windows[d as usize * self.side..][..self.side];
+        c.map(|x| row[x as usize])
+    }
+}
+
 /// χ sampled at corners of the finest grid, for extraction.
 pub struct CornerField<'a> {
     /// The evaluator.
-    pub eval: &'a Evaluator<'a>,
+    eval: &'a Evaluator<'a>,
     /// Depth of the corner grid.
-    pub depth: u32,
+    depth: u32,
+    /// Per-axis windows, when the corner grid is the evaluator's finest grid.
+    table: Option<CornerWindows>,
+}
+
+impl<'a> CornerField<'a> {
+    /// χ at the corners of the grid of unit depth `depth`.
+    pub fn new(eval: &'a Evaluator<'a>, depth: u32) -> Self {
+        let table = (depth == eval.max_depth())
+            .then(|| CornerWindows::new(eval))
+            .flatten();
+        Self { eval, depth, table }
+    }
+
+    /// χ and ∇χ at corner `c`, through the window table when there is one.
+    fn sum<const GRAD: bool>(&self, c: [u32; 3]) -> (f64, [f64; 3]) {
+        match &self.table {
+            Some(table) => self.eval.corner_sum::<GRAD>(c, table),
+            None => {
+                let p = self.point(c);
+                self.eval.sum::<GRAD>(p)
+            }
+        }
+    }
+
+    /// The unit-cube point of corner `c`.
+    fn point(&self, c: [u32; 3]) -> [f64; 3] {
+        let s = 1.0 / (1u64 << self.depth) as f64;
+        c.map(|x| f64::from(x) * s)
+    }
 }
 
 impl Field for CornerField<'_> {
     fn value(&self, c: [u32; 3]) -> f64 {
-        let s = 1.0 / (1u64 << self.depth) as f64;
-        self.eval.value([
-            f64::from(c[0]) * s,
-            f64::from(c[1]) * s,
-            f64::from(c[2]) * s,
-        ])
+        self.sum::<false>(c).0
     }
 
     /// The value at the corner, and the central gradient: the mean of the one-sided
@@ -205,18 +290,14 @@ impl Field for CornerField<'_> {
     /// slope of one neighbouring edge only, which bends the quadratic vertex fit (§9.2) towards
     /// that edge. For degree 2 (C¹) both sides agree and nothing changes.
     fn corner(&self, c: [u32; 3]) -> (f64, [f64; 3]) {
-        let s = 1.0 / (1u64 << self.depth) as f64;
-        let p = [
-            f64::from(c[0]) * s,
-            f64::from(c[1]) * s,
-            f64::from(c[2]) * s,
-        ];
-        let (v, g) = self.eval.value_grad(p);
+        let (v, g) = self.sum::<true>(c);
         if self.eval.degree() != 1 {
             return (v, g);
         }
         // Just below the corner on every axis (clamped at the cube's lower faces), where the
         // evaluation uses the cells on the other side.
+        let s = 1.0 / (1u64 << self.depth) as f64;
+        let p = self.point(c);
         let eps = s * 1e-6;
         let q = [
             (p[0] - eps).max(0.0),

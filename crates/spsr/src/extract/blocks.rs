@@ -50,33 +50,95 @@ pub(super) struct Ctx<'a, C: Cells> {
 }
 
 /// The field at the corners a block has asked for: `χ − iso`, and the gradient once needed.
+///
+/// Corners inside the block's box (set by [`CornerCache::begin`]) are found through a dense
+/// grid of slots, which costs one load instead of a hash probe; a corner outside it, or every
+/// corner of a box too large for the grid, goes through the hash map.
 #[derive(Default)]
 pub(super) struct CornerCache {
     index: FxHashMap<u64, u32>,
+    /// For each corner of the box, its index plus one, or 0 while not yet asked for.
+    grid: Vec<u32>,
+    /// Lowest corner of the box.
+    lo: [u32; 3],
+    /// Corners per axis of the box (all 0 when the grid is off).
+    dims: [u32; 3],
     at: Vec<[u32; 3]>,
     pub(super) d: Vec<f64>,
     g: Vec<Option<[f64; 3]>>,
 }
 
+/// Most slots of the dense corner grid (1 MiB): a box of 64 finest cells per axis fits.
+const MAX_GRID: usize = 1 << 18;
+
 impl CornerCache {
-    fn clear(&mut self) {
+    /// Starts a block whose leaves' corners lie in the box `lo ..= hi`, forgetting the
+    /// previous block's corners (only the slots they used are reset).
+    fn begin(&mut self, lo: [u32; 3], hi: [u32; 3]) {
+        for i in 0..self.at.len() {
+            if let Some(k) = self.slot(self.at[i]) {
+                self.grid[k] = 0;
+            }
+        }
         self.index.clear();
         self.at.clear();
         self.d.clear();
         self.g.clear();
+        let dims: [u32; 3] = std::array::from_fn(|a| (hi[a] + 1).saturating_sub(lo[a]));
+        let size = dims.iter().map(|&x| x as usize).product::<usize>();
+        if size > MAX_GRID || size == 0 {
+            self.dims = [0; 3];
+            return;
+        }
+        if self.grid.len() < size {
+            self.grid.resize(size, 0);
+        }
+        self.lo = lo;
+        self.dims = dims;
+    }
+
+    /// The grid slot of corner `c`, if it lies in the box.
+    #[inline]
+    fn slot(&self, c: [u32; 3]) -> Option<usize> {
+        let r: [u32; 3] = std::array::from_fn(|a| c[a].wrapping_sub(self.lo[a]));
+        if (0..3).all(|a| r[a] < self.dims[a]) {
+            let [nx, ny, _] = self.dims.map(|x| x as usize);
+            Some(r[0] as usize + nx * (r[1] as usize + ny * r[2] as usize))
+        } else {
+            None
+        }
     }
 
     /// Index of the corner at `c`, evaluating the field there the first time.
     #[inline]
     pub(super) fn get<C: Cells>(&mut self, ctx: &Ctx<C>, c: [u32; 3]) -> u32 {
-        let next = self.d.len() as u32;
-        let i = *self.index.entry(pack(c)).or_insert(next);
-        if i == next {
-            self.at.push(c);
-            self.d.push(ctx.field.value(c) - ctx.iso);
-            self.g.push(None);
+        let (i, new) = self.register(c);
+        if new {
+            self.d[i as usize] = ctx.field.value(c) - ctx.iso;
         }
         i
+    }
+
+    /// Index of the corner at `c`, and whether it is new (its value then still to be set).
+    #[inline]
+    fn register(&mut self, c: [u32; 3]) -> (u32, bool) {
+        let next = self.d.len() as u32;
+        let i = match self.slot(c) {
+            Some(k) => {
+                let e = &mut self.grid[k];
+                if *e == 0 {
+                    *e = next + 1;
+                }
+                *e - 1
+            }
+            None => *self.index.entry(pack(c)).or_insert(next),
+        };
+        if i == next {
+            self.at.push(c);
+            self.d.push(0.0);
+            self.g.push(None);
+        }
+        (i, i == next)
     }
 
     /// Gradient at corner `i`, evaluated the first time it is needed.
@@ -183,10 +245,11 @@ pub fn extract_blocks<C: Cells>(
         .into_par_iter()
         .map_init(Scratch::<C::Handle>::default, |sc, b| {
             let mut out = ChunkOut::default();
-            sc.corners.clear();
             let mut leaves = std::mem::take(&mut sc.leaves);
             leaves.clear();
             cells.for_each_leaf(b, &mut |h, d, o| leaves.push((h, d, o)));
+            let (lo, hi) = corner_box(&leaves, max_depth);
+            sc.corners.begin(lo, hi);
             for &(h, depth, offset) in &leaves {
                 process_leaf(&ctx, sc, h, depth, offset, &mut out);
                 if sc.bad {
@@ -204,6 +267,20 @@ pub fn extract_blocks<C: Cells>(
         ));
     }
     Ok(Blocks { chunks })
+}
+
+/// The box of finest-grid corners of a block's leaves (empty, `lo > hi`, without leaves).
+fn corner_box<H>(leaves: &[(H, u32, [u32; 3])], max_depth: u32) -> ([u32; 3], [u32; 3]) {
+    let mut lo = [u32::MAX; 3];
+    let mut hi = [0u32; 3];
+    for &(_, depth, offset) in leaves {
+        let s = 1u32 << (max_depth - depth);
+        for a in 0..3 {
+            lo[a] = lo[a].min(offset[a] * s);
+            hi[a] = hi[a].max((offset[a] + 1) * s);
+        }
+    }
+    (lo, hi)
 }
 
 /// One part's vertices numbered on their own (see [`Blocks::into_part`]).

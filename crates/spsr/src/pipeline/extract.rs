@@ -32,10 +32,7 @@ pub(crate) fn extract(
     } = implicit;
     let eval = Evaluator::new(&tree, fem, &solution);
     let cells = TreeCells::new(&tree, params.base_depth());
-    let field = CornerField {
-        eval: &eval,
-        depth: cells.max_depth,
-    };
+    let field = CornerField::new(&eval, cells.max_depth);
     let options = ExtractOptions {
         linear_fit: params.linear_fit,
         normals: params.normals,
@@ -95,10 +92,7 @@ pub(crate) fn slab_blocks(
 ) -> Result<Blocks> {
     let eval = Evaluator::new(tree, fem, solution);
     let cells = TreeCells::columns(tree, block_depth, columns);
-    let field = CornerField {
-        eval: &eval,
-        depth: cells.max_depth,
-    };
+    let field = CornerField::new(&eval, cells.max_depth);
     let options = ExtractOptions {
         linear_fit: params.linear_fit,
         normals: params.normals,
