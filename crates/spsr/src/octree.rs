@@ -128,6 +128,14 @@ pub static WINDOW: WindowTable = {
     WindowTable { slot, bits }
 };
 
+/// The same-depth offset, from a node at child position `c`, of node `k` of the brood in
+/// neighbour slot `slot` (`(dx+1) + 3(dy+1) + 9(dz+1)`, as [`Level::brood_nbrs`]).
+#[inline]
+pub fn brood_offset(c: usize, slot: u8, k: usize) -> [i64; 3] {
+    let db = [slot % 3, slot / 3 % 3, slot / 9].map(|v| i64::from(v) - 1);
+    std::array::from_fn(|a| 2 * db[a] + ((k >> a) & 1) as i64 - ((c >> a) & 1) as i64)
+}
+
 #[cfg(feature = "gpu")]
 impl WindowTable {
     /// The brood slot (of the 27 around a brood) of each child position and window offset.

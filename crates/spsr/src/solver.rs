@@ -11,7 +11,9 @@ use rayon::prelude::*;
 
 use crate::bspline::Basis;
 use crate::gpu::Device;
-use crate::octree::{func_index, neighbor_in, window_index, Level, Octree, DEPTH_OFFSET, NONE};
+use crate::octree::{
+    brood_offset, func_index, neighbor_in, window_index, Level, Octree, DEPTH_OFFSET, NONE,
+};
 use crate::shared_slice::SharedSlice;
 use crate::system::{
     cluster_offsets, divergence_constraints, prolong, BroodStencil, Clusters, DepthTables,
@@ -555,12 +557,9 @@ fn cluster_broods(degree: u8) -> [Vec<(u8, u8)>; 8] {
     std::array::from_fn(|c| {
         let mut out = Vec::new();
         for slot in 0..27u8 {
-            let db = [slot % 3, slot / 3 % 3, slot / 9].map(|v| i64::from(v) - 1);
             let mut mask = 0u8;
             for k in 0..8usize {
-                let o: [i64; 3] = std::array::from_fn(|a| {
-                    2 * db[a] + ((k >> a) & 1) as i64 - ((c >> a) & 1) as i64
-                });
+                let o = brood_offset(c, slot, k);
                 if o.iter().all(|v| offsets.contains(v)) {
                     mask |= 1 << k;
                 }

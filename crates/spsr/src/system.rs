@@ -9,7 +9,8 @@ use rayon::prelude::*;
 
 use crate::bspline::{table, Basis, Integrand, Table1D};
 use crate::octree::{
-    func_index, neighbor_in, window_index, Level, NodeRank, Octree, DEPTH_OFFSET, NONE,
+    brood_offset, func_index, neighbor_in, window_index, Level, NodeRank, Octree, DEPTH_OFFSET,
+    NONE,
 };
 use crate::shared_slice::SharedSlice;
 
@@ -294,12 +295,9 @@ impl<const K: usize> BroodStencil<K> {
         let rows = std::array::from_fn(|c| {
             let mut row = Vec::new();
             for slot in 0..27u8 {
-                let db = [slot % 3, slot / 3 % 3, slot / 9].map(|v| i64::from(v) - 1);
                 let mut coef = [[0.0; 8]; K];
                 for k in 0..8 {
-                    let o: [i64; 3] = std::array::from_fn(|a| {
-                        2 * db[a] + ((k >> a) & 1) as i64 - ((c >> a) & 1) as i64
-                    });
+                    let o = brood_offset(c, slot, k);
                     if o.iter().all(|v| v.abs() <= 2) {
                         for (e, st) in coef.iter_mut().zip(&stencils) {
                             e[k] = st[window_index(o)];
