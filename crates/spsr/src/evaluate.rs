@@ -42,12 +42,13 @@ impl<'a> Evaluator<'a> {
 
     /// The leaf (level, node) containing unit-cube point `p` (lower cell on ties, clamped).
     pub fn leaf(&self, p: [f64; 3]) -> (u32, u32) {
-        let dm = self.max_depth();
-        let n = 1i64 << dm;
-        let key: [u64; 3] = std::array::from_fn(|a| {
-            (((p[a] * n as f64).floor() as i64).clamp(0, n - 1) + n) as u64
-        });
-        self.tree.descend(key, self.t_max, self.t_max)
+        self.tree.descend(self.key(p), self.t_max, self.t_max)
+    }
+
+    /// The deepest tree key of the cell containing `p` (lower cell on ties, clamped).
+    fn key(&self, p: [f64; 3]) -> [u64; 3] {
+        let n = 1i64 << self.max_depth();
+        std::array::from_fn(|a| (((p[a] * n as f64).floor() as i64).clamp(0, n - 1) + n) as u64)
     }
 
     /// χ(p) alone.
@@ -62,6 +63,13 @@ impl<'a> Evaluator<'a> {
 
     fn sum<const GRAD: bool>(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
         let (t, n) = self.leaf(p);
+        self.sum_in::<GRAD>(t, n, &|d| self.windows(d, p))
+    }
+
+    /// [`Evaluator::sum`] at a point on or near the closure of leaf `near` (same bits: the
+    /// leaf containing `p` is found from `near` instead of from the root).
+    fn sum_near<const GRAD: bool>(&self, p: [f64; 3], near: (u32, u32)) -> (f64, [f64; 3]) {
+        let (t, n) = self.tree.descend_near(self.key(p), self.t_max, near);
         self.sum_in::<GRAD>(t, n, &|d| self.windows(d, p))
     }
 
@@ -95,10 +103,15 @@ impl<'a> Evaluator<'a> {
     /// [`Evaluator::value_grad`] at `c · 2^-max_depth`, bit for bit: the leaf is the one
     /// [`Evaluator::leaf`] finds (the point times `2^max_depth` is exactly `c`) and the table
     /// holds the windows [`Basis::window`] gives there.
-    fn corner_sum<const GRAD: bool>(&self, c: [u32; 3], table: &CornerWindows) -> (f64, [f64; 3]) {
+    fn corner_sum<const GRAD: bool>(
+        &self,
+        c: [u32; 3],
+        table: &CornerWindows,
+        near: (u32, u32),
+    ) -> (f64, [f64; 3]) {
         let n = 1u64 << self.max_depth();
         let key = c.map(|x| u64::from(x).min(n - 1) + n);
-        let (t, node) = self.tree.descend(key, self.t_max, self.t_max);
+        let (t, node) = self.tree.descend_near(key, self.t_max, near);
         self.sum_in::<GRAD>(t, node, &|d| table.get(d, c))
     }
 
@@ -126,9 +139,10 @@ impl<'a> Evaluator<'a> {
         let own = func_index(level.key(node), d);
         let w = win(d);
         let k = i64::from(self.fem.degree.get());
-        for z in 0..=k {
-            for y in 0..=k {
-                for x in 0..=k {
+        let [rx, ry, rz] = w.each_ref().map(|w| live::<GRAD>(w, k));
+        for z in rz.clone() {
+            for y in ry.clone() {
+                for x in rx.clone() {
                     let o = [
                         w[0].first + x - own[0],
                         w[1].first + y - own[1],
@@ -160,9 +174,10 @@ impl<'a> Evaluator<'a> {
         let own = func_index(level.key(node), d);
         let w = win(d + 1);
         let k = i64::from(self.fem.degree.get());
-        for z in 0..=k {
-            for y in 0..=k {
-                for x in 0..=k {
+        let [rx, ry, rz] = w.each_ref().map(|w| live::<GRAD>(w, k));
+        for z in rz.clone() {
+            for y in ry.clone() {
+                for x in rx.clone() {
                     let j = [w[0].first + x, w[1].first + y, w[2].first + z];
                     let o = [
                         (j[0] >> 1) - own[0],
@@ -188,6 +203,25 @@ impl<'a> Evaluator<'a> {
             }
         }
     }
+}
+
+/// The functions of a window that can add to a sum: for a value alone, those whose value is
+/// not 0 (a point on a grid corner of a level sees one non-zero degree-1 function per axis
+/// there, two of the three degree-2 ones); all of them for a gradient. The values are 0 only
+/// at the ends of the window, and skipping a term whose weight is 0 leaves the sum bit for bit
+/// as it was, since adding a zero changes no non-zero sum.
+#[inline]
+fn live<const GRAD: bool>(w: &Window, k: i64) -> std::ops::RangeInclusive<i64> {
+    if GRAD {
+        return 0..=k;
+    }
+    let lo = i64::from(w.values[0] == 0.0);
+    let hi = if w.values[k as usize] == 0.0 {
+        k - 1
+    } else {
+        k
+    };
+    lo..=hi
 }
 
 #[inline]
@@ -261,14 +295,12 @@ impl<'a> CornerField<'a> {
         Self { eval, depth, table }
     }
 
-    /// χ and ∇χ at corner `c`, through the window table when there is one.
-    fn sum<const GRAD: bool>(&self, c: [u32; 3]) -> (f64, [f64; 3]) {
+    /// χ and ∇χ at corner `c` of the closure of leaf `near`, through the window table when
+    /// there is one.
+    fn sum<const GRAD: bool>(&self, c: [u32; 3], near: (u32, u32)) -> (f64, [f64; 3]) {
         match &self.table {
-            Some(table) => self.eval.corner_sum::<GRAD>(c, table),
-            None => {
-                let p = self.point(c);
-                self.eval.sum::<GRAD>(p)
-            }
+            Some(table) => self.eval.corner_sum::<GRAD>(c, table, near),
+            None => self.eval.sum_near::<GRAD>(self.point(c), near),
         }
     }
 
@@ -279,9 +311,10 @@ impl<'a> CornerField<'a> {
     }
 }
 
-impl Field for CornerField<'_> {
-    fn value(&self, c: [u32; 3]) -> f64 {
-        self.sum::<false>(c).0
+/// The hint of a corner is the (tree depth, node) of a leaf whose closure holds it.
+impl Field<(u32, u32)> for CornerField<'_> {
+    fn value(&self, c: [u32; 3], near: (u32, u32)) -> f64 {
+        self.sum::<false>(c, near).0
     }
 
     /// The value at the corner, and the central gradient: the mean of the one-sided
@@ -289,8 +322,8 @@ impl Field for CornerField<'_> {
     /// trilinear and its derivative jumps at every corner; a one-sided derivative there is the
     /// slope of one neighbouring edge only, which bends the quadratic vertex fit (§9.2) towards
     /// that edge. For degree 2 (C¹) both sides agree and nothing changes.
-    fn corner(&self, c: [u32; 3]) -> (f64, [f64; 3]) {
-        let (v, g) = self.sum::<true>(c);
+    fn corner(&self, c: [u32; 3], near: (u32, u32)) -> (f64, [f64; 3]) {
+        let (v, g) = self.sum::<true>(c, near);
         if self.eval.degree() != 1 {
             return (v, g);
         }
@@ -304,7 +337,7 @@ impl Field for CornerField<'_> {
             (p[1] - eps).max(0.0),
             (p[2] - eps).max(0.0),
         ];
-        let (_, gl) = self.eval.value_grad(q);
+        let (_, gl) = self.eval.sum_near::<true>(q, near);
         (
             v,
             [

@@ -431,8 +431,36 @@ impl Octree {
     /// Deepest node containing the tree-coordinate point `key` given at tree depth `t_key`,
     /// descending at most to tree depth `t_max`. Returns `(tree depth, node)`.
     pub fn descend(&self, key: [u64; 3], t_key: u32, t_max: u32) -> (u32, u32) {
-        let mut n = 0u32;
-        let mut t = 0u32;
+        self.descend_from(key, t_key, t_max, (0, 0))
+    }
+
+    /// [`Octree::descend`] to tree depth `t_key`, starting from the node at `near`'s depth
+    /// that contains `key` when it is one of `near`'s same-depth neighbours (the deepest node
+    /// is the same: that node lies on the path from the root). A point on or near a leaf's
+    /// closure so skips the walk down from the root.
+    pub fn descend_near(&self, key: [u64; 3], t_key: u32, (t, n): (u32, u32)) -> (u32, u32) {
+        let level = &self.levels[t as usize];
+        let own = level.key(n);
+        let shift = t_key - t;
+        let rel: [i64; 3] = std::array::from_fn(|a| (key[a] >> shift) as i64 - i64::from(own[a]));
+        if rel.iter().all(|r| (-2..=2).contains(r)) {
+            let m = neighbor_in(level, n, window_index(rel));
+            if m != NONE {
+                return self.descend_from(key, t_key, t_key, (t, m));
+            }
+        }
+        self.descend(key, t_key, t_key)
+    }
+
+    /// [`Octree::descend`] from node `n` at tree depth `t`, which contains `key`.
+    fn descend_from(
+        &self,
+        key: [u64; 3],
+        t_key: u32,
+        t_max: u32,
+        (t, n): (u32, u32),
+    ) -> (u32, u32) {
+        let (mut t, mut n) = (t, n);
         while t < t_max && (t as usize + 1) < self.levels.len() {
             let b = self.levels[t as usize].child(n);
             if b == NONE {

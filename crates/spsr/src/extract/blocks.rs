@@ -40,7 +40,7 @@ pub fn extract(
 /// Shared read-only state of the per-leaf pass.
 pub(super) struct Ctx<'a, C: Cells> {
     pub(super) cells: &'a C,
-    field: &'a dyn Field,
+    field: &'a dyn Field<C::Handle>,
     iso: f64,
     pub(super) max_depth: u32,
     pub(super) full: u32,
@@ -54,8 +54,7 @@ pub(super) struct Ctx<'a, C: Cells> {
 /// Corners inside the block's box (set by [`CornerCache::begin`]) are found through a dense
 /// grid of slots, which costs one load instead of a hash probe; a corner outside it, or every
 /// corner of a box too large for the grid, goes through the hash map.
-#[derive(Default)]
-pub(super) struct CornerCache {
+pub(super) struct CornerCache<H> {
     index: FxHashMap<u64, u32>,
     /// For each corner of the box, its index plus one, or 0 while not yet asked for.
     grid: Vec<u32>,
@@ -64,6 +63,8 @@ pub(super) struct CornerCache {
     /// Corners per axis of the box (all 0 when the grid is off).
     dims: [u32; 3],
     at: Vec<[u32; 3]>,
+    /// For each corner, a leaf whose closure holds it (the field's hint).
+    near: Vec<H>,
     pub(super) d: Vec<f64>,
     g: Vec<Option<[f64; 3]>>,
 }
@@ -71,7 +72,22 @@ pub(super) struct CornerCache {
 /// Most slots of the dense corner grid (1 MiB): a box of 64 finest cells per axis fits.
 const MAX_GRID: usize = 1 << 18;
 
-impl CornerCache {
+impl<H> Default for CornerCache<H> {
+    fn default() -> Self {
+        Self {
+            index: FxHashMap::default(),
+            grid: Vec::new(),
+            lo: [0; 3],
+            dims: [0; 3],
+            at: Vec::new(),
+            near: Vec::new(),
+            d: Vec::new(),
+            g: Vec::new(),
+        }
+    }
+}
+
+impl<H: Copy> CornerCache<H> {
     /// Starts a block whose leaves' corners lie in the box `lo ..= hi`, forgetting the
     /// previous block's corners (only the slots they used are reset).
     fn begin(&mut self, lo: [u32; 3], hi: [u32; 3]) {
@@ -82,6 +98,7 @@ impl CornerCache {
         }
         self.index.clear();
         self.at.clear();
+        self.near.clear();
         self.d.clear();
         self.g.clear();
         let dims: [u32; 3] = std::array::from_fn(|a| (hi[a] + 1).saturating_sub(lo[a]));
@@ -109,19 +126,20 @@ impl CornerCache {
         }
     }
 
-    /// Index of the corner at `c`, evaluating the field there the first time.
+    /// Index of the corner at `c`, on the closure of leaf `near`, evaluating the field there
+    /// the first time.
     #[inline]
-    pub(super) fn get<C: Cells>(&mut self, ctx: &Ctx<C>, c: [u32; 3]) -> u32 {
-        let (i, new) = self.register(c);
+    pub(super) fn get<C: Cells<Handle = H>>(&mut self, ctx: &Ctx<C>, c: [u32; 3], near: H) -> u32 {
+        let (i, new) = self.register(c, near);
         if new {
-            self.d[i as usize] = ctx.field.value(c) - ctx.iso;
+            self.d[i as usize] = ctx.field.value(c, near) - ctx.iso;
         }
         i
     }
 
     /// Index of the corner at `c`, and whether it is new (its value then still to be set).
     #[inline]
-    fn register(&mut self, c: [u32; 3]) -> (u32, bool) {
+    fn register(&mut self, c: [u32; 3], near: H) -> (u32, bool) {
         let next = self.d.len() as u32;
         let i = match self.slot(c) {
             Some(k) => {
@@ -135,6 +153,7 @@ impl CornerCache {
         };
         if i == next {
             self.at.push(c);
+            self.near.push(near);
             self.d.push(0.0);
             self.g.push(None);
         }
@@ -143,12 +162,12 @@ impl CornerCache {
 
     /// Gradient at corner `i`, evaluated the first time it is needed.
     #[inline]
-    pub(super) fn grad<C: Cells>(&mut self, ctx: &Ctx<C>, i: u32) -> [f64; 3] {
+    pub(super) fn grad<C: Cells<Handle = H>>(&mut self, ctx: &Ctx<C>, i: u32) -> [f64; 3] {
         let i = i as usize;
         match self.g[i] {
             Some(g) => g,
             None => {
-                let g = ctx.field.corner(self.at[i]).1;
+                let g = ctx.field.corner(self.at[i], self.near[i]).1;
                 self.g[i] = Some(g);
                 g
             }
@@ -159,7 +178,7 @@ impl CornerCache {
 /// Reusable per-thread buffers.
 pub(super) struct Scratch<H> {
     leaves: Vec<(H, u32, [u32; 3])>,
-    pub(super) corners: CornerCache,
+    pub(super) corners: CornerCache<H>,
     pub(super) bv: Vec<([u32; 3], u32)>,
     pub(super) cr: Vec<(u64, bool)>,
     pub(super) cross: Vec<Crossing>,
@@ -225,7 +244,7 @@ pub(super) fn extract_impl(
 /// octree and the solution, which the first step reads, before the second.
 pub fn extract_blocks<C: Cells>(
     cells: &C,
-    field: &dyn Field,
+    field: &dyn Field<C::Handle>,
     iso: f64,
     opts: &ExtractOptions,
 ) -> crate::Result<Blocks> {
@@ -508,7 +527,7 @@ fn process_leaf<C: Cells>(
             lo[1] + s * ((c as u32 >> 1) & 1),
             lo[2] + s * ((c as u32 >> 2) & 1),
         ];
-        *ci = sc.corners.get(ctx, p);
+        *ci = sc.corners.get(ctx, p, h);
         if sc.corners.d[*ci as usize] > 0.0 {
             inside |= 1 << c;
         }

@@ -15,16 +15,18 @@ pub struct Leaf {
     pub offset: [u32; 3],
 }
 
-/// The implicit function, sampled at cell corners.
-pub trait Field: Sync {
+/// The implicit function, sampled at cell corners. `H` is the [`Cells::Handle`] of the cells
+/// it is sampled on: each corner comes with the handle of a leaf whose closure holds it, which
+/// a field may use to find its way (it must not change the result).
+pub trait Field<H = ()>: Sync {
     /// χ and ∇χ (unit-cube units) at the corner with integer coordinates `c` at depth
-    /// `max_depth` (each coordinate in `0..=2^max_depth`).
-    fn corner(&self, c: [u32; 3]) -> (f64, [f64; 3]);
+    /// `max_depth` (each coordinate in `0..=2^max_depth`), on the closure of leaf `near`.
+    fn corner(&self, c: [u32; 3], near: H) -> (f64, [f64; 3]);
 
     /// χ alone at a corner. Extraction asks every corner for its value but only the corners
     /// of edges the surface crosses for their gradient, so a cheaper value-only path pays.
-    fn value(&self, c: [u32; 3]) -> f64 {
-        self.corner(c).0
+    fn value(&self, c: [u32; 3], near: H) -> f64 {
+        self.corner(c, near).0
     }
 }
 

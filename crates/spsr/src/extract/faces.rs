@@ -202,7 +202,7 @@ impl<C: Cells> Walk<'_, C> {
             m[side.axis] -= half;
         }
         self.split_side(sc, Side { len: half, ..side });
-        let i = sc.corners.get(self.ctx, m);
+        let i = sc.corners.get(self.ctx, m, self.here.h);
         sc.bv.push((m, i));
         self.split_side(
             sc,
@@ -262,7 +262,7 @@ impl<C: Cells> Walk<'_, C> {
         p[3][v] += size;
         let idx = match known {
             Some(k) => k,
-            None => p.map(|c| sc.corners.get(self.ctx, c)),
+            None => p.map(|c| sc.corners.get(self.ctx, c, self.here.h)),
         };
         sc.bv.clear();
         let sides = [(u, true), (v, true), (u, false), (v, false)];

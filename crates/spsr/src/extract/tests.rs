@@ -22,7 +22,7 @@ struct Grid<'a, A: Analytic + ?Sized> {
 }
 
 impl<A: Analytic + ?Sized> Field for Grid<'_, A> {
-    fn corner(&self, c: [u32; 3]) -> (f64, [f64; 3]) {
+    fn corner(&self, c: [u32; 3], _near: ()) -> (f64, [f64; 3]) {
         self.f.eval(c.map(|x| x as f64 * self.inv))
     }
 }
@@ -342,7 +342,7 @@ fn brute_force_crossings(leaves: &[Leaf], max_depth: u32, f: &dyn Field, iso: f6
     }
     edges
         .iter()
-        .filter(|(a, b)| (f.corner(*a).0 > iso) != (f.corner(*b).0 > iso))
+        .filter(|(a, b)| (f.corner(*a, ()).0 > iso) != (f.corner(*b, ()).0 > iso))
         .count()
 }
 
@@ -602,7 +602,7 @@ fn iso_value_hits_corners_exactly() {
         f: &s,
         inv: 1.0 / 32.0,
     };
-    let iso = grid.corner([16, 16, 16]).0;
+    let iso = grid.corner([16, 16, 16], ()).0;
     check_closed("iso at corner", &uniform(5), 5, &s, iso, 1, 2);
 }
 

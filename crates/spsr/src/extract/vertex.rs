@@ -101,7 +101,7 @@ pub(super) fn place_vertices<C: Cells>(
 /// The iso-vertex position on a crossing's edge.
 fn crossing_point<C: Cells>(
     ctx: &Ctx<C>,
-    corners: &mut CornerCache,
+    corners: &mut CornerCache<C::Handle>,
     c: &Crossing,
 ) -> ([f64; 3], [f64; 3]) {
     let axis = c.axis as usize;
