@@ -6,7 +6,7 @@ use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
 use super::cells::{bad_leaves, check_depth, LeafSet};
-use super::faces::{leaf_faces, Here};
+use super::faces::{boundary_uniform, leaf_faces, Here};
 use super::table::Table;
 use super::triangulate::triangulate_loops;
 use super::vertex::{place_vertices, Crossing};
@@ -545,6 +545,9 @@ fn process_leaf<C: Cells>(
         offset,
         around,
     };
+    if (inside == 0 || inside == 0xff) && boundary_uniform(ctx, sc, here, lo, s, inside != 0) {
+        return; // no corner on the boundary changes sign
+    }
     sc.cross.clear();
     sc.segs.clear();
     leaf_faces(ctx, sc, here, lo, s, &cidx);

@@ -112,6 +112,61 @@ pub(super) fn leaf_faces<C: Cells>(
     }
 }
 
+/// Whether every leaf corner on the boundary of the leaf `here` at `lo` (size `s`) is on the
+/// side `inside` of the iso-surface, as all eight of its own corners are: then none of its face
+/// pieces has a crossing, and the walk can be skipped. The corners looked at are those of the
+/// leaves in the refined same-depth cells around the leaf that touch its closure, which
+/// include every corner the walk would split a piece's side at; corners only on the leaf's
+/// own depth grid are its eight corners.
+pub(super) fn boundary_uniform<C: Cells>(
+    ctx: &Ctx<C>,
+    sc: &mut Scratch<C::Handle>,
+    here: Here<C::Handle>,
+    lo: [u32; 3],
+    s: u32,
+    inside: bool,
+) -> bool {
+    (0..27u32).filter(|&b| here.around >> b & 1 != 0).all(|b| {
+        let cell: [u32; 3] = std::array::from_fn(|a| {
+            (here.offset[a] + (b / 3u32.pow(a as u32)) % 3).wrapping_sub(1)
+        });
+        subtree_uniform(ctx, sc, here, (here.depth, cell), lo, s, inside)
+    })
+}
+
+/// [`boundary_uniform`] within the refined cell `(depth, offset)`: its children that touch
+/// the closed box `lo ..= lo + s`, their leaves' corners in the box.
+fn subtree_uniform<C: Cells>(
+    ctx: &Ctx<C>,
+    sc: &mut Scratch<C::Handle>,
+    here: Here<C::Handle>,
+    (depth, offset): (u32, [u32; 3]),
+    lo: [u32; 3],
+    s: u32,
+    inside: bool,
+) -> bool {
+    let size = 1u32 << (ctx.max_depth - depth - 1);
+    let in_box = |c: [u32; 3]| (0..3).all(|a| (lo[a]..=lo[a] + s).contains(&c[a]));
+    (0..8u32).all(|k| {
+        let child: [u32; 3] = std::array::from_fn(|a| 2 * offset[a] + (k >> a & 1));
+        let clo = child.map(|x| x * size);
+        if (0..3).any(|a| clo[a] + size < lo[a] || clo[a] > lo[a] + s) {
+            return true;
+        }
+        if here.refined(ctx.cells, depth + 1, child) {
+            return subtree_uniform(ctx, sc, here, (depth + 1, child), lo, s, inside);
+        }
+        (0..8u32).all(|c| {
+            let p: [u32; 3] = std::array::from_fn(|a| clo[a] + size * (c >> a & 1));
+            if !in_box(p) {
+                return true;
+            }
+            let i = sc.corners.get(ctx, p, here.h);
+            (sc.corners.d[i as usize] > 0.0) == inside
+        })
+    })
+}
+
 impl<C: Cells> Walk<'_, C> {
     /// Visits the pieces tiling the square `sq` of a leaf face. `known` holds the cache indices of
     /// the square's corners (counter-clockwise around +n from the origin) when the caller has them.

@@ -526,6 +526,17 @@ fn small_spheres_in_coarse_random_trees() {
             d < 1 || (s.dist(p) < 1.5 * w && q < 0.6) || q < 0.1
         }));
         let (mesh, n_edge, _) = run(&leaves, 6, &s, 0.0, false);
+        // Coarse leaves whose own corners are all outside still carry the crossings of
+        // their finer neighbours on their faces: none may be missed.
+        let grid = Grid {
+            f: &s,
+            inv: 1.0 / 64.0,
+        };
+        assert_eq!(
+            n_edge,
+            brute_force_crossings(&leaves, 6, &grid, 0.0),
+            "seed {seed}: one vertex per crossing finest edge"
+        );
         if n_edge == 0 {
             continue;
         }
