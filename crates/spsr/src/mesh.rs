@@ -68,6 +68,122 @@ fn uf_union(parent: &mut [u32], a: u32, b: u32) {
     }
 }
 
+/// Whether a mesh is closed, and its pieces ([`Mesh::closure`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Closure {
+    /// Connected components of triangles, as [`Topology::components`].
+    pub pieces: usize,
+    /// Every edge is used by exactly two triangles, as [`Topology::closed`].
+    pub closed: bool,
+    /// Edges used by exactly one triangle, as [`Topology::boundary_edges`].
+    pub boundary_edges: usize,
+}
+
+/// The edges of a triangle list: how many, how many are used once or more than twice, and
+/// whether any is traversed twice in the same direction.
+struct EdgeCounts {
+    edges: usize,
+    boundary: usize,
+    non_manifold: usize,
+    oriented: bool,
+}
+
+impl EdgeCounts {
+    /// Each edge is listed at its lower vertex with its other vertex and its direction; each
+    /// vertex's short list is then sorted and grouped, vertices in parallel, the counts summed
+    /// (so they do not depend on the thread count).
+    fn of(nv: usize, tris: &[[u32; 3]]) -> Self {
+        let (start, list) = per_vertex(nv, tris, |_, t| {
+            (0..3).map(move |k| {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                (a.min(b), (a.max(b), a < b))
+            })
+        });
+        let zero = || EdgeCounts {
+            edges: 0,
+            boundary: 0,
+            non_manifold: 0,
+            oriented: true,
+        };
+        (0..nv)
+            .into_par_iter()
+            .fold(
+                || (zero(), Vec::new()),
+                |(mut c, mut sides): (EdgeCounts, Vec<(u32, bool)>), v| {
+                    sides.clear();
+                    sides.extend_from_slice(&list[start[v] as usize..start[v + 1] as usize]);
+                    sides.sort_unstable();
+                    for group in sides.chunk_by(|x, y| x.0 == y.0) {
+                        let forward = group.iter().filter(|s| s.1).count();
+                        c.edges += 1;
+                        match group.len() {
+                            1 => c.boundary += 1,
+                            2 => {}
+                            _ => c.non_manifold += 1,
+                        }
+                        c.oriented &= forward <= 1 && group.len() - forward <= 1;
+                    }
+                    (c, sides)
+                },
+            )
+            .map(|(c, _)| c)
+            .reduce(zero, |a, b| EdgeCounts {
+                edges: a.edges + b.edges,
+                boundary: a.boundary + b.boundary,
+                non_manifold: a.non_manifold + b.non_manifold,
+                oriented: a.oriented && b.oriented,
+            })
+    }
+
+    /// Every edge is used by exactly two triangles.
+    fn closed(&self) -> bool {
+        self.boundary == 0 && self.non_manifold == 0
+    }
+}
+
+/// A list per vertex: `entries[start[v]..start[v + 1]]` are the entries of vertex `v`, in
+/// triangle order; `each(f, t)` gives the (vertex, entry) pairs of triangle `f`.
+fn per_vertex<T: Copy + Default, I: Iterator<Item = (u32, T)>>(
+    nv: usize,
+    tris: &[[u32; 3]],
+    each: impl Fn(u32, [u32; 3]) -> I,
+) -> (Vec<u32>, Vec<T>) {
+    let mut start = vec![0u32; nv + 1];
+    for (f, t) in tris.iter().enumerate() {
+        for (v, _) in each(f as u32, *t) {
+            start[v as usize + 1] += 1;
+        }
+    }
+    for v in 0..nv {
+        start[v + 1] += start[v];
+    }
+    let mut fill = start.clone();
+    let mut entries = vec![T::default(); start[nv] as usize];
+    for (f, t) in tris.iter().enumerate() {
+        for (v, e) in each(f as u32, *t) {
+            entries[fill[v as usize] as usize] = e;
+            fill[v as usize] += 1;
+        }
+    }
+    (start, entries)
+}
+
+/// Connected components of triangles through shared vertices.
+fn components(nv: usize, tris: &[[u32; 3]]) -> usize {
+    let mut parent: Vec<u32> = (0..nv as u32).collect();
+    let mut referenced = vec![false; nv];
+    for t in tris {
+        uf_union(&mut parent, t[0], t[1]);
+        uf_union(&mut parent, t[0], t[2]);
+        for &v in t {
+            referenced[v as usize] = true;
+        }
+    }
+    (0..nv)
+        .filter(|&v| referenced[v] && uf_find(&mut parent, v as u32) == v as u32)
+        .count()
+}
+
 /// Scratch space for checking one vertex's link ([`Mesh::topology`]).
 #[derive(Default)]
 struct LinkScratch {
@@ -139,66 +255,9 @@ impl Mesh {
     /// Triangles with out-of-range indices are ignored.
     pub fn topology(&self) -> Topology {
         let nv = self.vertices.len();
-        let tris: Vec<[u32; 3]> = self
-            .triangles
-            .iter()
-            .copied()
-            .filter(|t| t.iter().all(|&v| (v as usize) < nv))
-            .collect();
-        // Edges as (min, max, forward?) sorted, then grouped.
-        let mut edges: Vec<(u32, u32, bool)> = Vec::with_capacity(tris.len() * 3);
-        for t in &tris {
-            for k in 0..3 {
-                let (a, b) = (t[k], t[(k + 1) % 3]);
-                edges.push((a.min(b), a.max(b), a < b));
-            }
-        }
-        edges.par_sort_unstable();
-        let mut n_edges = 0usize;
-        let mut boundary = 0usize;
-        let mut non_manifold = 0usize;
-        let mut oriented = true;
-        let mut i = 0;
-        while i < edges.len() {
-            let mut j = i;
-            let (mut fwd, mut bwd) = (0usize, 0usize);
-            while j < edges.len() && edges[j].0 == edges[i].0 && edges[j].1 == edges[i].1 {
-                if edges[j].2 {
-                    fwd += 1;
-                } else {
-                    bwd += 1;
-                }
-                j += 1;
-            }
-            n_edges += 1;
-            match j - i {
-                1 => boundary += 1,
-                2 => {}
-                _ => non_manifold += 1,
-            }
-            if fwd > 1 || bwd > 1 {
-                oriented = false;
-            }
-            i = j;
-        }
-        // Vertex → incident triangles (CSR).
-        let mut start = vec![0u32; nv + 1];
-        for t in &tris {
-            for &v in t {
-                start[v as usize + 1] += 1;
-            }
-        }
-        for v in 0..nv {
-            start[v + 1] += start[v];
-        }
-        let mut fill = start.clone();
-        let mut inc = vec![0u32; tris.len() * 3];
-        for (f, t) in tris.iter().enumerate() {
-            for &v in t {
-                inc[fill[v as usize] as usize] = f as u32;
-                fill[v as usize] += 1;
-            }
-        }
+        let tris = self.valid_triangles();
+        let edges = EdgeCounts::of(nv, &tris);
+        let (start, inc) = per_vertex(nv, &tris, |f, t| t.into_iter().map(move |v| (v, f)));
         // Each vertex's link checked in parallel (a count, so the result does not depend on
         // the thread count), with scratch space per task.
         let incident = |v: usize| &inc[start[v] as usize..start[v + 1] as usize];
@@ -211,31 +270,42 @@ impl Mesh {
             })
             .filter(|&bad| bad)
             .count();
-        // Components through shared vertices.
-        let mut parent: Vec<u32> = (0..nv as u32).collect();
-        for t in &tris {
-            uf_union(&mut parent, t[0], t[1]);
-            uf_union(&mut parent, t[0], t[2]);
-        }
-        let mut components = 0usize;
-        for v in 0..nv {
-            if start[v + 1] > start[v] && uf_find(&mut parent, v as u32) == v as u32 {
-                components += 1;
-            }
-        }
         Topology {
             vertices: referenced,
             faces: tris.len(),
-            boundary_edges: boundary,
-            non_manifold_edges: non_manifold,
+            boundary_edges: edges.boundary,
+            non_manifold_edges: edges.non_manifold,
             non_manifold_vertices,
-            closed: boundary == 0 && non_manifold == 0,
-            edge_manifold: non_manifold == 0,
+            closed: edges.closed(),
+            edge_manifold: edges.non_manifold == 0,
             vertex_manifold: non_manifold_vertices == 0,
-            oriented,
-            components,
-            euler: referenced as i64 - n_edges as i64 + tris.len() as i64,
+            oriented: edges.oriented,
+            components: components(nv, &tris),
+            euler: referenced as i64 - edges.edges as i64 + tris.len() as i64,
         }
+    }
+
+    /// The part of [`Mesh::topology`] that says whether the mesh is closed and in how many
+    /// pieces, without the vertex links (the costliest part, which the reconstruction's own
+    /// check does not need).
+    pub fn closure(&self) -> Closure {
+        let tris = self.valid_triangles();
+        let edges = EdgeCounts::of(self.vertices.len(), &tris);
+        Closure {
+            pieces: components(self.vertices.len(), &tris),
+            closed: edges.closed(),
+            boundary_edges: edges.boundary,
+        }
+    }
+
+    /// The triangles whose indices are all in range.
+    fn valid_triangles(&self) -> Vec<[u32; 3]> {
+        let nv = self.vertices.len();
+        self.triangles
+            .par_iter()
+            .copied()
+            .filter(|t| t.iter().all(|&v| (v as usize) < nv))
+            .collect()
     }
 
     /// The pieces of the mesh: for each triangle the piece it belongs to (triangles sharing
@@ -433,6 +503,32 @@ mod tests {
         m.triangles[3] = [1, 3, 2];
         let t = m.topology();
         assert!(t.closed && t.edge_manifold && !t.oriented);
+    }
+
+    #[test]
+    fn closure_agrees_with_topology() {
+        let mut open = tetra();
+        open.triangles.pop();
+        let mut apart = tetra();
+        apart
+            .vertices
+            .extend([[5., 0., 0.], [6., 0., 0.], [5., 1., 0.]]);
+        apart.triangles.extend([[4, 5, 6], [4, 6, 5]]);
+        let mut stray = tetra();
+        stray.triangles.push([0, 1, 9]);
+        for m in [tetra(), open, apart, stray] {
+            let (t, c) = (m.topology(), m.closure());
+            assert_eq!(
+                (c.pieces, c.closed, c.boundary_edges),
+                (t.components, t.closed, t.boundary_edges)
+            );
+        }
+        let mut apart = tetra();
+        apart
+            .vertices
+            .extend([[5., 0., 0.], [6., 0., 0.], [5., 1., 0.]]);
+        apart.triangles.extend([[4, 5, 6], [4, 6, 5]]);
+        assert_eq!(apart.closure().pieces, 2);
     }
 
     #[test]

@@ -82,7 +82,7 @@ impl NormalProbe {
 /// [`Warning::ManyPieces`]).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Diagnosis {
-    /// Connected pieces of the mesh ([`crate::mesh::Topology::components`]).
+    /// Connected pieces of the mesh ([`crate::mesh::Closure::pieces`]).
     pub pieces: usize,
     /// Every edge is shared by exactly two triangles.
     pub closed: bool,
@@ -103,11 +103,11 @@ impl Diagnosis {
     /// The figures of `mesh`, in the input's frame; `frame` is the bounding cube, `depth`
     /// the run's depth and `contradicted_normals` the probe's finding.
     pub(crate) fn of(mesh: &Mesh, frame: Frame, depth: u32, contradicted_normals: f64) -> Self {
-        let topology = mesh.topology();
+        let closure = mesh.closure();
         Diagnosis {
-            pieces: topology.components,
-            closed: topology.closed,
-            boundary_edges: topology.boundary_edges,
+            pieces: closure.pieces,
+            closed: closure.closed,
+            boundary_edges: closure.boundary_edges,
             on_cube: on_cube(mesh, frame, depth),
             contradicted_normals,
             depth,
