@@ -126,11 +126,20 @@ pub(super) fn boundary_uniform<C: Cells>(
     s: u32,
     inside: bool,
 ) -> bool {
+    let n = 1u32 << here.depth;
     (0..27u32).filter(|&b| here.around >> b & 1 != 0).all(|b| {
-        let cell: [u32; 3] = std::array::from_fn(|a| {
-            (here.offset[a] + (b / 3u32.pow(a as u32)) % 3).wrapping_sub(1)
+        let cell: [Option<u32>; 3] = std::array::from_fn(|a| {
+            (here.offset[a] + (b / 3u32.pow(a as u32)) % 3)
+                .checked_sub(1)
+                .filter(|&c| c < n)
         });
-        subtree_uniform(ctx, sc, here, (here.depth, cell), lo, s, inside)
+        // Cells outside the unit cube are not extracted (the walk never splits at them).
+        match cell {
+            [Some(x), Some(y), Some(z)] => {
+                subtree_uniform(ctx, sc, here, (here.depth, [x, y, z]), lo, s, inside)
+            }
+            _ => true,
+        }
     })
 }
 
