@@ -187,25 +187,54 @@ impl<'a> Op<'a> {
         pc: &[f64],
         vc: &[[f32; 3]],
     ) -> f64 {
+        self.coarse_coupling::<SOL, VEC, false>([s, 0.0], n, i, pc, vc)[0]
+    }
+
+    /// Both sums at once, in one walk over the parent window: `s[0]` as
+    /// [`Op::add_coarse_coupling`] with both terms, `s[1]` with the coarser V's term only (the
+    /// part the solver's further cycles keep). Each sum gets exactly the operations, in the
+    /// same order, that it would get alone.
+    #[inline]
+    fn add_coarse_coupling_and_fixed(
+        &self,
+        s: [f64; 2],
+        n: u32,
+        i: [i64; 3],
+        pc: &[f64],
+        vc: &[[f32; 3]],
+    ) -> [f64; 2] {
+        self.coarse_coupling::<true, true, true>(s, n, i, pc, vc)
+    }
+
+    /// [`Op::add_coarse_coupling`] into `s[0]`; with `FIX`, the V term also into `s[1]`.
+    #[inline]
+    fn coarse_coupling<const SOL: bool, const VEC: bool, const FIX: bool>(
+        &self,
+        s: [f64; 2],
+        n: u32,
+        i: [i64; 3],
+        pc: &[f64],
+        vc: &[[f32; 3]],
+    ) -> [f64; 2] {
         let par = self.level.brood_parent[(n >> 3) as usize];
         if self.tab.is_interior(i) {
-            self.add_interior_coupling::<SOL, VEC>(s, i, par, pc, vc)
+            self.add_interior_coupling::<SOL, VEC, FIX>(s, i, par, pc, vc)
         } else {
-            self.add_boundary_coupling::<SOL, VEC>(s, i, par, pc, vc)
+            self.add_boundary_coupling::<SOL, VEC, FIX>(s, i, par, pc, vc)
         }
     }
 
     /// [`Op::add_coarse_coupling`] for an interior function: the precomputed parent stencils
     /// of its child position, over their nonzero entries.
     #[inline]
-    fn add_interior_coupling<const SOL: bool, const VEC: bool>(
+    fn add_interior_coupling<const SOL: bool, const VEC: bool, const FIX: bool>(
         &self,
-        mut s: f64,
+        mut s: [f64; 2],
         i: [i64; 3],
         par: u32,
         pc: &[f64],
         vc: &[[f32; 3]],
-    ) -> f64 {
+    ) -> [f64; 2] {
         let tab = self.tab;
         let parent_level = &self.tree.levels[self.t as usize - 1];
         let c = ((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2)) as usize;
@@ -218,13 +247,17 @@ impl<'a> Op<'a> {
                 continue;
             }
             if SOL {
-                s -= ps[w] * pc[q as usize];
+                s[0] -= ps[w] * pc[q as usize];
             }
             if VEC {
                 let v = vc[q as usize];
-                s += f64::from(v[0]) * pv[0][w]
+                let term = f64::from(v[0]) * pv[0][w]
                     + f64::from(v[1]) * pv[1][w]
                     + f64::from(v[2]) * pv[2][w];
+                s[0] += term;
+                if FIX {
+                    s[1] += term;
+                }
             }
         }
         s
@@ -232,14 +265,14 @@ impl<'a> Op<'a> {
 
     /// [`Op::add_coarse_coupling`] for a function near the boundary: the parent window's
     /// entries from the 1-D mass, stiffness and V tables.
-    fn add_boundary_coupling<const SOL: bool, const VEC: bool>(
+    fn add_boundary_coupling<const SOL: bool, const VEC: bool, const FIX: bool>(
         &self,
-        mut s: f64,
+        mut s: [f64; 2],
         i: [i64; 3],
         par: u32,
         pc: &[f64],
         vc: &[[f32; 3]],
-    ) -> f64 {
+    ) -> [f64; 2] {
         let tab = self.tab;
         let parent_level = &self.tree.levels[self.t as usize - 1];
         let mut pm = [[0.0; 5]; 3];
@@ -265,14 +298,18 @@ impl<'a> Op<'a> {
                 let k = ps[0][ox] * pm[1][oy] * pm[2][oz]
                     + pm[0][ox] * ps[1][oy] * pm[2][oz]
                     + pm[0][ox] * pm[1][oy] * ps[2][oz];
-                s -= k * xq;
+                s[0] -= k * xq;
             }
             let v = if VEC { vc[q as usize] } else { [0.0; 3] };
             if v != [0.0; 3] {
                 let v = v.map(f64::from);
-                s += v[0] * vd[0][ox] * vm[1][oy] * vm[2][oz]
+                let term = v[0] * vd[0][ox] * vm[1][oy] * vm[2][oz]
                     + v[1] * vm[0][ox] * vd[1][oy] * vm[2][oz]
                     + v[2] * vm[0][ox] * vm[1][oy] * vd[2][oz];
+                s[0] += term;
+                if FIX {
+                    s[1] += term;
+                }
             }
         }
         s
@@ -834,6 +871,20 @@ impl Laps {
     fn lap(&mut self, name: String) {
         let peak = crate::resources::peak_rss();
         self.timings.push((name, self.clock.elapsed(), peak));
+        self.clock = std::time::Instant::now();
+    }
+
+    /// Records the time since the previous lap as the parts `parts` (name and time each,
+    /// measured by the caller within that span); what they leave out goes to the last.
+    fn laps(&mut self, mut parts: Vec<(String, std::time::Duration)>) {
+        let peak = crate::resources::peak_rss();
+        let total = self.clock.elapsed();
+        let counted: std::time::Duration = parts.iter().map(|p| p.1).sum();
+        if let Some(last) = parts.last_mut() {
+            last.1 += total.saturating_sub(counted);
+        }
+        self.timings
+            .extend(parts.into_iter().map(|(name, time)| (name, time, peak)));
         self.clock = std::time::Instant::now();
     }
 }

@@ -174,7 +174,7 @@ pub fn of_stage(name: &str, s: &Sizes) -> Option<Work> {
             match part {
                 "conjugate gradients" => conjugate_gradients(s, d),
                 "right-hand side" => right_hand_side(s, d),
-                "fixed right-hand side" => fixed_right_hand_side(s, d),
+                "right-hand sides" => right_hand_sides(s, d),
                 "Gauss-Seidel" => gauss_seidel(s, d),
                 "residual" => residual(s, d),
                 "prolongation" => prolongation(s, d),
@@ -331,16 +331,16 @@ fn right_hand_side(s: &Sizes, d: u32) -> Work {
     )
 }
 
-/// A depth's fixed right-hand side, with `-v` (the part of the right-hand side the solver's
-/// further cycles keep: the constraints and V's coupling, without the coarser solution): its
-/// constraint read and result written (4 B each), the tree, the parent depth's V (12 B), the
-/// clusters' ω, first index and basis values (56 B). Flops: three multiply-adds per
-/// parent-window entry, a node; 10 per cluster for each of the `(k + 1)³` functions it touches.
-fn fixed_right_hand_side(s: &Sizes, d: u32) -> Work {
-    let (n, parent, c) = (s.nodes(d), s.nodes(d.saturating_sub(1)), s.clusters(d));
+/// A depth's right-hand side in the first of several solver cycles, with its fixed part (the
+/// constraints, V's coupling and the screening targets, which the further cycles keep) from
+/// the same walk: the right-hand side's bytes plus the fixed part written (4 B); its flops
+/// plus three multiply-adds per parent-window entry and two per screening term.
+fn right_hand_sides(s: &Sizes, d: u32) -> Work {
+    let one = right_hand_side(s, d);
+    let (n, c) = (s.nodes(d), s.clusters(d));
     Work::new(
-        n * (8.0 + NODE_TABLE_BYTES) + parent * V + c * 56.0,
-        n * 6.0 * parent_window(s.degree) + c * s.support() * 10.0,
+        one.bytes + n * 4.0,
+        one.flops + n * 6.0 * parent_window(s.degree) + c * s.support() * 2.0,
     )
 }
 
@@ -473,7 +473,7 @@ mod tests {
             "  divergence constraints",
             "  depth 5: conjugate gradients",
             "  depth 7: right-hand side",
-            "  depth 7: fixed right-hand side",
+            "  depth 7: right-hand sides",
             "  depth 7: Gauss-Seidel",
             "  depth 7: residual",
             "  depth 7: prolongation",

@@ -30,8 +30,8 @@
 use rayon::prelude::*;
 
 use super::{
-    coarse_cluster_values, prolong_field, prolong_solution, remove_mean, right_hand_side, to_f32,
-    BaseSystem, Laps, Op, Problem, Solution, TAU,
+    coarse_cluster_values, prolong_field, prolong_solution, remove_mean, to_f32, BaseSystem, Laps,
+    Op, Problem, Solution, TAU,
 };
 use crate::octree::{neighbor_in, DEPTH_OFFSET, NONE};
 use crate::shared_slice::SharedSlice;
@@ -74,6 +74,22 @@ pub struct SolveReport {
     pub seconds: Vec<f64>,
 }
 
+/// The parts of a cycle after the first, timed for the profile (`-v`).
+/// The residuals' measurement (with `-v` only) is last: it takes what the others leave out.
+const PARTS: [&str; 6] = [
+    "finer coupling",
+    "base depth",
+    "right-hand sides",
+    "Gauss-Seidel",
+    "prolongation",
+    "residuals",
+];
+const COUPLING: usize = 0;
+const BASE: usize = 1;
+const RHS: usize = 2;
+const SWEEPS: usize = 3;
+const PROLONG: usize = 4;
+
 /// The state of the cycles: per level, the fixed right-hand side, the solution, the
 /// cumulative solution and the finer depths' coupling.
 struct Cycles<'a> {
@@ -97,6 +113,8 @@ struct Cycles<'a> {
     /// `U_t`, the finer depths' gradient coupling, of each level below the deepest.
     u: Vec<Vec<f64>>,
     report: Option<SolveReport>,
+    /// Time spent in this cycle on each of [`PARTS`].
+    parts: [std::time::Duration; PARTS.len()],
     cycle: u32,
     work: f64,
     /// Time spent measuring residuals, left out of the report's seconds.
@@ -139,6 +157,7 @@ pub(super) fn solve(
             iters: p.iters,
             ..SolveReport::default()
         }),
+        parts: [std::time::Duration::ZERO; PARTS.len()],
         cycle: 1,
         work: 0.0,
         measuring: std::time::Duration::ZERO,
@@ -153,9 +172,22 @@ pub(super) fn solve(
         }
         c.cycle = k;
         (p.progress)(&format!("solver cycle {k}"));
+        c.parts = [std::time::Duration::ZERO; PARTS.len()];
         c.cycle_from(max);
         c.end_cycle();
-        laps.lap(format!("cycle {k}: {}", p.solver.name()));
+        let measured = if c.report.is_some() {
+            PARTS.len()
+        } else {
+            PARTS.len() - 1
+        };
+        laps.laps(
+            PARTS
+                .iter()
+                .zip(c.parts)
+                .take(measured)
+                .map(|(part, time)| (format!("cycle {k}: {part}"), time))
+                .collect(),
+        );
     }
     let mut sol = Solution {
         x: vec![Vec::new(); nlev],
@@ -204,14 +236,12 @@ impl<'a> Cycles<'a> {
             let dd = t as u32 - DEPTH_OFFSET;
             (p.progress)(&format!("solving depth {dd}"));
             let op = self.ops[t].as_ref().expect("operators above the base");
-            let r = right_hand_side(op, p.fem, &tcons[t], &self.pcum[t - 1], &vc);
-            laps.lap(format!("depth {dd}: right-hand side"));
-            let b = fixed_right_hand_side(op, &tcons[t], &vc);
+            let (r, b) = right_hand_sides(op, p.fem, &tcons[t], &self.pcum[t - 1], &vc);
             tcons[t] = Vec::new();
             if t == max {
                 vc = Vec::new();
             }
-            laps.lap(format!("depth {dd}: fixed right-hand side"));
+            laps.lap(format!("depth {dd}: right-hand sides"));
             let mut x = vec![0.0f32; op.level.len()];
             op.gauss_seidel(&r, &mut x, p.iters);
             self.work += f64::from(p.iters) * op.level.len() as f64;
@@ -238,9 +268,13 @@ impl<'a> Cycles<'a> {
         if self.p.solver != Solver::Cascadic {
             self.relax(t, "down");
         }
+        let clock = std::time::Instant::now();
         self.u[t - 1] = self.coupling_below(t, &self.u[t]);
+        self.parts[COUPLING] += clock.elapsed();
         if t - 1 == self.tb {
+            let clock = std::time::Instant::now();
             self.solve_base();
+            self.parts[BASE] += clock.elapsed();
         } else {
             self.cycle_from(t - 1);
             if self.p.solver == Solver::WCycle {
@@ -248,9 +282,11 @@ impl<'a> Cycles<'a> {
             }
         }
         self.relax(t, "up");
+        let clock = std::time::Instant::now();
         if t < self.max {
             self.pcum[t] = prolong_solution(self.op(t), &self.pcum[t - 1], &self.x[t]);
         }
+        self.parts[PROLONG] += clock.elapsed();
     }
 
     /// `U_{t−1}`: level `t`'s solution pushed through the parent stencils, plus `u_t` (the
@@ -274,8 +310,8 @@ impl<'a> Cycles<'a> {
     }
 
     /// The right-hand side level `t` is relaxed against: `b_t`, minus the coarser solution's
-    /// coupling, minus the finer levels' `U_t`.
-    fn level_right_hand_side(&self, t: usize) -> Vec<f64> {
+    /// coupling, minus the finer levels' `U_t`; stored in single precision, as the cascade's.
+    fn level_right_hand_side(&self, t: usize) -> Vec<f32> {
         let op = self.op(t);
         let pc = &self.pcum[t - 1];
         let coarse_chi = coarse_cluster_values(op, self.p.fem, pc);
@@ -295,21 +331,25 @@ impl<'a> Cycles<'a> {
                 if !u.is_empty() {
                     s -= u[n as usize];
                 }
-                s
+                s as f32
             })
             .collect()
     }
 
     /// `iters` Gauss–Seidel sweeps on level `t` from its current solution.
     fn relax(&mut self, t: usize, phase: &'static str) {
+        let clock = std::time::Instant::now();
         let r = self.level_right_hand_side(t);
+        self.parts[RHS] += clock.elapsed();
         let op = self.ops[t].as_ref().expect("operators above the base");
         let before = self
             .report
             .is_some()
             .then(|| relative_residual(op, &r, &self.x[t]));
         let mut x = std::mem::take(&mut self.x[t]);
+        let clock = std::time::Instant::now();
         op.gauss_seidel(&r, &mut x, self.p.iters);
+        self.parts[SWEEPS] += clock.elapsed();
         self.work += f64::from(self.p.iters) * op.level.len() as f64;
         if let Some(before) = before {
             let clock = std::time::Instant::now();
@@ -453,24 +493,34 @@ fn record(
     }
 }
 
-/// The fixed part of a level's right-hand side: its constraints, the coarser V (`vc`,
-/// cumulative, on the parent level) and the screening targets `Σ_c ω_c B_i(p_c) τ`.
-fn fixed_right_hand_side(op: &Op, tcons: &[f32], vc: &[[f32; 3]]) -> Vec<f32> {
+/// A level's right-hand side for the first pass, bit for bit the cascade's
+/// ([`super::right_hand_side`]), and, from the same walk over the parent windows, its fixed
+/// part: its constraints, the coarser V (`vc`, cumulative, on the parent level) and the
+/// screening targets `Σ_c ω_c B_i(p_c) τ`, which the further cycles keep.
+fn right_hand_sides(
+    op: &Op,
+    fem: crate::bspline::Basis,
+    tcons: &[f32],
+    pc: &[f64],
+    vc: &[[f32; 3]],
+) -> (Vec<f32>, Vec<f32>) {
+    let coarse_chi = coarse_cluster_values(op, fem, pc);
     (0..op.level.len() as u32)
         .into_par_iter()
         .map(|n| {
             let i = op.index(n);
             if !op.tab.range.contains(i) {
-                return 0.0;
+                return (0.0, 0.0);
             }
-            let mut s =
-                op.add_coarse_coupling::<false, true>(f64::from(tcons[n as usize]), n, i, &[], vc);
+            let t = f64::from(tcons[n as usize]);
+            let [mut r, mut b] = op.add_coarse_coupling_and_fixed([t, t], n, i, pc, vc);
             op.for_each_cluster(n, i, |c, bv| {
-                s += op.cl.omega[c as usize] * bv * TAU;
+                r += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
+                b += op.cl.omega[c as usize] * bv * TAU;
             });
-            s as f32
+            (r as f32, b as f32)
         })
-        .collect()
+        .unzip()
 }
 
 /// `Σ_n (r_n − ((L + S) x)_n)²` over the level's functions, summed in a fixed order.
@@ -514,41 +564,60 @@ fn norm2(a: &[f64]) -> f64 {
 
 /// `Σ_j ∫∇B_q·∇B_j x_j` for every function `q` of the parent level of `op`'s level, from its
 /// coefficients `x`: each function pushes into its parent window through the parent stiffness
-/// stencils (the transpose of the cascade's pull). Broods are coloured by their parent's key
-/// modulo 5 per axis, so that the windows of one colour's parents never overlap: a colour is
-/// pushed in parallel without races, in an order that does not depend on the thread count.
+/// stencils (the transpose of the cascade's pull).
+///
+/// The broods are cut into tiles: the broods whose parents lie in one aligned block of
+/// `TILE³` parent cells, contiguous in the level's Morton order. A parent window reaches two
+/// cells beyond its parent, so the windows of two tiles whose block coordinates differ by two
+/// or more along some axis never overlap; the tiles are coloured by their block coordinates
+/// modulo 2 per axis, the eight colours pushed one after another, the tiles of a colour in
+/// parallel and each tile's broods in order by one task. Every sum is therefore taken in an
+/// order that does not depend on the thread count, and a task's reads and writes stay within
+/// one neighbourhood of the tree.
 fn push_to_parents(op: &Op, x: &[f32]) -> Vec<f64> {
+    const TILE: u32 = 8;
     let parent_level = &op.tree.levels[op.t as usize - 1];
     let level = op.level;
     let mut g = vec![0.0f64; parent_level.len()];
-    let mut colours: Vec<Vec<u32>> = vec![Vec::new(); 125];
-    for b in 0..(level.len() / 8) as u32 {
-        let base = (b * 8) as usize;
-        if x[base..base + 8].iter().all(|&v| v == 0.0) {
-            continue;
+    let mut colours: Vec<Vec<std::ops::Range<u32>>> = vec![Vec::new(); 8];
+    let broods = (level.len() / 8) as u32;
+    let tile_of = |b: u32| {
+        parent_level
+            .key(level.brood_parent[b as usize])
+            .map(|k| k / TILE)
+    };
+    let mut b = 0;
+    while b < broods {
+        let tile = tile_of(b);
+        let mut e = b + 1;
+        while e < broods && tile_of(e) == tile {
+            e += 1;
         }
-        let k = parent_level.key(level.brood_parent[b as usize]);
-        colours[(k[0] % 5 + 5 * (k[1] % 5) + 25 * (k[2] % 5)) as usize].push(b);
+        let colour = (tile[0] % 2 + 2 * (tile[1] % 2) + 4 * (tile[2] % 2)) as usize;
+        colours[colour].push(b..e);
+        b = e;
     }
     let gs = SharedSlice::new(&mut g);
-    for list in &colours {
-        list.par_iter().with_min_len(64).for_each(|&b| {
-            let par = level.brood_parent[b as usize];
-            for c in 0..8u32 {
-                let n = b * 8 + c;
-                let xn = f64::from(x[n as usize]);
-                if xn == 0.0 {
-                    continue;
+    for tiles in &colours {
+        tiles.par_iter().for_each(|range| {
+            for b in range.clone() {
+                let par = level.brood_parent[b as usize];
+                for c in 0..8u32 {
+                    let n = b * 8 + c;
+                    let xn = f64::from(x[n as usize]);
+                    if xn == 0.0 {
+                        continue;
+                    }
+                    let i = op.index(n);
+                    if !op.tab.range.contains(i) {
+                        continue;
+                    }
+                    op.for_each_parent_stiffness(i, par, |q, k| {
+                        // SAFETY: within one colour, only this tile's task writes the windows
+                        // of its broods' parents (see the colouring above).
+                        unsafe { gs.set(q as usize, gs.get(q as usize) + k * xn) };
+                    });
                 }
-                let i = op.index(n);
-                if !op.tab.range.contains(i) {
-                    continue;
-                }
-                op.for_each_parent_stiffness(i, par, |q, k| {
-                    // SAFETY: within one colour, only this brood's task writes the window
-                    // of its parent `par` (see the colouring above).
-                    unsafe { gs.set(q as usize, gs.get(q as usize) + k * xn) };
-                });
             }
         });
     }
