@@ -200,14 +200,11 @@ pub struct ReconstructArgs {
     )]
     pub scale: f64,
 
-    /// Gauss-Seidel sweeps per depth. Default as PoissonRecon 6 and 18 and the 2013 paper.
-    #[arg(
-        long,
-        value_name = "N",
-        default_value_t = spsr::Params::default().iters,
-        allow_negative_numbers = true
-    )]
-    pub iters: u32,
+    /// Gauss-Seidel sweeps per depth in each solver cycle: 8 with one cycle as PoissonRecon 6
+    /// and 18 and the 2013 paper, 4 with more (the same 8 per depth in all) [default: 8 for
+    /// one cycle, 4 for more]
+    #[arg(long, value_name = "N", allow_negative_numbers = true)]
+    pub iters: Option<u32>,
 
     /// Shape of the solver's cycles over the depths: cascadic (coarse to fine, as
     /// PoissonRecon), vcycle (also relaxing each depth going down and passing its residual to
@@ -217,14 +214,12 @@ pub struct ReconstructArgs {
 
     /// Solver cycles; the first is the cascade, each further one passes the finer depths'
     /// solution back to the coarser ones and relaxes every depth again (--iters sweeps per
-    /// depth, twice per depth for vcycle). spsr's own
-    #[arg(
-        long,
-        value_name = "N",
-        default_value_t = spsr::Params::default().cycles,
-        allow_negative_numbers = true
-    )]
-    pub cycles: u32,
+    /// depth, twice per depth for vcycle): 2 at degree 1, at least as accurate as PoissonRecon
+    /// at its defaults; 1 at degree 2, PoissonRecon's cascade, already as accurate.
+    /// --cycles 1 --iters 8 is PoissonRecon's solve. spsr's own [default: 2 at degree 1, 1 at
+    /// degree 2]
+    #[arg(long, value_name = "N", allow_negative_numbers = true)]
+    pub cycles: Option<u32>,
 
     /// Relax the solver's depths on an NVIDIA GPU, with the same mesh bit for bit: `--gpu`
     /// (or `--gpu on`) fails with exit code 3 where no GPU can be used, `--gpu auto` falls
@@ -892,9 +887,25 @@ fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, Str
             },
         ),
         ("scale", params.scale.to_string(), src("scale")),
-        ("iters", params.iters.to_string(), src("iters")),
+        (
+            "iters",
+            params.iters().to_string(),
+            if args.given("iters") {
+                Source::Flag
+            } else {
+                Source::Derived("8 for one cycle, 4 for more".into())
+            },
+        ),
         ("solver", params.solver.name().to_string(), src("solver")),
-        ("cycles", params.cycles.to_string(), src("cycles")),
+        (
+            "cycles",
+            params.cycles().to_string(),
+            if args.given("cycles") {
+                Source::Flag
+            } else {
+                Source::Derived("2 at --degree 1, 1 at --degree 2".into())
+            },
+        ),
         (
             "gpu",
             args.gpu

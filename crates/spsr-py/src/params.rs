@@ -79,7 +79,7 @@ pub struct MethodKeywords {
     degree: i64,
     boundary: String,
     scale: f64,
-    iters: i64,
+    iters: Option<i64>,
     confidence: bool,
     density: bool,
     linear_fit: bool,
@@ -93,7 +93,7 @@ pub struct MethodKeywords {
     keep_outliers: bool,
     keep_normals: bool,
     solver: String,
-    cycles: i64,
+    cycles: Option<i64>,
     /// False, True or `"auto"` (also `"off"` and `"on"`).
     gpu: Py<PyAny>,
 }
@@ -137,7 +137,7 @@ impl MethodKeywords {
             degree: degree_arg(self.degree)?,
             boundary: boundary_arg(&self.boundary)?,
             scale: self.scale,
-            iters: int_arg(self.iters),
+            iters: self.iters.map(int_arg),
             weights: weights_arg(self.confidence, self.confidence_property),
             density: self.density,
             linear_fit: self.linear_fit,
@@ -154,7 +154,7 @@ impl MethodKeywords {
             keep_outliers: self.keep_outliers,
             keep_normals: self.keep_normals,
             solver,
-            cycles: int_arg(self.cycles),
+            cycles: self.cycles.map(int_arg),
             report_residuals: false,
             gpu: gpu_arg(self.gpu.bind(py))?,
         };
@@ -162,8 +162,8 @@ impl MethodKeywords {
             ("depth", given_depth),
             ("grid_res", self.grid_res),
             ("full_depth", self.full_depth),
-            ("iters", Some(self.iters)),
-            ("cycles", Some(self.cycles)),
+            ("iters", self.iters),
+            ("cycles", self.cycles),
             ("max_memory", self.max_memory),
         ];
         params.validate().map_err(|e| {

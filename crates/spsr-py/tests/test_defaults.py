@@ -98,7 +98,9 @@ def test_defaults_match_the_documented_values():
     """A few values by hand, so that a wrong `_defaults()` cannot pass the tests above."""
     r = DEFAULTS["reconstruct"]
     assert (r["depth"], r["full_depth"], r["degree"], r["boundary"]) == (8, 5, 1, "neumann")
-    assert (r["samples_per_node"], r["scale"], r["iters"], r["data_pull"]) == (1.5, 1.1, 8, 32.0)
+    assert (r["samples_per_node"], r["scale"], r["data_pull"]) == (1.5, 1.1, 32.0)
+    # None: 2 cycles of 4 sweeps at degree 1, 1 cycle of 8 at degree 2 (Params::cycles()).
+    assert r["iters"] is None and r["cycles"] is None and r["solver"] == "cascadic"
     assert r["confidence"] is False and r["confidence_property"] is None and r["attributes"] is True
     assert (r["noise"], r["keep_outliers"], r["keep_normals"]) == ("adaptive", False, False)
     assert r["width"] is None and r["grid_res"] is None

@@ -108,13 +108,30 @@ fn coloured_torus() -> PointCloud {
     cloud
 }
 
-/// PoissonRecon's behaviour: the defaults without the noise adaptation, which the cases
-/// below pin; the adaptation has a case of its own.
+/// PoissonRecon's behaviour: the defaults without the noise adaptation and with one cascade
+/// of 8 sweeps (PoissonRecon 18's solve; spsr's default at degree 1 before issue 18 made it
+/// two cycles), which the cases below pin; the adaptation and today's solver default have
+/// cases of their own.
 fn reference() -> Params {
     Params {
         noise: Noise::Off,
+        cycles: Some(1),
+        iters: Some(8),
         ..Params::default()
     }
+}
+
+#[test]
+fn sphere_degree_1_two_solver_cycles_by_default() {
+    let cloud = sphere(20_000, [0.3, -0.1, 0.2], 1.5, 1);
+    let params = Params {
+        depth: 7,
+        noise: Noise::Off,
+        ..Params::default()
+    };
+    assert_eq!((params.cycles(), params.iters()), (2, 4));
+    let out = spsr::reconstruct(&cloud, &params).unwrap();
+    check("sphere d7 degree 1, two cycles", &out.mesh, 0x966d947484a3b674);
 }
 
 #[test]
@@ -182,7 +199,7 @@ fn torus_attributes_confidence_property_unscreened() {
         depth: 7,
         weights: PointWeights::Property("quality".into()),
         point_weight: Some(0.0),
-        iters: 5,
+        iters: Some(5),
         data_pull: 8.0,
         ..reference()
     };

@@ -619,7 +619,7 @@ def reconstruct(
     degree: int = 1,
     boundary: str = "neumann",
     scale: float = 1.1,
-    iters: int = 8,
+    iters: Optional[int] = None,
     confidence: bool = False,
     density: bool = False,
     linear_fit: bool = False,
@@ -640,7 +640,7 @@ def reconstruct(
     keep_normals: bool = False,
     threads: Optional[int] = None,
     solver: str = "cascadic",
-    cycles: int = 1,
+    cycles: Optional[int] = None,
     gpu: Union[bool, str] = False,
     grid_res: Optional[int] = None,
     keep_implicit: bool = False,
@@ -701,15 +701,19 @@ def reconstruct(
         Boundary condition on the bounding cube.
     scale : float, default 1.1
         Bounding cube side = largest side of the points' bounding box * scale.
-    iters : int, default 8
-        Gauss-Seidel sweeps per depth.
+    iters : int, optional
+        Gauss-Seidel sweeps per depth in each solver cycle. Default 8 with one cycle (as
+        PoissonRecon and the 2013 paper), 4 with more (the same 8 per depth in all).
     solver : {"cascadic", "vcycle", "wcycle"}, default "cascadic"
         Shape of the solver's cycles over the depths: coarse to fine (PoissonRecon's
         cascade), V-cycles (each depth also relaxed going down, its residual passed to the
         coarser depths) or W-cycles (the coarser depths visited twice).
-    cycles : int, default 1
+    cycles : int, optional
         Solver cycles; the first is the cascade, each further one passes the finer depths'
-        solution back to the coarser ones and relaxes every depth again.
+        solution back to the coarser ones and relaxes every depth again. Default 2 at
+        degree 1 (at least as accurate as PoissonRecon at its defaults), 1 at degree 2
+        (PoissonRecon's cascade, already as accurate); ``cycles=1, iters=8`` is
+        PoissonRecon's solve.
     gpu : bool or "auto", default False
         Relax the solver's depths on an NVIDIA GPU; the mesh is the same bit for bit. True
         raises ``RuntimeError`` where no GPU can be used (a wheel built without the cargo

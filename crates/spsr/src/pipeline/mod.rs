@@ -233,7 +233,7 @@ pub fn stage_plan(params: &Params, trimming: bool) -> Vec<String> {
         // Each further cycle of the solver (`solver::cycles`), when there are depths above
         // the base to cycle over.
         .chain(
-            (2..=params.cycles)
+            (2..=params.cycles())
                 .filter(|_| base < params.depth)
                 .map(|k| format!("solver cycle {k}")),
         );
@@ -357,7 +357,7 @@ fn reconstruct_input(
         clusters_per_depth: stats.clusters_per_depth.clone(),
         base_depth: params.base_depth().max(1).min(params.depth),
         degree: params.degree.get(),
-        iters: params.iters,
+        iters: params.iters(),
         splat_levels: if params.two_level_splat { 2 } else { 1 },
         vertices: extracted.0,
         faces: extracted.1,

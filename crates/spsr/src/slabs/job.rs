@@ -319,6 +319,7 @@ pub fn finish(dir: &Path, output: &Path) -> Result<(Stats, Written)> {
     };
     let stats = super::slab_stats(
         found,
+        &job.params,
         samples as usize,
         iso,
         coarse.mean_depth,

@@ -160,12 +160,10 @@ fn check_supported(params: &Params) -> Result<()> {
         return refuse("weights", name);
     }
     // The slabs solve the coarse depths once for the whole cloud and the finer ones slab by
-    // slab: there is no pass from the finer depths back down to the coarse ones.
+    // slab: there is no pass from the finer depths back down to the coarse ones. Cascadic
+    // cycles are solved as one cascade of the same sweeps ([`cascade_sweeps`]).
     if params.solver != crate::Solver::Cascadic {
         return refuse("solver", params.solver.name());
-    }
-    if params.cycles != 1 {
-        return refuse("cycles", &params.cycles.to_string());
     }
     // The slabs relax on the CPU; `Gpu::Auto` falls back to it as it does without a GPU.
     if params.gpu == crate::Gpu::On {
@@ -187,6 +185,22 @@ fn check_supported(params: &Params) -> Result<()> {
         crate::Resolution::Width(w) => Err(Error::invalid("width", w, whole)),
         crate::Resolution::Auto => Err(Error::invalid("depth", "auto", whole)),
     }
+}
+
+/// The Gauss–Seidel sweeps per depth of the slabs' solve: one cascade with as many sweeps per
+/// depth as the cascadic cycles asked for make in all (`cycles × iters`; 8 at the defaults,
+/// PoissonRecon 18's solve). The cycles after the first pass the finer depths' solution down
+/// to the coarser depths of the whole cloud, which the slabs do not share (yet).
+pub fn cascade_sweeps(params: &Params) -> u32 {
+    params.iters().saturating_mul(params.cycles())
+}
+
+/// The note of a slab run whose solver cycles were solved as one cascade.
+fn cascade_note(params: &Params) -> Option<Warning> {
+    (params.cycles() > 1).then(|| Warning::SlabCascade {
+        cycles: params.cycles(),
+        sweeps: cascade_sweeps(params),
+    })
 }
 
 /// Reconstructs the cloud of `source` in slabs: one pass for the bounding cube, one that
@@ -322,6 +336,7 @@ fn run(
         peak_memory,
         ..slab_stats(
             found,
+            params,
             samples,
             iso,
             coarse.mean_depth,
@@ -444,8 +459,10 @@ fn written_diagnosis(w: &Written) -> Diagnosis {
 
 /// The statistics of a slab run, stage timings and peak memory aside; `warnings` are those
 /// of the run's end (removed fragments).
+#[allow(clippy::too_many_arguments)]
 fn slab_stats(
     found: Found,
+    params: &Params,
     samples: usize,
     iso: f64,
     mean_depth: f64,
@@ -459,6 +476,7 @@ fn slab_stats(
     });
     let warnings = dropped
         .into_iter()
+        .chain(cascade_note(params))
         .chain(warnings)
         .chain(diagnosis.warning())
         .collect();

@@ -166,9 +166,10 @@ fn problem<'a>(
         tables,
         clusters,
         base_level: base_level(params),
-        iters: params.iters,
+        iters: super::cascade_sweeps(params),
         singular: params.alpha() == 0.0 && params.boundary != crate::Boundary::Dirichlet,
-        // Refused in slab mode but the cascade (`check_supported`).
+        // Refused in slab mode but the cascade (`check_supported`); cascadic cycles are
+        // solved as one cascade of the same sweeps (`cascade_sweeps`).
         solver: crate::Solver::Cascadic,
         cycles: 1,
         report: false,

@@ -177,7 +177,7 @@ fn the_stage_plan_is_what_the_progress_callback_hears() {
     };
     let cycles = Params {
         solver: spsr::Solver::WCycle,
-        cycles: 3,
+        cycles: Some(3),
         ..at(6)
     };
     for (params, trimming) in [

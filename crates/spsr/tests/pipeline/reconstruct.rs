@@ -278,7 +278,7 @@ fn unusable_inputs_are_clear_errors() {
         ),
         (
             Params {
-                iters: 0,
+                iters: Some(0),
                 ..p.clone()
             },
             "iters",

@@ -30,9 +30,16 @@ fn cell(cloud: &PointCloud, params: &Params) -> f64 {
     side * params.scale / f64::from(1u32 << params.depth)
 }
 
+/// The slab runs of `params` against the in-core run of the solve the slabs make: one cascade
+/// of the cascadic cycles' sweeps (`slabs::cascade_sweeps`).
 fn compare(name: &str, cloud: &PointCloud, params: &Params, counts: &[usize]) {
     let dir = tempfile::tempdir().unwrap();
-    let whole = spsr::reconstruct(cloud, params).unwrap().mesh;
+    let one_cascade = Params {
+        cycles: Some(1),
+        iters: Some(slabs::cascade_sweeps(params)),
+        ..params.clone()
+    };
+    let whole = spsr::reconstruct(cloud, &one_cascade).unwrap().mesh;
     let h = cell(cloud, params);
     for &k in counts {
         let out = slabs::reconstruct(
@@ -45,6 +52,16 @@ fn compare(name: &str, cloud: &PointCloud, params: &Params, counts: &[usize]) {
             &|_| {},
         )
         .unwrap();
+        let noted = out
+            .stats
+            .warnings
+            .iter()
+            .any(|w| matches!(w, spsr::Warning::SlabCascade { .. }));
+        assert_eq!(
+            noted,
+            params.cycles() > 1,
+            "{name}: the note of one cascade"
+        );
         let (max, mean) = distances(&out.mesh, &whole);
         eprintln!(
             "{name} {k} slabs ({} used): {} / {} vertices, max {:.3} cells, mean {:.4} cells",
@@ -223,25 +240,14 @@ fn slab_tasks_refuse_steps_out_of_order_and_foreign_folders() {
 }
 
 #[test]
-fn slabs_refuse_solver_cycles_with_the_field_named() {
+fn slabs_refuse_v_and_w_cycles_with_the_field_named() {
     let dir = tempfile::tempdir().unwrap();
     let cloud = torus(2_000, 0.3, 0.1, 7);
-    for (params, field) in [
-        (
-            Params {
-                solver: spsr::Solver::VCycle,
-                ..Params::default()
-            },
-            "solver",
-        ),
-        (
-            Params {
-                cycles: 2,
-                ..Params::default()
-            },
-            "cycles",
-        ),
-    ] {
+    for solver in [spsr::Solver::VCycle, spsr::Solver::WCycle] {
+        let params = Params {
+            solver,
+            ..Params::default()
+        };
         let err = slabs::reconstruct(
             Source::Cloud(&cloud),
             &params,
@@ -253,8 +259,47 @@ fn slabs_refuse_solver_cycles_with_the_field_named() {
         )
         .expect_err("refused");
         match err {
-            spsr::Error::InvalidParameter { field: f, .. } => assert_eq!(f, field),
-            other => panic!("{field}: {other:?}"),
+            spsr::Error::InvalidParameter { field, .. } => assert_eq!(field, "solver"),
+            other => panic!("{solver:?}: {other:?}"),
         }
     }
+}
+
+#[test]
+fn slabs_solve_cascadic_cycles_as_one_cascade_of_their_sweeps() {
+    let dir = tempfile::tempdir().unwrap();
+    let cloud = torus(20_000, 1.0, 0.35, 7);
+    let run = |params: &Params| {
+        slabs::reconstruct(
+            Source::Cloud(&cloud),
+            params,
+            &SlabOptions {
+                slabs: 3,
+                work_dir: dir.path().to_path_buf(),
+            },
+            &|_| {},
+        )
+        .unwrap()
+    };
+    let default = plain(7);
+    assert_eq!((default.cycles(), default.iters()), (2, 4));
+    let cycles = run(&default);
+    let cascade = run(&Params {
+        cycles: Some(1),
+        iters: Some(8),
+        ..plain(7)
+    });
+    assert_eq!(cycles.mesh.vertices, cascade.mesh.vertices);
+    assert_eq!(cycles.mesh.triangles, cascade.mesh.triangles);
+    let note = |w: &[spsr::Warning]| {
+        w.iter()
+            .find(|w| matches!(w, spsr::Warning::SlabCascade { .. }))
+            .map(|w| w.to_string())
+    };
+    let text = note(&cycles.stats.warnings).expect("the default's two cycles are noted");
+    assert!(
+        text.contains("8 sweeps") && text.contains("2 solver cycles"),
+        "{text}"
+    );
+    assert_eq!(note(&cascade.stats.warnings), None);
 }
