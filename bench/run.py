@@ -424,9 +424,9 @@ def command(tool, inp, out, depth, args, py):
             os.path.join(ROOT, "target", "release", "spsr"), "reconstruct", inp, "-o", out,
             "--depth", str(depth), "--degree", str(args.degree), "--point-weight", str(p["point_weight"]),
             "--samples-per-node", str(args.samples_per_node), "--boundary", args.boundary,
-            "--full-depth", str(p["full_depth"]), "--scale", str(args.scale), "--iters", str(args.iters),
+            "--full-depth", str(p["full_depth"]), "--scale", str(args.scale),
             "--threads", str(args.threads), "-v",
-        ]
+        ] + (["--iters", str(args.iters)] if args.iters is not None else [])
     if tool == "poisson_reconstruction":
         return [RUNNER, inp, out, str(depth), str(p["point_weight"]), str(args.threads), str(max(depth - 2, 0)), "10"]
     return [py, PY_PEERS, tool, inp, out, json.dumps(p)]
@@ -440,7 +440,9 @@ def params(args, depth):
         samples_per_node=args.samples_per_node,
         full_depth=min(args.full_depth, depth) if isinstance(depth, int) else args.full_depth,
         scale=args.scale,
-        iters=args.iters,
+        # The peers' sweeps per depth: as given, else PoissonRecon's 8 (spsr is then left at its
+        # own default: two cycles of 4 sweeps at degree 1, one cascade of 8 at degree 2).
+        iters=args.iters if args.iters is not None else 8,
         threads=args.threads,
         boundary=args.boundary,
     )
@@ -451,6 +453,8 @@ def static_params(tool, args):
     were given at run time; see the runs' `given`)."""
     p = params(args, "D")
     if tool == "spsr":
+        if args.iters is None:
+            p = dict(p, iters="default (two cycles of 4 sweeps at degree 1, one of 8 at degree 2)")
         return dict(given=p, cannot_match={})
     if tool == "pypoisson2":
         return dict(given=p, cannot_match={})
@@ -618,7 +622,9 @@ def main():
     ap.add_argument("--samples-per-node", type=float, default=1.5)
     ap.add_argument("--full-depth", type=int, default=5)
     ap.add_argument("--scale", type=float, default=1.1)
-    ap.add_argument("--iters", type=int, default=8)
+    ap.add_argument("--iters", type=int, default=None,
+                    help="Gauss-Seidel sweeps per depth for every tool (default: each tool's own; "
+                         "PoissonRecon's 8 for the peers)")
     ap.add_argument("--boundary", default="neumann", choices=["neumann", "dirichlet", "free"])
     ap.add_argument("--samples", type=int, default=1_000_000, help="spsr eval samples per surface")
     ap.add_argument("--timeout", type=float, default=900, help="per-run time limit in seconds")
@@ -882,7 +888,7 @@ def write_markdown(res, path):
         f"- Command: `{res['command']}`",
         f"- Inputs: {res['data']}; " + "; ".join(f"{n}: {i['points']:,} points, {i['source']}, ground truth {i['gt']['about'] if i['gt'] else 'none'}" for n, i in res["inputs"].items()),
         f"- Parameters: depth D as listed, degree {p['degree']}, point weight (alpha) {p['point_weight']:g}, samples per node {p['samples_per_node']:g}, "
-        f"{p['boundary']} boundary, scale {p['scale']:g}, full depth min({p['full_depth']}, D), {p['iters']} iterations, {p['threads']} threads "
+        f"{p['boundary']} boundary, scale {p['scale']:g}, full depth min({p['full_depth']}, D), {p['iters']} Gauss-Seidel sweeps per depth for the peers (spsr: {'the same' if '--iters' in res['command'] else 'its default solver cycles'}), {p['threads']} threads "
         f"(environment: {', '.join(f'{k}={v}' for k, v in p.get('environment', {}).items())}); "
         f"median of up to {p['reps']} repetitions (a case whose first run took over {p['slow_s']:g} s ran once), "
         f"time limit {p['timeout_s']:g} s and memory limit {p['max_rss_gib']:g} GiB per run",

@@ -1,11 +1,13 @@
 #!/usr/bin/env python3
 """Issue 18: wall and CPU time (whole run, no -v; CPU time, user + system of the child, is
 far less disturbed by other jobs on a shared machine) and Chamfer to the ground truth of a few solver
-configurations against today's default (one cascadic cycle of 8 sweeps). Configurations
+configurations against one cascadic cycle of 8 sweeps (PoissonRecon's solve). Configurations
 alternate run by run; the median of --reps runs is kept; each mesh is scored once with
 `spsr eval --json`. Writes bench/results/<name>.json.
 
     python3 bench/solver/timing.py --spsr target/release/spsr --reps 3 --depths 8 9 10
+    python3 bench/solver/timing.py --reps 3 --depths 8 9 10 --configs cascadic/1/8 cascadic/2/4 \\
+        --name issue18-timing-default
 """
 import argparse, json, os, statistics, subprocess, tempfile, time
 
@@ -22,13 +24,16 @@ def main():
     ap.add_argument("--degree", type=int, default=1)
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--name", default="issue18-timing")
+    ap.add_argument("--configs", nargs="+", default=[f"{s}/{c}/{i}" for s, c, i in CONFIGS],
+                    help="solver/cycles/sweeps, e.g. cascadic/1/8 cascadic/2/4")
     a = ap.parse_args()
+    configs = [(s, int(c), int(i)) for s, c, i in (x.split("/") for x in a.configs)]
     tmp = tempfile.mkdtemp()
     walls, cpu, evals, loads = {}, {}, {}, []
     for rep in range(a.reps):
         for cloud in a.clouds:
             for depth in a.depths:
-                for (solver, cycles, iters) in CONFIGS:
+                for (solver, cycles, iters) in configs:
                     key = f"{cloud} d{depth} {solver}/{cycles}/{iters}"
                     out = os.path.join(tmp, "m.ply")
                     cmd = [a.spsr, "reconstruct", f"{DATA}/points/{cloud}.ply", "-o", out, "--depth", str(depth),
