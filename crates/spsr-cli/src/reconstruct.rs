@@ -809,6 +809,14 @@ fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, Str
             Source::Default
         }
     };
+    // A value the flag gave, or the default derived as `why` says.
+    let given_or = |id: &str, why: &str| {
+        if args.given(id) {
+            Source::Flag
+        } else {
+            Source::Derived(why.into())
+        }
+    };
     let on = |b: bool| if b { "on" } else { "off" }.to_string();
     let mut rows: Vec<(&str, String, Source)> = vec![
         match params.resolution {
@@ -847,11 +855,7 @@ fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, Str
         (
             "point_weight",
             params.alpha().to_string(),
-            if args.given("point_weight") {
-                Source::Flag
-            } else {
-                Source::Derived("2 × --degree".into())
-            },
+            given_or("point_weight", "2 × --degree"),
         ),
         (
             "noise",
@@ -890,21 +894,13 @@ fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, Str
         (
             "iters",
             params.iters().to_string(),
-            if args.given("iters") {
-                Source::Flag
-            } else {
-                Source::Derived("8 for one cycle, 4 for more".into())
-            },
+            given_or("iters", "8 for one cycle, 4 for more"),
         ),
         ("solver", params.solver.name().to_string(), src("solver")),
         (
             "cycles",
             params.cycles().to_string(),
-            if args.given("cycles") {
-                Source::Flag
-            } else {
-                Source::Derived("2 at --degree 1, 1 at --degree 2".into())
-            },
+            given_or("cycles", "2 at --degree 1, 1 at --degree 2"),
         ),
         (
             "gpu",

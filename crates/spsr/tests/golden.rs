@@ -131,7 +131,11 @@ fn sphere_degree_1_two_solver_cycles_by_default() {
     };
     assert_eq!((params.cycles(), params.iters()), (2, 4));
     let out = spsr::reconstruct(&cloud, &params).unwrap();
-    check("sphere d7 degree 1, two cycles", &out.mesh, 0x966d947484a3b674);
+    check(
+        "sphere d7 degree 1, two cycles",
+        &out.mesh,
+        0x966d947484a3b674,
+    );
 }
 
 #[test]
