@@ -425,8 +425,8 @@ def command(tool, inp, out, depth, args, py):
             "--depth", str(depth), "--degree", str(args.degree), "--point-weight", str(p["point_weight"]),
             "--samples-per-node", str(args.samples_per_node), "--boundary", args.boundary,
             "--full-depth", str(p["full_depth"]), "--scale", str(args.scale),
-            "--threads", str(args.threads), "-v",
-        ] + (["--iters", str(args.iters)] if args.iters is not None else [])
+            "--threads", str(args.threads),
+        ] + ([] if args.no_profile else ["-v"]) + (["--iters", str(args.iters)] if args.iters is not None else [])
     if tool == "poisson_reconstruction":
         return [RUNNER, inp, out, str(depth), str(p["point_weight"]), str(args.threads), str(max(depth - 2, 0)), "10"]
     return [py, PY_PEERS, tool, inp, out, json.dumps(p)]
@@ -622,6 +622,9 @@ def main():
     ap.add_argument("--samples-per-node", type=float, default=1.5)
     ap.add_argument("--full-depth", type=int, default=5)
     ap.add_argument("--scale", type=float, default=1.1)
+    ap.add_argument("--no-profile", action="store_true",
+                    help="run spsr without -v: no per-stage profile and no compute time, but also none of "
+                         "the solver's residual measurements that -v adds to its time (a few to 25 %%)")
     ap.add_argument("--iters", type=int, default=None,
                     help="Gauss-Seidel sweeps per depth for every tool (default: each tool's own; "
                          "PoissonRecon's 8 for the peers)")
