@@ -190,23 +190,9 @@ impl<'a> Op<'a> {
         self.coarse_coupling::<SOL, VEC, false>([s, 0.0], n, i, pc, vc)[0]
     }
 
-    /// Both sums at once, in one walk over the parent window: `s[0]` as
-    /// [`Op::add_coarse_coupling`] with both terms, `s[1]` with the coarser V's term only (the
-    /// part the solver's further cycles keep). Each sum gets exactly the operations, in the
-    /// same order, that it would get alone.
-    #[inline]
-    fn add_coarse_coupling_and_fixed(
-        &self,
-        s: [f64; 2],
-        n: u32,
-        i: [i64; 3],
-        pc: &[f64],
-        vc: &[[f32; 3]],
-    ) -> [f64; 2] {
-        self.coarse_coupling::<true, true, true>(s, n, i, pc, vc)
-    }
-
-    /// [`Op::add_coarse_coupling`] into `s[0]`; with `FIX`, the V term also into `s[1]`.
+    /// [`Op::add_coarse_coupling`] into `s[0]`; with `FIX`, the coarser V's term also into
+    /// `s[1]` (the part the solver's further cycles keep), from the same walk over the parent
+    /// window. Each sum gets exactly the operations, in the same order, that it would get alone.
     #[inline]
     fn coarse_coupling<const SOL: bool, const VEC: bool, const FIX: bool>(
         &self,

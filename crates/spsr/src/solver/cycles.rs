@@ -513,7 +513,7 @@ fn right_hand_sides(
                 return (0.0, 0.0);
             }
             let t = f64::from(tcons[n as usize]);
-            let [mut r, mut b] = op.add_coarse_coupling_and_fixed([t, t], n, i, pc, vc);
+            let [mut r, mut b] = op.coarse_coupling::<true, true, true>([t, t], n, i, pc, vc);
             op.for_each_cluster(n, i, |c, bv| {
                 r += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
                 b += op.cl.omega[c as usize] * bv * TAU;
