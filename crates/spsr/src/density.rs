@@ -138,7 +138,7 @@ fn morton_cell(c: [i64; 3]) -> u64 {
 }
 
 /// The density estimator: splatted sample weights at every depth `0..=K`.
-#[derive(Debug)]
+#[derive(Debug, Default)]
 pub struct Density {
     kernel_depth: u32,
     samples_per_node: f64,

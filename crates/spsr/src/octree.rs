@@ -170,8 +170,9 @@ fn pack(k: [i64; 3]) -> u64 {
     (k[0] as u64) | ((k[1] as u64) << 21) | ((k[2] as u64) << 42)
 }
 
+/// The key of a packed key (as [`ClosedRequest::refined_keys`] gives them).
 #[inline]
-fn unpack(p: u64) -> [u32; 3] {
+pub(crate) fn unpack(p: u64) -> [u32; 3] {
     let m = (1u64 << 21) - 1;
     [
         (p & m) as u32,

@@ -166,7 +166,7 @@ fn a_full_disk_fails_cleanly_at_every_step() {
     fs::create_dir(&work).unwrap();
     let mut failures = std::collections::BTreeSet::new();
     // Limits in 512-byte blocks (POSIX sh), from below the first spill file to above all.
-    for blocks in [4, 16, 64, 128, 256, 512, 1024, 100_000] {
+    for blocks in [4, 64, 256, 2048, 3072, 6144, 100_000] {
         let run = std::process::Command::new("sh")
             .arg("-c")
             .arg(format!(
@@ -174,7 +174,7 @@ fn a_full_disk_fails_cleanly_at_every_step() {
             ))
             .arg(env!("CARGO_BIN_EXE_spsr"))
             .args(["reconstruct", &whole, "-o", s(&out), "--slabs", "2"])
-            .args(["--work-dir", s(&work), "--depth", "6"])
+            .args(["--work-dir", s(&work), "--depth", "7"])
             .output()
             .unwrap();
         assert_eq!(fs::read_dir(&work).unwrap().count(), 0, "spill files left");

@@ -269,7 +269,7 @@ fn patches(level: &Level) -> FxHashMap<u64, Patch> {
 /// residual of the quadratic height field fitted, over the cell's plane, to the offsets of
 /// the samples in the cell's 3×3×3 neighbourhood, and counts only where the next finer
 /// neighbourhood resolved the surface (else 0; the module docs say why).
-fn measure(samples: &[Sample], top: u32) -> Vec<Option<(f64, u32)>> {
+pub fn measure(samples: &[Sample], top: u32) -> Measured {
     let levels = levels(samples, top);
     let flat: Vec<FxHashMap<u64, Patch>> = levels.iter().map(patches).collect();
     drop(levels);
@@ -510,19 +510,26 @@ pub fn adapt(samples: &[Sample], depths: &mut [DepthAndArea], max_depth: u32) ->
     adapt_at(samples, depths, max_depth, None)
 }
 
-/// The depths at which the samples `keep` picks had their noise measured, as a histogram
-/// (entry `d` counts the samples measured at depth `d`): slabs add theirs, so that every
-/// slab smooths at the depth [`smoothing_depth`] finds for the whole cloud.
+/// Each sample's measured noise and the depth it was measured at, `None` where it could not
+/// be measured ([`measure`]): the costly half of [`adapt_at`], which a slab run measures once
+/// per slab and keeps.
+pub type Measured = Vec<Option<(f64, u32)>>;
+
+/// The depths at which the samples `keep` picks had their noise measured (`measured`, from
+/// [`measure`]), as a histogram (entry `d` counts the samples measured at depth `d`): slabs
+/// add theirs, so that every slab smooths at the depth [`smoothing_depth`] finds for the
+/// whole cloud.
 pub fn measured_depths(
     samples: &[Sample],
+    measured: &[Option<(f64, u32)>],
     max_depth: u32,
     keep: impl Fn(&Sample) -> bool,
 ) -> Vec<u64> {
     let mut histogram = vec![0u64; max_depth as usize + 1];
-    for (s, m) in samples.iter().zip(measure(samples, max_depth)) {
+    for (s, m) in samples.iter().zip(measured) {
         if let Some((_, d)) = m {
             if keep(s) {
-                histogram[d as usize] += 1;
+                histogram[*d as usize] += 1;
             }
         }
     }
@@ -549,11 +556,25 @@ pub fn adapt_at(
     max_depth: u32,
     smooth_depth: Option<u32>,
 ) -> NoiseSummary {
+    if samples.is_empty() {
+        return NoiseSummary::default();
+    }
+    let measured = measure(samples, max_depth);
+    adapt_measured(samples, depths, &measured, max_depth, smooth_depth)
+}
+
+/// As [`adapt_at`], with the noise already measured (`measured`, from [`measure`]).
+pub fn adapt_measured(
+    samples: &[Sample],
+    depths: &mut [DepthAndArea],
+    measured: &[Option<(f64, u32)>],
+    max_depth: u32,
+    smooth_depth: Option<u32>,
+) -> NoiseSummary {
     let n = samples.len();
     if n == 0 {
         return NoiseSummary::default();
     }
-    let measured = measure(samples, max_depth);
     let raw: Vec<f64> = measured
         .iter()
         .map(|m| m.map_or(f64::NAN, |(s, _)| s))

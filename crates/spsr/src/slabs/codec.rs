@@ -6,7 +6,8 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use super::phases::{CoarsePart, Solved};
+use super::phases::{CoarsePart, SlabSamples, Solved};
+use crate::density::{DepthAndArea, Sample};
 use crate::extract::Part;
 use crate::solver::Carry;
 use crate::{Error, Result};
@@ -312,5 +313,61 @@ impl Record for Histogram {
     }
     fn get(i: &mut In) -> Result<Self> {
         i.list(8, In::u64).map(Histogram)
+    }
+}
+
+/// A slab's samples (its own and its padding's), kept between its phases.
+impl Record for SlabSamples {
+    const TAG: &'static [u8; 8] = b"spsrSMP1";
+    fn put(&self, o: &mut Out) -> std::io::Result<()> {
+        o.list(&self.samples, |o, x| {
+            x.pos.iter().try_for_each(|&c| o.f64(c))?;
+            o.f64(x.weight)?;
+            x.normal.iter().try_for_each(|&c| o.f64(c))
+        })?;
+        o.list(&self.depths, |o, q| {
+            o.f64(q.depth)?;
+            o.f64(q.area)
+        })?;
+        o.list(&self.measured, |o, m| match m {
+            Some((sigma, d)) => {
+                o.u32(*d)?;
+                o.f64(*sigma)
+            }
+            None => o.u32(u32::MAX),
+        })
+    }
+    fn get(i: &mut In) -> Result<Self> {
+        let samples = i.list(56, |i| {
+            Ok(Sample {
+                pos: [i.f64()?, i.f64()?, i.f64()?],
+                weight: i.f64()?,
+                normal: [i.f64()?, i.f64()?, i.f64()?],
+            })
+        })?;
+        let depths = i.list(16, |i| {
+            Ok(DepthAndArea {
+                depth: i.f64()?,
+                area: i.f64()?,
+            })
+        })?;
+        let measured = i.list(4, |i| {
+            let d = i.u32()?;
+            if d == u32::MAX {
+                Ok(None)
+            } else {
+                Ok(Some((i.f64()?, d)))
+            }
+        })?;
+        if depths.len() != samples.len()
+            || !(measured.is_empty() || measured.len() == samples.len())
+        {
+            return Err(i.bad("does not give every sample its depth"));
+        }
+        Ok(SlabSamples {
+            samples,
+            depths,
+            measured,
+        })
     }
 }

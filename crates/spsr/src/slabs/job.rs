@@ -9,19 +9,20 @@
 //! | step | who | reads | writes |
 //! |---|---|---|---|
 //! | [`prepare`] | coordinator | the input files | `job.json`, the column files |
-//! | [`noise`] (adaptive noise only) | slab task | columns | `slab-s.noise` |
+//! | [`noise`] (adaptive noise only) | slab task | columns | `slab-s.noise`, `slab-s.measured` |
 //! | [`smoothing`] | coordinator | every `slab-s.noise` | the smoothing depth in `job.json` |
-//! | [`coarse`] | slab task | columns | `slab-s.coarse`, `slab-s.constraints` |
-//! | [`solve_coarse`] | coordinator | every `slab-s.coarse` | `coarse` |
-//! | [`solve`] | slab task | columns, `coarse`, `slab-s.constraints` | `slab-s.solution`, `slab-s.solved` |
+//! | [`coarse`] | slab task | columns (or `slab-s.measured`) | `slab-s.samples`, `slab-s.coarse`, `slab-s.constraints` |
+//! | [`solve_coarse`] | coordinator | every `slab-s.coarse` | `slab-s.coarse-solution`; deletes the columns and `.measured` |
+//! | [`solve`] | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.constraints` | `slab-s.solution`, `slab-s.solved` |
 //! | [`iso`] | coordinator | every `slab-s.solved` | the iso-value in `job.json` |
-//! | [`extract`] | slab task | columns, `coarse`, `slab-s.solution`, the neighbours' `.solved` | `slab-s.part` |
+//! | [`extract`] | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.solution`, the neighbours' `.solved` | `slab-s.part` |
 //! | [`finish`] | coordinator | every `slab-s.part` | the output mesh |
 //!
 //! The tasks are pure functions of their inputs and write every file atomically (to a
 //! temporary name, renamed when complete), so a task that dies half-way leaves nothing behind
-//! and can simply be run again; the mesh is the same bytes as the one-process run of
-//! [`super::reconstruct_into`] with the same slab count.
+//! and can simply be run again within its phase (once [`solve_coarse`] has deleted the
+//! columns, the phases before it cannot); the mesh is the same bytes as the one-process run
+//! of [`super::reconstruct_into`] with the same slab count.
 
 use std::path::{Path, PathBuf};
 
@@ -202,32 +203,62 @@ pub fn solve_coarse(dir: &Path) -> Result<()> {
         .map(|s| load::<CoarsePart>(&slab_file(dir, s, "coarse")))
         .collect::<Result<Vec<_>>>()?;
     let samples = parts.iter().map(|p| p.samples as u64).sum();
+    // Every coarse task has ended (a barrier before this step).
+    super::remove_spent_files(dir, &plan)?;
     let c = phases::solve_coarse(&parts, &plan, &job.params)?;
-    let record = CoarseRecord {
-        refined: c.refined,
-        x: c.solution.x,
-        p: c.solution.p,
-        base_level: c.solution.base_level,
-        carry: c.carry,
-        mean_area: c.mean_area,
-        mean_depth: c.mean_depth,
-        samples,
-    };
-    save(&dir.join("coarse"), &record)
+    drop(parts);
+    save_crops(dir, &plan, &job.params, &c, samples)
 }
 
-/// The coarse solve written by [`solve_coarse`], with its tree rebuilt, and the samples.
-fn read_coarse(dir: &Path, plan: &Plan, params: &Params) -> Result<(Coarse, u64)> {
-    let r: CoarseRecord = load(&dir.join("coarse"))?;
+/// Writes each slab's part of the coarse solve ([`phases::crop`]) to `slab-s.coarse-solution`,
+/// so that a slab task reads only what it needs.
+pub(super) fn save_crops(
+    dir: &Path,
+    plan: &Plan,
+    params: &Params,
+    coarse: &Coarse,
+    samples: u64,
+) -> Result<()> {
+    for s in 0..plan.slabs.len() {
+        let c = phases::crop(coarse, plan, s, params);
+        let record = CoarseRecord {
+            refined: c.refined,
+            x: c.solution.x,
+            p: c.solution.p,
+            base_level: c.solution.base_level,
+            carry: c.carry,
+            mean_area: c.mean_area,
+            mean_depth: c.mean_depth,
+            samples,
+        };
+        save(&slab_file(dir, s, "coarse-solution"), &record)?;
+    }
+    Ok(())
+}
+
+/// Slab `s`'s part of the coarse solve written by [`save_crops`], with its tree rebuilt, and
+/// the samples of all slabs.
+pub(super) fn read_crop(
+    dir: &Path,
+    plan: &Plan,
+    s: usize,
+    params: &Params,
+) -> Result<(Coarse, u64)> {
+    let path = slab_file(dir, s, "coarse-solution");
+    let r: CoarseRecord = load(&path)?;
     let tree = phases::coarse_tree(&r.refined, plan, params).0;
     let levels_ok = r.x.len() == tree.levels.len()
         && r.x
             .iter()
             .zip(&tree.levels)
-            .all(|(x, l)| x.is_empty() || x.len() == l.len());
+            .all(|(x, l)| x.is_empty() || x.len() == l.len())
+        && tree
+            .levels
+            .get(r.carry.level as usize)
+            .is_some_and(|l| l.len() == r.carry.p.len() && l.len() == r.carry.vc.len());
     if !levels_ok {
         return Err(Error::Parse {
-            path: dir.join("coarse"),
+            path,
             message: "the coarse solution does not fit the coarse tree".into(),
         });
     }
@@ -252,8 +283,8 @@ fn read_coarse(dir: &Path, plan: &Plan, params: &Params) -> Result<(Coarse, u64)
 pub fn solve(dir: &Path, s: usize) -> Result<()> {
     let job = JobFile::read(dir)?;
     let plan = job.slab(s)?;
-    let (coarse, _) = read_coarse(dir, &plan, &job.params)?;
-    let solved = phases::solve(dir, &plan, s, &job.params, job.smooth()?, &coarse)?;
+    let (coarse, _) = read_crop(dir, &plan, s, &job.params)?;
+    let solved = phases::solve(dir, &plan, s, &job.params, &coarse)?;
     save(&slab_file(dir, s, "solved"), &solved)
 }
 
@@ -274,7 +305,7 @@ pub fn extract(dir: &Path, s: usize) -> Result<()> {
     let plan = job.slab(s)?;
     let iso = job.iso.ok_or_else(|| out_of_order("iso"))?;
     let k = plan.slabs.len();
-    let (coarse, _) = read_coarse(dir, &plan, &job.params)?;
+    let (coarse, _) = read_crop(dir, &plan, s, &job.params)?;
     let neighbour = |n: Option<usize>, face: usize| -> Result<Vec<_>> {
         match n {
             Some(n) => {
@@ -286,17 +317,7 @@ pub fn extract(dir: &Path, s: usize) -> Result<()> {
     };
     let before = neighbour(s.checked_sub(1), 1)?;
     let after = neighbour((s + 1 < k).then_some(s + 1), 0)?;
-    let smooth = job.smooth()?;
-    let (blocks, _) = phases::extract(
-        dir,
-        &plan,
-        s,
-        &job.params,
-        smooth,
-        &coarse,
-        iso,
-        [&before, &after],
-    )?;
+    let (blocks, _) = phases::extract(dir, &plan, s, &job.params, &coarse, iso, [&before, &after])?;
     save(&slab_file(dir, s, "part"), &blocks.into_part())
 }
 
@@ -306,7 +327,8 @@ pub fn finish(dir: &Path, output: &Path) -> Result<(Stats, Written)> {
     let job = JobFile::read(dir)?;
     let plan = job.plan();
     let iso = job.iso.ok_or_else(|| out_of_order("iso"))?;
-    let (coarse, samples) = read_coarse(dir, &plan, &job.params)?;
+    // Every slab's part of the coarse solve carries the whole cloud's sample count and depth.
+    let (coarse, samples) = read_crop(dir, &plan, 0, &job.params)?;
     let mut files = MeshFiles::new(dir, super::face_planes(&plan, &job.params))?;
     for s in 0..plan.slabs.len() {
         let part: Part = load(&slab_file(dir, s, "part"))?;

@@ -272,13 +272,19 @@ fn run(
             .collect::<Result<Vec<_>>>()
     })?;
     let samples: usize = parts.iter().map(|p| p.samples).sum();
-    let coarse = run.stage("solving coarse depths", || {
-        phases::solve_coarse(&parts, &plan, params)
+    // The later phases read the slabs' samples as the coarse phase kept them.
+    remove_spent_files(dir, &plan)?;
+    // Each slab reads only its part of the coarse solve: the whole of it is not kept.
+    let mean_depth = run.stage("solving coarse depths", || -> Result<f64> {
+        let coarse = phases::solve_coarse(&parts, &plan, params)?;
+        job::save_crops(dir, &plan, params, &coarse, samples as u64)?;
+        Ok(coarse.mean_depth)
     })?;
     drop(parts);
+    let coarse_of = |s| job::read_crop(dir, &plan, s, params).map(|c| c.0);
     let solved = run.stage("solving slabs", || {
         (0..k)
-            .map(|s| phases::solve(dir, &plan, s, params, smooth, &coarse))
+            .map(|s| phases::solve(dir, &plan, s, params, &coarse_of(s)?))
             .collect::<Result<Vec<_>>>()
     })?;
     let iso = iso_value(&solved);
@@ -294,8 +300,9 @@ fn run(
             } else {
                 &[]
             };
+            let coarse = coarse_of(s)?;
             let (blocks, _) =
-                phases::extract(dir, &plan, s, params, smooth, &coarse, iso, [before, after])?;
+                phases::extract(dir, &plan, s, params, &coarse, iso, [before, after])?;
             match &mut sink {
                 Sink::Memory(all) => all.push(blocks),
                 Sink::Files(files) => files.add(blocks.into_part(), frame)?,
@@ -335,14 +342,7 @@ fn run(
         stages,
         peak_memory,
         ..slab_stats(
-            found,
-            params,
-            samples,
-            iso,
-            coarse.mean_depth,
-            k,
-            diagnosis,
-            warnings,
+            found, params, samples, iso, mean_depth, k, diagnosis, warnings,
         )
     };
     Ok((mesh, stats, written))
@@ -415,6 +415,14 @@ fn spill_points(source: Source, params: &Params, dir: &Path) -> Result<Spilled> 
         counts,
         found,
     })
+}
+
+/// Deletes the files no phase after the coarse one reads: the spilled points and the noise
+/// measurements (the slabs' samples are kept instead), so that a run needs the disk for
+/// about one copy of the cloud at a time.
+fn remove_spent_files(dir: &Path, plan: &Plan) -> Result<()> {
+    spill::remove_columns(dir, &plan.counts)?;
+    phases::remove_measured(dir, plan.slabs.len())
 }
 
 /// The depth at which all slabs smooth the noise, from the slabs' histograms of measured

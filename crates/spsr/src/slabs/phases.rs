@@ -1,13 +1,17 @@
-//! The phases of a slab run. Each slab phase reads the slab's points (its columns and the
-//! padding) from the spill files, rebuilds the slab's samples and tree (deterministic, so the
+//! The phases of a slab run. The first phase reads the slab's points (its columns and the
+//! padding) from the spill files and makes its samples, which are kept in the work folder for
+//! the later phases; each phase rebuilds the slab's tree from them (deterministic, so the
 //! same in every phase) and returns plain data for the coordinator, which combines the slabs'
 //! parts between phases:
 //!
 //! 1. `noise`: where each owned sample's noise was measured (a histogram), so that all slabs
-//!    smooth the noise at one depth (only with [`Noise::Adaptive`]);
-//! 2. `coarse`: what the slab's own samples add to the coarse levels — the tree's refined
-//!    nodes, divergence constraints, V and screening clusters, keyed by node;
-//! 3. (coordinator) `solve_coarse`: the coarse levels solved once for the whole cloud;
+//!    smooth the noise at one depth (only with [`Noise::Adaptive`]); the samples and their
+//!    measurements are kept;
+//! 2. `coarse`: the samples at their final splat depths (kept for the phases after it), and
+//!    what the slab's own samples add to the coarse levels — the tree's refined nodes,
+//!    divergence constraints, V and screening clusters, keyed by node;
+//! 3. (coordinator) `solve_coarse`: the coarse levels solved once for the whole cloud, and
+//!    each slab's part of that solution cut out for it ([`crop`]);
 //! 4. `solve`: the finer levels of the slab, from the coarse solution, and the slab's share of
 //!    the iso-value; the coefficients go to a file, and those near the slab's faces to the
 //!    neighbours;
@@ -19,10 +23,11 @@ use std::fs::File;
 use std::io::{BufReader, Read};
 use std::path::{Path, PathBuf};
 
+use super::codec::{load as load_record, save};
 use super::plan::Plan;
 use super::spill::{io_err, read_columns};
 use crate::bspline::{Basis, Degree};
-use crate::density::Sample;
+use crate::density::{DepthAndArea, Sample};
 use crate::evaluate::Evaluator;
 use crate::extract::Blocks;
 use crate::octree::{Octree, TreeRequest, DEPTH_OFFSET};
@@ -94,48 +99,135 @@ pub struct Solved {
 /// coefficients within two cells, and cumulative solutions within two cells of the parents'.
 const FACE_BAND: f64 = 4.0;
 
-/// One slab's samples, rebuilt from the spill files.
+/// A slab's samples as its phases keep them between each other (`slab-s.measured` after the
+/// noise phase, with the noise measured; `slab-s.samples` after the coarse phase, with the
+/// final splat depths), so that only the first phases read the points and measure the noise.
+#[derive(Debug, Default)]
+pub(crate) struct SlabSamples {
+    pub samples: Vec<Sample>,
+    /// Each sample's splat depth and area weight.
+    pub depths: Vec<DepthAndArea>,
+    /// Each sample's measured noise (the noise phase's file only; empty otherwise).
+    pub measured: noise::Measured,
+}
+
+impl SlabSamples {
+    fn of(sampled: Sampled, measured: noise::Measured) -> SlabSamples {
+        SlabSamples {
+            samples: sampled.samples,
+            depths: sampled.depths,
+            measured,
+        }
+    }
+
+    /// As the stages take them: no attributes (refused in slab mode), no density estimator
+    /// (per-vertex density is refused in slab mode; the depths are kept).
+    fn sampled(self) -> Sampled {
+        Sampled {
+            samples: self.samples,
+            values: Vec::new(),
+            attribute_types: Vec::new(),
+            density: Default::default(),
+            depths: self.depths,
+        }
+    }
+}
+
+fn measured_path(dir: &Path, s: usize) -> PathBuf {
+    dir.join(format!("slab-{s:04}.measured"))
+}
+
+fn samples_path(dir: &Path, s: usize) -> PathBuf {
+    dir.join(format!("slab-{s:04}.samples"))
+}
+
+/// The files of a slab's samples that the phases after the coarse one no longer need: its
+/// noise measurements (the spill files go too, see [`super::spill::remove_columns`]).
+pub(crate) fn remove_measured(dir: &Path, slabs: usize) -> Result<()> {
+    (0..slabs).try_for_each(|s| super::spill::remove_file(&measured_path(dir, s)))
+}
+
+/// One slab's samples, with whether each lies in the slab's own columns.
 struct Loaded {
     sampled: Sampled,
     /// Whether each sample lies in the slab's own columns.
     owned: Vec<bool>,
 }
 
-fn load(dir: &Path, plan: &Plan, s: usize, params: &Params, smooth: Option<u32>) -> Result<Loaded> {
+impl Loaded {
+    fn new(sampled: Sampled, plan: &Plan, s: usize) -> Loaded {
+        let range = &plan.slabs[s];
+        let owned = sampled
+            .samples
+            .iter()
+            .map(|x| range.contains(&plan.column_of(x.pos[0])))
+            .collect();
+        Loaded { sampled, owned }
+    }
+}
+
+/// The slab's samples from its points (its columns and the padding), at the density's splat
+/// depths.
+fn sample_points(dir: &Path, plan: &Plan, s: usize, params: &Params) -> Result<Sampled> {
     let (lo, hi) = plan.extent(s);
     let (lo, hi) = (lo - plan.pad, hi + plan.pad);
     let first = plan.column_of(lo) as usize;
     let last = plan.column_of(hi) as usize;
     let points = read_columns(dir, first..last + 1, &plan.counts, lo, hi)?;
-    let mut sampled = density::sample(points, Carried::default(), params);
-    if params.noise == Noise::Adaptive {
-        if let Some(smooth) = smooth {
-            noise::adapt_at(
+    Ok(density::sample(points, Carried::default(), params))
+}
+
+/// The slab's samples at their final splat depths, as the coarse phase makes them: with
+/// adaptive noise, from the noise phase's measurements, smoothed at the whole cloud's depth
+/// `smooth`.
+fn final_samples(
+    dir: &Path,
+    plan: &Plan,
+    s: usize,
+    params: &Params,
+    smooth: Option<u32>,
+) -> Result<Sampled> {
+    match (params.noise, smooth) {
+        (Noise::Adaptive, Some(smooth)) => {
+            let mut kept: SlabSamples = load_record(&measured_path(dir, s))?;
+            if kept.measured.len() != kept.samples.len() {
+                return Err(crate::Error::Parse {
+                    path: measured_path(dir, s),
+                    message: "the slab's samples lack their noise measurements".into(),
+                });
+            }
+            let measured = std::mem::take(&mut kept.measured);
+            let mut sampled = kept.sampled();
+            noise::adapt_measured(
                 &sampled.samples,
                 &mut sampled.depths,
+                &measured,
                 params.depth,
                 Some(smooth),
             );
+            Ok(sampled)
         }
+        _ => sample_points(dir, plan, s, params),
     }
-    let range = &plan.slabs[s];
-    let owned = sampled
-        .samples
-        .iter()
-        .map(|x| range.contains(&plan.column_of(x.pos[0])))
-        .collect();
-    Ok(Loaded { sampled, owned })
 }
 
-/// Phase 1: the histogram of the depths at which the slab's own samples' noise is measured.
+/// The slab's samples as the coarse phase kept them.
+fn load_slab(dir: &Path, plan: &Plan, s: usize) -> Result<Loaded> {
+    let kept: SlabSamples = load_record(&samples_path(dir, s))?;
+    Ok(Loaded::new(kept.sampled(), plan, s))
+}
+
+/// Phase 1: the histogram of the depths at which the slab's own samples' noise is measured;
+/// the samples and their measurements are kept for the coarse phase.
 pub fn noise_depths(dir: &Path, plan: &Plan, s: usize, params: &Params) -> Result<Vec<u64>> {
-    let loaded = load(dir, plan, s, params, None)?;
+    let sampled = sample_points(dir, plan, s, params)?;
+    let measured = noise::measure(&sampled.samples, params.depth);
     let range = &plan.slabs[s];
-    Ok(noise::measured_depths(
-        &loaded.sampled.samples,
-        params.depth,
-        |x: &Sample| range.contains(&plan.column_of(x.pos[0])),
-    ))
+    let histogram = noise::measured_depths(&sampled.samples, &measured, params.depth, |x| {
+        range.contains(&plan.column_of(x.pos[0]))
+    });
+    save(&measured_path(dir, s), &SlabSamples::of(sampled, measured))?;
+    Ok(histogram)
 }
 
 fn base_level(params: &Params) -> u32 {
@@ -187,7 +279,10 @@ pub fn coarse(
     params: &Params,
     smooth: Option<u32>,
 ) -> Result<CoarsePart> {
-    let Loaded { sampled, owned } = load(dir, plan, s, params, smooth)?;
+    let sampled = final_samples(dir, plan, s, params, smooth)?;
+    let kept = SlabSamples::of(sampled, Vec::new());
+    save(&samples_path(dir, s), &kept)?;
+    let Loaded { sampled, owned } = Loaded::new(kept.sampled(), plan, s);
     let tb = base_level(params);
     let tc = plan.coarse_level();
     let mut refined = tree::build(&sampled, params, sampled.samples.len())?;
@@ -424,6 +519,83 @@ pub fn solve_coarse(parts: &[CoarsePart], plan: &Plan, params: &Params) -> Resul
     })
 }
 
+/// How far beyond its padding a slab reads the coarse solve, in cells of the coarse depth, and
+/// beyond that in cells of each coarse depth: a slab's finer nodes lie within a couple of
+/// coarse cells of its padded points and couple only to coarse nodes within two cells, and χ
+/// at a point reads each depth's nodes within two cells of it.
+const CROP_COARSE_CELLS: f64 = 8.0;
+const CROP_LEVEL_CELLS: f64 = 4.0;
+
+/// The part of the coarse solve that slab `s` reads: the refined nodes whose cells come
+/// within reach of its padded columns (a subset of a closed set, so its closure holds every
+/// node of the whole coarse tree there, and nothing the whole tree lacks), with their
+/// solution. A slab then neither holds nor builds the whole cloud's coarse levels, which at
+/// depth 12 and beyond are gigabytes; its tree and its numbers near its columns are the same.
+pub fn crop(coarse: &Coarse, plan: &Plan, s: usize, params: &Params) -> Coarse {
+    let (lo, hi) = plan.extent(s);
+    let reach = plan.pad + CROP_COARSE_CELLS / (1u64 << plan.coarse_depth) as f64;
+    let near = |t: u32, packed: u64| {
+        if t < DEPTH_OFFSET {
+            return true;
+        }
+        let d = t - DEPTH_OFFSET;
+        let cells = (1u64 << d) as f64;
+        let margin = reach + CROP_LEVEL_CELLS / cells;
+        let i = crate::octree::func_index(crate::octree::unpack(packed), d)[0] as f64;
+        (i + 1.0) / cells >= lo - margin && i / cells <= hi + margin
+    };
+    let kept: Vec<Vec<u64>> = (coarse.refined.iter().enumerate())
+        .map(|(t, keys)| {
+            keys.iter()
+                .copied()
+                .filter(|&k| near(t as u32, k))
+                .collect()
+        })
+        .collect();
+    let (tree, refined) = coarse_tree_of(&[&kept], plan, params);
+    let copy = |t: usize, from: &[f32]| -> Vec<f32> {
+        if from.is_empty() {
+            return Vec::new();
+        }
+        let level = &tree.levels[t];
+        (0..level.len() as u32)
+            .map(|n| find(&coarse.tree, t as u32, level.key(n)).map_or(0.0, |m| from[m as usize]))
+            .collect()
+    };
+    let x = (coarse.solution.x.iter().enumerate())
+        .map(|(t, v)| copy(t, v))
+        .collect();
+    let p = (coarse.solution.p.iter().enumerate())
+        .map(|(t, v)| copy(t, v))
+        .collect();
+    let tc = coarse.carry.level;
+    let level = &tree.levels[tc as usize];
+    let mut carry = Carry {
+        level: tc,
+        p: Vec::with_capacity(level.len()),
+        vc: Vec::with_capacity(level.len()),
+    };
+    for n in 0..level.len() as u32 {
+        let m = find(&coarse.tree, tc, level.key(n)).expect("a subset of the whole tree") as usize;
+        carry.p.push(coarse.carry.p[m]);
+        carry.vc.push(coarse.carry.vc[m]);
+    }
+    Coarse {
+        tree,
+        refined,
+        solution: Solution {
+            x,
+            p,
+            base_level: coarse.solution.base_level,
+            timings: Vec::new(),
+            report: None,
+        },
+        carry,
+        mean_area: coarse.mean_area,
+        mean_depth: coarse.mean_depth,
+    }
+}
+
 /// The slab's tree with the coarse solution copied onto its coarse levels: the solution with
 /// `x` and `p` up to the coarse level, and the carry on the slab's coarse level.
 fn coarse_onto(tree: &Octree, coarse: &Coarse, params: &Params, tc: u32) -> (Solution, Carry) {
@@ -495,10 +667,9 @@ pub fn solve(
     plan: &Plan,
     s: usize,
     params: &Params,
-    smooth: Option<u32>,
     coarse: &Coarse,
 ) -> Result<Solved> {
-    let Loaded { sampled, owned } = load(dir, plan, s, params, smooth)?;
+    let Loaded { sampled, owned } = load_slab(dir, plan, s)?;
     let tc = plan.coarse_level();
     let refined = slab_tree(&sampled, params, coarse)?;
     let field = splat::splat(&refined, &sampled, params)?;
@@ -574,12 +745,11 @@ pub fn extract(
     plan: &Plan,
     s: usize,
     params: &Params,
-    smooth: Option<u32>,
     coarse: &Coarse,
     iso: f64,
     neighbours: [&[FaceCoefficient]; 2],
 ) -> Result<(Blocks, usize)> {
-    let Loaded { sampled, .. } = load(dir, plan, s, params, smooth)?;
+    let Loaded { sampled, .. } = load_slab(dir, plan, s)?;
     let tc = plan.coarse_level();
     let refined = slab_tree(&sampled, params, coarse)?;
     drop(sampled);

@@ -92,6 +92,21 @@ pub(crate) fn read_columns(
     Ok(out)
 }
 
+/// Deletes the column files (once every slab has read its points).
+pub(crate) fn remove_columns(dir: &Path, counts: &[u64]) -> Result<()> {
+    (0..counts.len())
+        .filter(|&c| counts[c] > 0)
+        .try_for_each(|c| remove_file(&column_path(dir, c)))
+}
+
+/// Deletes a file; one already gone is fine (a step run again).
+pub(crate) fn remove_file(path: &Path) -> Result<()> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(io_err(path, e)),
+        _ => Ok(()),
+    }
+}
+
 fn column_path(dir: &Path, c: usize) -> PathBuf {
     dir.join(format!("column-{c:05}.points"))
 }
