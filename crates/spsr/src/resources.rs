@@ -23,3 +23,51 @@ fn proc_kib(text: &str, key: &str) -> Option<u64> {
     let line = text.lines().find(|l| l.starts_with(key))?;
     line.split_whitespace().nth(1)?.parse().ok()
 }
+
+/// Hands the memory freed so far back to the operating system. glibc's allocator keeps freed
+/// blocks of up to 32 MiB in its per-thread arenas for reuse; between the phases of a slab
+/// run, which each free everything they built, that kept memory (about half the live memory
+/// at depth 11) would otherwise add to the next phase's peak. Elsewhere it does nothing.
+pub fn release_free_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        extern "C" {
+            fn malloc_trim(pad: usize) -> std::os::raw::c_int;
+        }
+        // SAFETY: `malloc_trim` takes no pointers; it only returns the free pages of glibc's
+        // arenas to the kernel, and is safe to call from any thread at any time.
+        unsafe {
+            malloc_trim(0);
+        }
+    }
+}
+
+/// Blocks of this size and larger are given back to the operating system as soon as they are
+/// freed, in a slab run ([`return_large_blocks_when_freed`]).
+const LARGE_BLOCK: i32 = 4 << 20;
+
+/// Makes glibc's allocator give every block of 4 MiB or more back to the operating system as
+/// soon as it is freed, for the rest of the process. By default glibc raises that threshold
+/// as large blocks are freed, up to 32 MiB, and keeps the freed blocks below it for reuse; a
+/// slab run, whose phases each build and free their slab's tree, would then peak at about a
+/// third more than it holds (measured at depth 11: 1,037 MiB against 774 MiB with this), for
+/// about a tenth more time (the kernel hands out fresh pages). A slab run is run to bound the
+/// memory, so it takes this trade; a run in one piece does not. Elsewhere it does nothing.
+pub fn return_large_blocks_when_freed() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        /// glibc's `M_MMAP_THRESHOLD` (malloc.h).
+        const M_MMAP_THRESHOLD: std::os::raw::c_int = -3;
+        extern "C" {
+            fn mallopt(
+                param: std::os::raw::c_int,
+                value: std::os::raw::c_int,
+            ) -> std::os::raw::c_int;
+        }
+        // SAFETY: `mallopt` takes no pointers; it sets a tuning value of the allocator, which
+        // glibc allows at any time from any thread.
+        unsafe {
+            mallopt(M_MMAP_THRESHOLD, LARGE_BLOCK);
+        }
+    }
+}

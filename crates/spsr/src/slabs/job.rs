@@ -170,6 +170,7 @@ pub fn prepare(source: Source, params: &Params, slabs: usize, work_dir: &Path) -
 
 /// Slab task: the histogram of the depths at which the slab's noise was measured.
 pub fn noise(dir: &Path, s: usize) -> Result<()> {
+    crate::resources::return_large_blocks_when_freed();
     let job = JobFile::read(dir)?;
     let plan = job.slab(s)?;
     let h = phases::noise_depths(dir, &plan, s, &job.params)?;
@@ -189,6 +190,7 @@ pub fn smoothing(dir: &Path) -> Result<()> {
 
 /// Slab task: what the slab's own samples add to the coarse levels.
 pub fn coarse(dir: &Path, s: usize) -> Result<()> {
+    crate::resources::return_large_blocks_when_freed();
     let job = JobFile::read(dir)?;
     let plan = job.slab(s)?;
     let part = phases::coarse(dir, &plan, s, &job.params, job.smooth()?)?;
@@ -197,6 +199,7 @@ pub fn coarse(dir: &Path, s: usize) -> Result<()> {
 
 /// Coordinator: the coarse levels solved for the whole cloud.
 pub fn solve_coarse(dir: &Path) -> Result<()> {
+    crate::resources::return_large_blocks_when_freed();
     let job = JobFile::read(dir)?;
     let plan = job.plan();
     let parts = (0..plan.slabs.len())
@@ -205,8 +208,7 @@ pub fn solve_coarse(dir: &Path) -> Result<()> {
     let samples = parts.iter().map(|p| p.samples as u64).sum();
     // Every coarse task has ended (a barrier before this step).
     super::remove_spent_files(dir, &plan)?;
-    let c = phases::solve_coarse(&parts, &plan, &job.params)?;
-    drop(parts);
+    let c = phases::solve_coarse(parts, &plan, &job.params)?;
     save_crops(dir, &plan, &job.params, &c, samples)
 }
 
@@ -281,6 +283,7 @@ pub(super) fn read_crop(
 
 /// Slab task: the slab's finer levels, its share of the iso-value and its face bands.
 pub fn solve(dir: &Path, s: usize) -> Result<()> {
+    crate::resources::return_large_blocks_when_freed();
     let job = JobFile::read(dir)?;
     let plan = job.slab(s)?;
     let (coarse, _) = read_crop(dir, &plan, s, &job.params)?;
@@ -301,6 +304,7 @@ pub fn iso(dir: &Path) -> Result<()> {
 
 /// Slab task: the slab's part of the mesh.
 pub fn extract(dir: &Path, s: usize) -> Result<()> {
+    crate::resources::return_large_blocks_when_freed();
     let job = JobFile::read(dir)?;
     let plan = job.slab(s)?;
     let iso = job.iso.ok_or_else(|| out_of_order("iso"))?;

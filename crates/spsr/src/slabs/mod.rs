@@ -247,6 +247,7 @@ fn run(
     if options.slabs == 0 {
         return Err(Error::invalid("slabs", 0, "at least 1"));
     }
+    crate::resources::return_large_blocks_when_freed();
     let mut run = Run::new(progress);
     let work = WorkDir::new(&options.work_dir)?;
     let dir = work.0.as_path();
@@ -276,11 +277,10 @@ fn run(
     remove_spent_files(dir, &plan)?;
     // Each slab reads only its part of the coarse solve: the whole of it is not kept.
     let mean_depth = run.stage("solving coarse depths", || -> Result<f64> {
-        let coarse = phases::solve_coarse(&parts, &plan, params)?;
+        let coarse = phases::solve_coarse(parts, &plan, params)?;
         job::save_crops(dir, &plan, params, &coarse, samples as u64)?;
         Ok(coarse.mean_depth)
     })?;
-    drop(parts);
     let coarse_of = |s| job::read_crop(dir, &plan, s, params).map(|c| c.0);
     let solved = run.stage("solving slabs", || {
         (0..k)

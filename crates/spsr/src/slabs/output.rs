@@ -120,7 +120,10 @@ impl MeshFiles {
         }
         // Edges within the slab must have two triangles; edges in a shared face are counted
         // across slabs.
+        // A closed surface has 3/2 edges per triangle: reserved at once, the table is not
+        // rebuilt as it grows (which holds the old and the new table together).
         let mut edges: FxHashMap<(u64, u64), u32> = FxHashMap::default();
+        edges.reserve(part.triangles.len() * 3 / 2);
         let tpath = self.dir.join("mesh.triangles");
         for t in &part.triangles {
             // A corner as (global index or foreign marker, edge key or none).

@@ -220,6 +220,7 @@ fn load_slab(dir: &Path, plan: &Plan, s: usize) -> Result<Loaded> {
 /// Phase 1: the histogram of the depths at which the slab's own samples' noise is measured;
 /// the samples and their measurements are kept for the coarse phase.
 pub fn noise_depths(dir: &Path, plan: &Plan, s: usize, params: &Params) -> Result<Vec<u64>> {
+    crate::resources::release_free_memory();
     let sampled = sample_points(dir, plan, s, params)?;
     let measured = noise::measure(&sampled.samples, params.depth);
     let range = &plan.slabs[s];
@@ -279,6 +280,7 @@ pub fn coarse(
     params: &Params,
     smooth: Option<u32>,
 ) -> Result<CoarsePart> {
+    crate::resources::release_free_memory();
     let sampled = final_samples(dir, plan, s, params, smooth)?;
     let kept = SlabSamples::of(sampled, Vec::new());
     save(&samples_path(dir, s), &kept)?;
@@ -443,11 +445,17 @@ pub(crate) fn coarse_tree(
 }
 
 /// Phase 3 (coordinator): the coarse levels solved for the whole cloud from the slabs' parts.
-pub fn solve_coarse(parts: &[CoarsePart], plan: &Plan, params: &Params) -> Result<Coarse> {
+/// The parts are consumed as they are added up, so that they and the sums are not all held
+/// at once.
+pub fn solve_coarse(mut parts: Vec<CoarsePart>, plan: &Plan, params: &Params) -> Result<Coarse> {
+    crate::resources::release_free_memory();
     let tb = base_level(params);
     let tc = plan.coarse_level();
     let refined: Vec<&[Vec<u64>]> = parts.iter().map(|p| p.refined.as_slice()).collect();
     let (tree, refined_keys) = coarse_tree_of(&refined, plan, params);
+    for part in &mut parts {
+        part.refined = Vec::new();
+    }
     let sums = parts.iter().fold([0.0; 3], |acc, p| {
         [acc[0] + p.sums[0], acc[1] + p.sums[1], acc[2] + p.sums[2]]
     });
@@ -466,6 +474,7 @@ pub fn solve_coarse(parts: &[CoarsePart], plan: &Plan, params: &Params) -> Resul
         v[t as usize] = vec![[0.0; 3]; tree.levels[t as usize].len()];
     }
     for part in parts {
+        // Each part is dropped once it is added.
         for (k, nodes) in part.nodes.iter().enumerate() {
             let t = tb + k as u32;
             for &(key, b, vv) in nodes {
@@ -500,13 +509,14 @@ pub fn solve_coarse(parts: &[CoarsePart], plan: &Plan, params: &Params) -> Resul
         })
         .collect();
     let p = problem(&tree, fem, &tabs, &clusters, params);
+    // The sums in single precision, each level's double-precision sums freed as it goes.
     let tcons32 = tcons
-        .iter()
-        .map(|c| c.iter().map(|&x| x as f32).collect())
+        .into_iter()
+        .map(|c| c.into_iter().map(|x| x as f32).collect())
         .collect();
     let v32 = v
-        .iter()
-        .map(|l| l.iter().map(|x| x.map(|c| c as f32)).collect())
+        .into_iter()
+        .map(|l| l.into_iter().map(|x| x.map(|c| c as f32)).collect())
         .collect();
     let (solution, carry) = solver::cascade(&p, tcons32, v32, None, true, Laps::new());
     Ok(Coarse {
@@ -669,6 +679,7 @@ pub fn solve(
     params: &Params,
     coarse: &Coarse,
 ) -> Result<Solved> {
+    crate::resources::release_free_memory();
     let Loaded { sampled, owned } = load_slab(dir, plan, s)?;
     let tc = plan.coarse_level();
     let refined = slab_tree(&sampled, params, coarse)?;
@@ -749,6 +760,7 @@ pub fn extract(
     iso: f64,
     neighbours: [&[FaceCoefficient]; 2],
 ) -> Result<(Blocks, usize)> {
+    crate::resources::release_free_memory();
     let Loaded { sampled, .. } = load_slab(dir, plan, s)?;
     let tc = plan.coarse_level();
     let refined = slab_tree(&sampled, params, coarse)?;
