@@ -8,7 +8,7 @@ bounding cube's side / 2^depth) and each mesh's Chamfer distance to the ground t
 relative to the truth's bounding-box diagonal).
 
     ~/.cache/spsr-bench-venv/bin/python bench/slabs/run.py [--inputs bunny_1m spot_1m] [--depth 10] [--slabs 1 2 4 8 16]
-        [--big spot:4000000] [--name issue15-slabs]
+        [--big spot:4000000] [--name issue15-slabs] [--extra '--cycles 1 --iters 8']
 
 Inputs are the shared data's points (../shared/data/points); `--big NAME:COUNT` samples COUNT
 points from the shared ground-truth mesh gt/NAME.ply (cached in ~/.cache/spsr-bench-inputs, as
@@ -68,6 +68,7 @@ def main():
     ap.add_argument("--depth", type=int, default=10)
     ap.add_argument("--slabs", nargs="*", type=int, default=[1, 2, 4, 8, 16])
     ap.add_argument("--name", default="issue15-slabs")
+    ap.add_argument("--extra", default="", help="flags for every run, e.g. '--cycles 1 --iters 8'")
     a = ap.parse_args()
 
     cases = [(n,) + resolve(n) for n in a.inputs]
@@ -83,7 +84,7 @@ def main():
         for name, path, gt in cases:
             cell = cube_cell(path, a.depth)
             one = os.path.join(tmp, f"{name}-one.ply")
-            base = [SPSR, "reconstruct", path, "--depth", str(a.depth)]
+            base = [SPSR, "reconstruct", path, "--depth", str(a.depth)] + a.extra.split()
             runs = {}
             # Alternate: one piece, a slab count, one piece again, ...
             for k in a.slabs:
