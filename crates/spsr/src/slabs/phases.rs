@@ -578,18 +578,7 @@ pub fn crop(coarse: &Coarse, plan: &Plan, s: usize, params: &Params) -> Coarse {
     let p = (coarse.solution.p.iter().enumerate())
         .map(|(t, v)| copy(t, v))
         .collect();
-    let tc = coarse.carry.level;
-    let level = &tree.levels[tc as usize];
-    let mut carry = Carry {
-        level: tc,
-        p: Vec::with_capacity(level.len()),
-        vc: Vec::with_capacity(level.len()),
-    };
-    for n in 0..level.len() as u32 {
-        let m = find(&coarse.tree, tc, level.key(n)).expect("a subset of the whole tree") as usize;
-        carry.p.push(coarse.carry.p[m]);
-        carry.vc.push(coarse.carry.vc[m]);
-    }
+    let carry = carry_onto(&tree, coarse, coarse.carry.level);
     Coarse {
         tree,
         refined,
@@ -631,6 +620,14 @@ fn coarse_onto(tree: &Octree, coarse: &Coarse, params: &Params, tc: u32) -> (Sol
             sol.p[t as usize] = map(t, &|m| coarse.solution.p[t as usize][m as usize]);
         }
     }
+    let carry = carry_onto(tree, coarse, tc);
+    sol.p[tc as usize] = carry.p.iter().map(|&x| x as f32).collect();
+    (sol, carry)
+}
+
+/// The coarse solve's carry (cumulative solution and V) on level `tc` of `tree`; zero at the
+/// nodes the coarse tree lacks.
+fn carry_onto(tree: &Octree, coarse: &Coarse, tc: u32) -> Carry {
     let level = &tree.levels[tc as usize];
     let mut carry = Carry {
         level: tc,
@@ -649,11 +646,10 @@ fn coarse_onto(tree: &Octree, coarse: &Coarse, params: &Params, tc: u32) -> (Sol
             }
         }
     }
-    sol.p[tc as usize] = carry.p.iter().map(|&x| x as f32).collect();
-    (sol, carry)
+    carry
 }
 
-/// The slab's tree: its samples' nodes and the whole cloud's coarse levels.
+/// The slab's tree: its samples' nodes and its part of the whole cloud's coarse levels.
 fn slab_tree(sampled: &Sampled, params: &Params, coarse: &Coarse) -> Result<tree::Refined> {
     tree::build_with(sampled, params, sampled.samples.len(), |req| {
         for (t, keys) in coarse.refined.iter().enumerate() {
