@@ -1080,21 +1080,41 @@ fn print_details(
     if let Some(gpu) = &stats.gpu {
         let _ = writeln!(
             err,
-            "gpu         {gpu} relaxed the depths above the base (copy in, sweeps, bandwidth):"
+            "gpu         {gpu} ran these steps of the depths above the base (copies, kernels, \
+             bandwidth):"
         );
         for g in &stats.gpu_relaxations {
             let secs = g.kernels.as_secs_f64();
-            let rate = g.bytes_per_sweep as f64 * f64::from(g.sweeps) / secs.max(1e-9) / 1e9;
+            let rate = if g.sweeps == 0 {
+                String::new()
+            } else {
+                let r = g.bytes_per_sweep as f64 * f64::from(g.sweeps) / secs.max(1e-9) / 1e9;
+                format!("{r:>7.0} GB/s")
+            };
             let _ = writeln!(
                 err,
-                "  {:>2}  {:>12} nodes x {}  {:>8.3} s {:>8.3} s  {rate:>7.0} GB/s",
+                "  {:>2}  {:<15} {:>12} nodes x {}  {:>8.3} s {:>8.3} s  {rate}",
                 g.depth,
+                g.kind.name(),
                 g.nodes,
                 g.sweeps,
                 g.transfer.as_secs_f64(),
                 secs
             );
         }
+        let total = |f: fn(&spsr::GpuRelaxation) -> std::time::Duration| -> f64 {
+            stats
+                .gpu_relaxations
+                .iter()
+                .map(|g| f(g).as_secs_f64())
+                .sum()
+        };
+        let _ = writeln!(
+            err,
+            "      in all: {:.3} s of copies, {:.3} s of kernels",
+            total(|g| g.transfer),
+            total(|g| g.kernels)
+        );
     }
     let _ = writeln!(err, "iso-value   {}", stats.iso_value);
     let _ = writeln!(

@@ -42,7 +42,7 @@ mod vec3;
 
 pub use bspline::{Boundary, Degree};
 pub use error::{gib, Error, FarOutliers, MemoryLimit, MemoryShortfall, Remedy, Result, Warning};
-pub use gpu::GpuRelaxation;
+pub use gpu::{GpuKernel, GpuRelaxation};
 pub use mesh::Mesh;
 pub use params::{Gpu, Noise, Params, PointWeights, Resolution, Solver, MAX_DEPTH};
 pub use pipeline::diagnose::{self, Diagnosis};

@@ -94,6 +94,9 @@ struct Op<'a> {
     /// The GPU that relaxes the level, if any.
     #[cfg_attr(not(feature = "gpu"), allow(dead_code))]
     gpu: Option<&'a Device>,
+    /// The level's system on the GPU, copied there on first use (`None`: the copy failed).
+    #[cfg(feature = "gpu")]
+    resident: std::sync::OnceLock<Option<crate::gpu::Resident>>,
 }
 
 impl<'a> Op<'a> {
@@ -123,6 +126,8 @@ impl<'a> Op<'a> {
             cbroods: cluster_broods(p.fem.degree.get()),
             singular: p.singular,
             gpu: p.gpu,
+            #[cfg(feature = "gpu")]
+            resident: std::sync::OnceLock::new(),
         }
     }
 
@@ -416,13 +421,10 @@ impl<'a> Op<'a> {
     /// `iters` Gauss–Seidel sweeps ([`Op::gauss_seidel_cpu`]), on the GPU when the problem
     /// has one (the same result to the last bit). A level the GPU cannot relax (too large for
     /// its memory, say) is relaxed on the CPU, and the device keeps the reason.
-    fn gauss_seidel<R: Copy + Into<f64> + Sync>(&self, r: &[R], x: &mut [f32], iters: u32) {
+    fn gauss_seidel(&self, r: &[f32], x: &mut [f32], iters: u32) {
         #[cfg(feature = "gpu")]
-        if let Some(dev) = self.gpu {
-            match self.gauss_seidel_gpu(dev, r, x, iters) {
-                Ok(()) => return,
-                Err(reason) => dev.record_failure(reason),
-            }
+        if self.gauss_seidel_gpu(r, x, iters) {
+            return;
         }
         self.gauss_seidel_cpu(r, x, iters);
     }
@@ -575,7 +577,7 @@ impl<'a> Op<'a> {
 /// For each child position, the neighbouring brood slots holding cells within the offsets
 /// of [`cluster_offsets`] (the cells whose clusters can touch the node's function), each with
 /// the mask of its nodes among them.
-fn cluster_broods(degree: u8) -> [Vec<(u8, u8)>; 8] {
+pub(crate) fn cluster_broods(degree: u8) -> [Vec<(u8, u8)>; 8] {
     let offsets = cluster_offsets(degree);
     std::array::from_fn(|c| {
         let mut out = Vec::new();
@@ -1129,6 +1131,10 @@ fn remove_mean(b: &mut [f64], valid: &[bool]) {
 /// screening targets `Σ_c ω_c B_i(p_c) (τ − χ_{<d}(p_c))`.
 fn right_hand_side(op: &Op, fem: Basis, tcons: &[f32], pc: &[f64], vc: &[[f32; 3]]) -> Vec<f32> {
     let coarse_chi = coarse_cluster_values(op, fem, pc);
+    #[cfg(feature = "gpu")]
+    if let Some((r, _)) = op.first_right_hand_sides_gpu(tcons, pc, vc, &coarse_chi, false) {
+        return r;
+    }
     (0..op.level.len() as u32)
         .into_par_iter()
         .map(|n| {
@@ -1227,5 +1233,7 @@ pub fn coarse_value(
     s
 }
 
+#[cfg(all(test, feature = "gpu"))]
+mod emulated;
 #[cfg(test)]
 mod tests;

@@ -313,6 +313,13 @@ impl<const K: usize> BroodStencil<K> {
         BroodStencil { rows }
     }
 
+    /// Per child position, the brood slots of its row and each slot's eight coefficients (of
+    /// the first stencil), for the GPU's copy of the sum (`gpu/kernels.cu`).
+    #[cfg(feature = "gpu")]
+    pub fn rows(&self) -> impl Iterator<Item = &[(u8, [[f64; 8]; K])]> {
+        self.rows.iter().map(|r| r.as_slice())
+    }
+
     /// `Σ_j Σ_k S_k[n, j] y_k[j]` over the window of node `n` of `level`, where `brood(b)`
     /// gives the `K` values of brood `b`'s eight nodes. Lane `l` sums the `l`-th nodes of the
     /// broods; the lanes are added pairwise in a fixed order.

@@ -1,29 +1,33 @@
-//! The CUDA device: opening it (driver, card, NVRTC, kernel) and relaxing one level on it.
+//! The CUDA device: opening it (driver, card, NVRTC, kernels), keeping a depth's system on
+//! it, and running the solver's kernels there.
 
 use std::sync::{Arc, Mutex};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use cudarc::driver::{
-    CudaContext, CudaFunction, CudaSlice, CudaStream, DeviceRepr, DriverError, LaunchConfig,
-    PushKernelArg,
+    CudaContext, CudaFunction, CudaSlice, CudaStream, DeviceRepr, DriverError, LaunchArgs,
+    LaunchConfig, PushKernelArg,
 };
 use cudarc::nvrtc::{compile_ptx_with_opts, CompileOptions};
 
-use super::{kernel_source, GpuRelaxation, LevelSystem};
+use super::{kernel_source, GpuKernel, GpuRelaxation, LevelSystem};
 
-/// Threads per block of the relaxation kernel.
+/// Threads per block of every kernel.
 const BLOCK: u32 = 256;
 
-/// An opened NVIDIA GPU with the relaxation kernel compiled for it.
+/// An opened NVIDIA GPU with the solver's kernels compiled for it.
 pub struct Device {
     stream: Arc<CudaStream>,
     relax: CudaFunction,
-    /// Degree of the elements the kernel was compiled for.
+    cluster_values: CudaFunction,
+    first_right_hand_sides: CudaFunction,
+    cycle_right_hand_side: CudaFunction,
+    /// Degree of the elements the kernels were compiled for.
     degree: u8,
     name: String,
-    /// Why a level fell back to the CPU, if one did (the first reason).
+    /// Why a step fell back to the CPU, if one did (the first reason).
     failure: Mutex<Option<String>>,
-    /// The relaxations run so far.
+    /// The steps run so far.
     timings: Mutex<Vec<GpuRelaxation>>,
 }
 
@@ -33,8 +37,49 @@ impl std::fmt::Debug for Device {
     }
 }
 
+/// One depth's system on the card, uploaded once ([`Device::upload`]) and read by every
+/// right-hand side and relaxation of the depth in the solve.
+pub struct Resident {
+    depth: u32,
+    depth_arg: i32,
+    nodes: usize,
+    nodes_arg: u32,
+    clusters: usize,
+    clusters_arg: u32,
+    lo: i64,
+    hi: i64,
+    words: u64,
+    nbrs: CudaSlice<u32>,
+    keys: CudaSlice<u32>,
+    stencil: CudaSlice<f64>,
+    brood_start: CudaSlice<u32>,
+    brood_slot: CudaSlice<u32>,
+    brood_coef: CudaSlice<f64>,
+    mass: CudaSlice<f64>,
+    stiff: CudaSlice<f64>,
+    rank_bits: CudaSlice<u64>,
+    rank_before: CudaSlice<u32>,
+    omega: CudaSlice<f64>,
+    first: CudaSlice<i32>,
+    vals: CudaSlice<f32>,
+    cl_node: CudaSlice<u32>,
+    order: CudaSlice<u32>,
+    class_ends: Vec<usize>,
+    brood_parent: CudaSlice<u32>,
+    parent_nbrs: CudaSlice<u32>,
+    pstencil: CudaSlice<f64>,
+    pvstencil: CudaSlice<f64>,
+    nonzero_start: CudaSlice<u32>,
+    nonzero: CudaSlice<u32>,
+    pmass: CudaSlice<f64>,
+    pstiff: CudaSlice<f64>,
+    pvmass: CudaSlice<f64>,
+    pvderiv: CudaSlice<f64>,
+    bytes_per_sweep: u64,
+}
+
 impl Device {
-    /// Opens the first CUDA device and compiles the relaxation kernel for elements of
+    /// Opens the first CUDA device and compiles the solver's kernels for elements of
     /// `degree`. The error says what is missing (driver, device, NVRTC) in words.
     pub fn open(degree: u8) -> Result<Device, String> {
         // SAFETY: only probes whether the shared library can be loaded.
@@ -71,12 +116,17 @@ impl Device {
         let module = ctx
             .load_module(ptx)
             .map_err(|e| driver("loading spsr's kernels", e))?;
-        let relax = module
-            .load_function("relax")
-            .map_err(|e| driver("loading the relaxation kernel", e))?;
+        let function = |name: &str| {
+            module
+                .load_function(name)
+                .map_err(|e| driver(&format!("loading the kernel {name}"), e))
+        };
         Ok(Device {
             stream: ctx.default_stream(),
-            relax,
+            relax: function("relax")?,
+            cluster_values: function("cluster_values")?,
+            first_right_hand_sides: function("first_right_hand_sides")?,
+            cycle_right_hand_side: function("cycle_right_hand_side")?,
             degree,
             name,
             failure: Mutex::new(None),
@@ -89,13 +139,13 @@ impl Device {
         &self.name
     }
 
-    /// Notes that a level fell back to the CPU, and why (the first reason is kept).
+    /// Notes that a step fell back to the CPU, and why (the first reason is kept).
     pub fn record_failure(&self, reason: String) {
         let mut f = self.failure.lock().unwrap_or_else(|e| e.into_inner());
         f.get_or_insert(reason);
     }
 
-    /// Why a level fell back to the CPU, if one did; clears the record.
+    /// Why a step fell back to the CPU, if one did; clears the record.
     pub fn take_failure(&self) -> Option<String> {
         self.failure
             .lock()
@@ -103,37 +153,105 @@ impl Device {
             .take()
     }
 
-    /// The relaxations run so far, in order; clears the record.
+    /// The steps run so far, in order; clears the record.
     pub fn take_timings(&self) -> Vec<GpuRelaxation> {
         std::mem::take(&mut *self.timings.lock().unwrap_or_else(|e| e.into_inner()))
     }
 
-    /// `iters` Gauss–Seidel sweeps over `sys` from the coefficients `x`, with right-hand side
-    /// `rhs` (per node) and χ at the clusters `chi` (which the sweeps keep up to date).
-    pub fn gauss_seidel(
-        &self,
-        sys: &LevelSystem,
-        rhs: &[f64],
-        x: &mut [f32],
-        chi: &[f64],
-        iters: u32,
-    ) -> Result<(), String> {
+    fn record(&self, step: GpuRelaxation) {
+        self.timings
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push(step);
+    }
+
+    /// Copies the depth's system `sys` to the card, for the solve's right-hand sides and
+    /// relaxations of that depth.
+    pub fn upload(&self, sys: &LevelSystem) -> Result<Resident, String> {
         if sys.degree != self.degree {
             return Err(format!(
-                "the kernel was compiled for degree {}, not {}",
+                "the kernels were compiled for degree {}, not {}",
                 self.degree, sys.degree
             ));
         }
-        self.sweeps(sys, rhs, x, chi, iters)
-            .map_err(|e| driver(&format!("relaxing depth {} on {}", sys.depth, self.name), e))
+        let clock = Instant::now();
+        let res = self
+            .upload_arrays(sys)
+            .map_err(|e| driver(&format!("copying depth {} to {}", sys.depth, self.name), e))?;
+        self.record(GpuRelaxation {
+            kind: GpuKernel::Upload,
+            depth: sys.depth,
+            nodes: res.nodes,
+            sweeps: 0,
+            transfer: clock.elapsed(),
+            kernels: Duration::ZERO,
+            bytes_per_sweep: 0,
+        });
+        Ok(res)
+    }
+
+    fn upload_arrays(&self, sys: &LevelSystem) -> Result<Resident, DriverError> {
+        let s = &self.stream;
+        let res = Resident {
+            depth: sys.depth,
+            depth_arg: sys.depth as i32,
+            nodes: sys.nodes,
+            nodes_arg: sys.nodes as u32,
+            clusters: sys.omega.len(),
+            clusters_arg: sys.omega.len() as u32,
+            lo: sys.lo,
+            hi: sys.hi,
+            words: sys.rank_bits.len() as u64,
+            nbrs: upload(s, sys.brood_nbrs.as_flattened())?,
+            keys: upload(s, sys.brood_key.as_flattened())?,
+            stencil: upload(s, &sys.stencil[..])?,
+            brood_start: upload(s, &sys.brood_start)?,
+            brood_slot: upload(s, &sys.brood_slot)?,
+            brood_coef: upload(s, &sys.brood_coef)?,
+            mass: upload(s, &sys.mass)?,
+            stiff: upload(s, &sys.stiff)?,
+            rank_bits: upload(s, sys.rank_bits)?,
+            rank_before: upload(s, sys.rank_before)?,
+            omega: upload(s, sys.omega)?,
+            first: upload(s, sys.first.as_flattened())?,
+            vals: upload(s, sys.vals.as_flattened().as_flattened())?,
+            cl_node: upload(s, sys.cl_node)?,
+            order: upload(s, &sys.order)?,
+            class_ends: sys.class_ends.clone(),
+            brood_parent: upload(s, sys.brood_parent)?,
+            parent_nbrs: upload(s, sys.parent_nbrs.as_flattened())?,
+            pstencil: upload(s, sys.pstencil.as_flattened())?,
+            pvstencil: upload(s, sys.pvstencil.as_flattened().as_flattened())?,
+            nonzero_start: upload(s, &sys.nonzero_start)?,
+            nonzero: upload(s, &sys.nonzero)?,
+            pmass: upload(s, &sys.pmass)?,
+            pstiff: upload(s, &sys.pstiff)?,
+            pvmass: upload(s, &sys.pvmass)?,
+            pvderiv: upload(s, &sys.pvderiv)?,
+            bytes_per_sweep: sys.bytes_per_sweep(),
+        };
+        s.synchronize()?;
+        Ok(res)
+    }
+
+    /// `iters` Gauss–Seidel sweeps over the resident depth `lvl` from the coefficients `x`,
+    /// with right-hand side `rhs` (per node).
+    pub fn gauss_seidel(
+        &self,
+        lvl: &Resident,
+        rhs: &[f32],
+        x: &mut [f32],
+        iters: u32,
+    ) -> Result<(), String> {
+        self.sweeps(lvl, rhs, x, iters)
+            .map_err(|e| driver(&format!("relaxing depth {} on {}", lvl.depth, self.name), e))
     }
 
     fn sweeps(
         &self,
-        sys: &LevelSystem,
-        rhs: &[f64],
+        lvl: &Resident,
+        rhs: &[f32],
         x: &mut [f32],
-        chi: &[f64],
         iters: u32,
     ) -> Result<(), DriverError> {
         if x.is_empty() {
@@ -141,89 +259,286 @@ impl Device {
         }
         let s = &self.stream;
         let clock = Instant::now();
-        let nbrs = upload(s, sys.brood_nbrs.as_flattened())?;
-        let keys = upload(s, sys.brood_key.as_flattened())?;
-        let stencil = upload(s, &sys.stencil[..])?;
-        let mass = upload(s, &sys.mass)?;
-        let stiff = upload(s, &sys.stiff)?;
-        let rank_bits = upload(s, sys.rank_bits)?;
-        let rank_before = upload(s, sys.rank_before)?;
-        let omega = upload(s, sys.omega)?;
-        let first = upload(s, sys.first.as_flattened())?;
-        let vals = upload(s, sys.vals.as_flattened().as_flattened())?;
-        let order = upload(s, &sys.order)?;
         let rhs_d = upload(s, rhs)?;
         let mut x_d = upload(s, x)?;
-        let mut chi_d = upload(s, chi)?;
-        let depth = sys.depth as i32;
-        let words = sys.rank_bits.len() as u64;
+        let mut chi_d = s.alloc_zeros::<f64>(lvl.clusters.max(1))?;
         s.synchronize()?;
         let uploaded = clock.elapsed();
         let clock = Instant::now();
+        // χ at the clusters from the starting coefficients (`Op::cluster_values`).
+        if lvl.clusters > 0 {
+            let mut launch = s.launch_builder(&self.cluster_values);
+            launch
+                .arg(&lvl.clusters_arg)
+                .arg(&lvl.cl_node)
+                .arg(&lvl.first)
+                .arg(&lvl.vals)
+                .arg(&lvl.nbrs)
+                .arg(&lvl.keys)
+                .arg(&lvl.depth_arg)
+                .arg(&x_d)
+                .arg(&mut chi_d);
+            // SAFETY: the arguments match the kernel's parameters in order and type; each
+            // cluster's node and window name nodes of the level, and each thread writes its
+            // own cluster's value.
+            unsafe { launch.launch(config(lvl.clusters_arg)) }?;
+        }
         for _ in 0..iters {
             let mut start = 0usize;
-            for &end in &sys.class_ends {
+            for &end in &lvl.class_ends {
                 let count = (end - start) as u32;
                 let first_node = start as u64;
                 start = end;
                 if count == 0 {
                     continue;
                 }
-                let cfg = LaunchConfig {
-                    grid_dim: (count.div_ceil(BLOCK), 1, 1),
-                    block_dim: (BLOCK, 1, 1),
-                    shared_mem_bytes: 0,
-                };
                 let mut launch = s.launch_builder(&self.relax);
                 launch
-                    .arg(&order)
+                    .arg(&lvl.order)
                     .arg(&first_node)
                     .arg(&count)
-                    .arg(&nbrs)
-                    .arg(&keys)
-                    .arg(&depth)
-                    .arg(&sys.lo)
-                    .arg(&sys.hi)
-                    .arg(&stencil)
-                    .arg(&mass)
-                    .arg(&stiff)
-                    .arg(&rank_bits)
-                    .arg(&rank_before)
-                    .arg(&words)
-                    .arg(&omega)
-                    .arg(&first)
-                    .arg(&vals)
+                    .arg(&lvl.nbrs)
+                    .arg(&lvl.keys)
+                    .arg(&lvl.depth_arg)
+                    .arg(&lvl.lo)
+                    .arg(&lvl.hi)
+                    .arg(&lvl.stencil)
+                    .arg(&lvl.brood_start)
+                    .arg(&lvl.brood_slot)
+                    .arg(&lvl.brood_coef)
+                    .arg(&lvl.mass)
+                    .arg(&lvl.stiff)
+                    .arg(&lvl.rank_bits)
+                    .arg(&lvl.rank_before)
+                    .arg(&lvl.words)
+                    .arg(&lvl.omega)
+                    .arg(&lvl.first)
+                    .arg(&lvl.vals)
                     .arg(&rhs_d)
                     .arg(&mut x_d)
                     .arg(&mut chi_d);
                 // SAFETY: the arguments match the kernel's parameters in order and type, every
-                // index the kernel forms stays inside the arrays uploaded above (the tree's
-                // neighbour tables name only nodes of the level, clusters only clusters), and
-                // nodes of one class write disjoint coefficients and cluster values.
-                unsafe { launch.launch(cfg) }?;
+                // index the kernel forms stays inside the arrays uploaded (the tree's neighbour
+                // tables name only nodes of the level, clusters only clusters), and nodes of
+                // one class write disjoint coefficients and cluster values.
+                unsafe { launch.launch(config(count)) }?;
             }
         }
         s.synchronize()?;
         let relaxed = clock.elapsed();
+        let clock = Instant::now();
         s.memcpy_dtoh(&x_d, &mut x[..])?;
         s.synchronize()?;
-        self.timings
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .push(GpuRelaxation {
-                depth: sys.depth,
-                nodes: sys.order.len(),
-                sweeps: iters,
-                transfer: uploaded,
-                kernels: relaxed,
-                bytes_per_sweep: sys.bytes_per_sweep(),
-            });
+        self.record(GpuRelaxation {
+            kind: GpuKernel::Relaxation,
+            depth: lvl.depth,
+            nodes: lvl.order.len(),
+            sweeps: iters,
+            transfer: uploaded + clock.elapsed(),
+            kernels: relaxed,
+            bytes_per_sweep: lvl.bytes_per_sweep,
+        });
         Ok(())
+    }
+
+    /// The right-hand sides of the cascade's pass over the resident depth `lvl` (see the
+    /// kernel `first_right_hand_sides`): `r`, and with `fixed` its fixed part `b` (else
+    /// empty). `tcons` are the depth's constraints, `pc` and `vc` the parent depth's
+    /// cumulative solution and V, `cchi` the coarser solution at the depth's clusters.
+    pub fn first_right_hand_sides(
+        &self,
+        lvl: &Resident,
+        tcons: &[f32],
+        pc: &[f64],
+        vc: &[[f32; 3]],
+        cchi: &[f64],
+        fixed: bool,
+    ) -> Result<(Vec<f32>, Vec<f32>), String> {
+        if lvl.nodes == 0 {
+            return Ok((Vec::new(), Vec::new()));
+        }
+        let run = || -> Result<(Vec<f32>, Vec<f32>), DriverError> {
+            let s = &self.stream;
+            let clock = Instant::now();
+            let tcons_d = upload(s, tcons)?;
+            let pc_d = upload(s, pc)?;
+            let vc_d = upload(s, vc.as_flattened())?;
+            let cchi_d = upload(s, cchi)?;
+            let mut r_d = s.alloc_zeros::<f32>(lvl.nodes.max(1))?;
+            let mut b_d = s.alloc_zeros::<f32>(if fixed { lvl.nodes.max(1) } else { 1 })?;
+            s.synchronize()?;
+            let mut transfer = clock.elapsed();
+            let clock = Instant::now();
+            let null = 0u64;
+            let mut launch = s.launch_builder(&self.first_right_hand_sides);
+            push_level(&mut launch, lvl);
+            launch
+                .arg(&tcons_d)
+                .arg(&pc_d)
+                .arg(&vc_d)
+                .arg(&cchi_d)
+                .arg(&mut r_d);
+            if fixed {
+                launch.arg(&mut b_d);
+            } else {
+                launch.arg(&null);
+            }
+            // SAFETY: the arguments match the kernel's parameters in order and type (a null
+            // `b` when the fixed part is not wanted, which the kernel checks); each thread
+            // writes its own node's values, and every index it reads stays in the arrays
+            // (parent nodes index `pc` and `vc`, which hold the parent depth's nodes).
+            unsafe { launch.launch(config(lvl.nodes_arg)) }?;
+            s.synchronize()?;
+            let kernels = clock.elapsed();
+            let clock = Instant::now();
+            let r = download(s, &r_d, lvl.nodes)?;
+            let b = if fixed {
+                download(s, &b_d, lvl.nodes)?
+            } else {
+                Vec::new()
+            };
+            transfer += clock.elapsed();
+            self.record_rhs(lvl, transfer, kernels, pc.len());
+            Ok((r, b))
+        };
+        if pc.len() != vc.len() || tcons.len() != lvl.nodes || cchi.len() != lvl.clusters {
+            return Err("the right-hand side's inputs do not match the depth".into());
+        }
+        run().map_err(|e| {
+            driver(
+                &format!(
+                    "the right-hand sides of depth {} on {}",
+                    lvl.depth, self.name
+                ),
+                e,
+            )
+        })
+    }
+
+    /// The right-hand side a further cycle relaxes the resident depth `lvl` against (see the
+    /// kernel `cycle_right_hand_side`): the fixed part `b`, the parent depth's cumulative
+    /// solution `pc`, the coarser solution at the clusters `cchi`, and the finer depths'
+    /// coupling `u` (empty for none).
+    pub fn cycle_right_hand_side(
+        &self,
+        lvl: &Resident,
+        b: &[f32],
+        pc: &[f64],
+        cchi: &[f64],
+        u: &[f64],
+    ) -> Result<Vec<f32>, String> {
+        if b.len() != lvl.nodes
+            || cchi.len() != lvl.clusters
+            || !(u.is_empty() || u.len() == lvl.nodes)
+        {
+            return Err("the right-hand side's inputs do not match the depth".into());
+        }
+        if lvl.nodes == 0 {
+            return Ok(Vec::new());
+        }
+        let run = || -> Result<Vec<f32>, DriverError> {
+            let s = &self.stream;
+            let clock = Instant::now();
+            let b_d = upload(s, b)?;
+            let pc_d = upload(s, pc)?;
+            let cchi_d = upload(s, cchi)?;
+            let u_d = upload(s, u)?;
+            let mut r_d = s.alloc_zeros::<f32>(lvl.nodes.max(1))?;
+            s.synchronize()?;
+            let mut transfer = clock.elapsed();
+            let clock = Instant::now();
+            let null = 0u64;
+            let mut launch = s.launch_builder(&self.cycle_right_hand_side);
+            push_level(&mut launch, lvl);
+            launch.arg(&b_d).arg(&pc_d).arg(&cchi_d);
+            if u.is_empty() {
+                launch.arg(&null);
+            } else {
+                launch.arg(&u_d);
+            }
+            launch.arg(&mut r_d);
+            // SAFETY: as in `first_right_hand_sides`; a null `u` is checked by the kernel.
+            unsafe { launch.launch(config(lvl.nodes_arg)) }?;
+            s.synchronize()?;
+            let kernels = clock.elapsed();
+            let clock = Instant::now();
+            let r = download(s, &r_d, lvl.nodes)?;
+            transfer += clock.elapsed();
+            self.record_rhs(lvl, transfer, kernels, pc.len());
+            Ok(r)
+        };
+        run().map_err(|e| {
+            driver(
+                &format!(
+                    "the right-hand side of depth {} on {}",
+                    lvl.depth, self.name
+                ),
+                e,
+            )
+        })
+    }
+
+    fn record_rhs(&self, lvl: &Resident, transfer: Duration, kernels: Duration, parents: usize) {
+        // Per node its constraint (or fixed part) and result; per brood its neighbours, key
+        // and parent; per parent brood its neighbours, per parent node its solution and V; per
+        // cluster its data and χ_{<d}.
+        let (broods, parent_broods) = (lvl.nodes / 8, parents / 8);
+        let bytes = (lvl.nodes * (4 + 4)
+            + broods * (27 * 4 + 12 + 4)
+            + parent_broods * 27 * 4
+            + parents * (8 + 12)
+            + lvl.clusters * (8 + 12 + 36 + 8)) as u64;
+        self.record(GpuRelaxation {
+            kind: GpuKernel::RightHandSide,
+            depth: lvl.depth,
+            nodes: lvl.nodes,
+            sweeps: 1,
+            transfer,
+            kernels,
+            bytes_per_sweep: bytes,
+        });
+    }
+}
+
+/// The arguments the two right-hand-side kernels share, in their order: the depth, its
+/// clusters and its parent depth.
+fn push_level<'a>(launch: &mut LaunchArgs<'a>, lvl: &'a Resident) {
+    launch
+        .arg(&lvl.nodes_arg)
+        .arg(&lvl.nbrs)
+        .arg(&lvl.keys)
+        .arg(&lvl.depth_arg)
+        .arg(&lvl.lo)
+        .arg(&lvl.hi)
+        .arg(&lvl.rank_bits)
+        .arg(&lvl.rank_before)
+        .arg(&lvl.words)
+        .arg(&lvl.omega)
+        .arg(&lvl.first)
+        .arg(&lvl.vals)
+        .arg(&lvl.brood_parent)
+        .arg(&lvl.parent_nbrs)
+        .arg(&lvl.pstencil)
+        .arg(&lvl.pvstencil)
+        .arg(&lvl.nonzero_start)
+        .arg(&lvl.nonzero)
+        .arg(&lvl.pmass)
+        .arg(&lvl.pstiff)
+        .arg(&lvl.pvmass)
+        .arg(&lvl.pvderiv);
+}
+
+/// One thread per item.
+fn config(count: u32) -> LaunchConfig {
+    LaunchConfig {
+        grid_dim: (count.div_ceil(BLOCK), 1, 1),
+        block_dim: (BLOCK, 1, 1),
+        shared_mem_bytes: 0,
     }
 }
 
 /// Copies `host` to a new device array (one element when empty: CUDA allocates no zero-size
-/// arrays, and the kernel never reads an empty one).
+/// arrays, and the kernels never read an empty one).
 fn upload<T: DeviceRepr + Default + Clone>(
     s: &Arc<CudaStream>,
     host: &[T],
@@ -233,6 +548,20 @@ fn upload<T: DeviceRepr + Default + Clone>(
     } else {
         s.clone_htod(host)
     }
+}
+
+/// The first `len` values of a device array.
+fn download<T: DeviceRepr + Default + Clone>(
+    s: &Arc<CudaStream>,
+    dev: &CudaSlice<T>,
+    len: usize,
+) -> Result<Vec<T>, DriverError> {
+    let mut out = vec![T::default(); len];
+    if len > 0 {
+        s.memcpy_dtoh(&dev.slice(0..len), &mut out[..])?;
+        s.synchronize()?;
+    }
+    Ok(out)
 }
 
 fn driver(what: &str, e: DriverError) -> String {

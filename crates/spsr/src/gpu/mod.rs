@@ -1,5 +1,5 @@
-//! The GPU back end (issue 17), behind the cargo feature `gpu`: the solver's Gauss–Seidel
-//! relaxation on an NVIDIA card, giving the CPU's coefficients bit for bit.
+//! The GPU back end (issue 17), behind the cargo feature `gpu`: the solver's right-hand sides
+//! and Gauss–Seidel relaxations on an NVIDIA card, giving the CPU's coefficients bit for bit.
 //!
 //! The binding is `cudarc`, chosen because it loads the CUDA driver and NVRTC when the program
 //! runs (`dlopen`), so that the crate builds, and a build with the feature runs on the CPU, on
@@ -8,8 +8,10 @@
 //! rounds as the CPU's does. Without the feature, [`Device::open`] says that this build has no
 //! GPU support, and [`crate::Params::gpu`] set to `On` is an error.
 //!
-//! Only the relaxation runs on the card so far; the right-hand sides, the constraints and the
-//! extraction stay on the CPU (`docs/gpu.md` gives the measured profile and what is left).
+//! Each depth's system is copied to the card once per solve ([`LevelSystem`], `Resident`) and
+//! read there by every right-hand side and relaxation of the depth. The coarser solution at
+//! the clusters, the prolongation, the constraints and the extraction stay on the CPU
+//! (`docs/gpu.md` gives the measured profile and what is left).
 
 #[cfg(feature = "gpu")]
 use crate::octree::WINDOW;
@@ -17,7 +19,7 @@ use crate::octree::WINDOW;
 #[cfg(feature = "gpu")]
 mod cuda;
 #[cfg(feature = "gpu")]
-pub use cuda::Device;
+pub use cuda::{Device, Resident};
 
 /// A GPU that cannot be opened in a build without the cargo feature `gpu`.
 #[cfg(not(feature = "gpu"))]
@@ -52,22 +54,46 @@ impl Device {
     }
 }
 
-/// What one level's relaxation on the GPU cost ([`crate::Stats::gpu`]).
+/// What a step on the GPU did ([`GpuRelaxation::kind`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GpuKernel {
+    /// A depth's system copied to the card (once per solve).
+    Upload,
+    /// A depth's right-hand side.
+    RightHandSide,
+    /// Gauss–Seidel sweeps over a depth.
+    Relaxation,
+}
+
+impl GpuKernel {
+    /// The step's name in the `-v` report.
+    pub fn name(self) -> &'static str {
+        match self {
+            GpuKernel::Upload => "copy in",
+            GpuKernel::RightHandSide => "right-hand side",
+            GpuKernel::Relaxation => "relaxation",
+        }
+    }
+}
+
+/// What one step of a depth on the GPU cost ([`crate::Stats::gpu`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct GpuRelaxation {
+    /// What the step did.
+    pub kind: GpuKernel,
     /// The unit depth.
     pub depth: u32,
-    /// Nodes relaxed per sweep.
+    /// Nodes relaxed per sweep, or the depth's nodes.
     pub nodes: usize,
-    /// Sweeps.
+    /// Sweeps (1 for a right-hand side, 0 for a copy).
     pub sweeps: u32,
-    /// Copying the level's system to the card (and the coefficients back is not included).
+    /// Copying the step's inputs to the card and its results back.
     pub transfer: std::time::Duration,
-    /// The sweeps' kernels.
+    /// The step's kernels.
     pub kernels: std::time::Duration,
-    /// The bytes one sweep must read or write at least: each array the kernel reads once, the
-    /// coefficients and the clusters' values written once. Over `kernels / sweeps`, the
-    /// bandwidth the sweeps reach.
+    /// The bytes one sweep (or the right-hand side) must read or write at least: each array
+    /// the kernel reads once, its results written once. Over `kernels / sweeps`, the
+    /// bandwidth the kernels reach.
     pub bytes_per_sweep: u64,
 }
 
@@ -80,6 +106,8 @@ pub struct LevelSystem<'a> {
     pub degree: u8,
     /// Unit-cube depth of the level (a node's function index is its key minus `2^depth`).
     pub depth: u32,
+    /// Nodes of the level.
+    pub nodes: usize,
     /// The 27 broods around each brood (`octree::Level::brood_nbrs`).
     pub brood_nbrs: &'a [[u32; 27]],
     /// The key of each brood's parent (`octree::Level::key`).
@@ -90,6 +118,14 @@ pub struct LevelSystem<'a> {
     pub hi: i64,
     /// The interior stiffness stencil, by window index.
     pub stencil: &'a [f64; 125],
+    /// The same stencil by neighbouring brood (`system::BroodStencil`), as the CPU sums an
+    /// interior row: where each child position's entries start in `brood_slot` (nine values),
+    /// each entry's brood slot, and its eight coefficients in `brood_coef`.
+    pub brood_start: Vec<u32>,
+    /// See `brood_start`.
+    pub brood_slot: Vec<u32>,
+    /// See `brood_start`.
+    pub brood_coef: Vec<f64>,
     /// The same-depth 1-D mass table, five offsets per index `lo..=hi`.
     pub mass: Vec<f64>,
     /// The same-depth 1-D stiffness table, laid out as `mass`.
@@ -104,6 +140,29 @@ pub struct LevelSystem<'a> {
     pub first: &'a [[i32; 3]],
     /// Basis values per axis of each cluster.
     pub vals: &'a [[[f32; 3]; 3]],
+    /// The node of each cluster.
+    pub cl_node: &'a [u32],
+    /// The parent node of each brood.
+    pub brood_parent: &'a [u32],
+    /// The parent level's 27 broods around each brood.
+    pub parent_nbrs: &'a [[u32; 27]],
+    /// Interior parent stiffness stencils by child parity (`DepthTables::pstencil`).
+    pub pstencil: &'a [[f64; 125]; 8],
+    /// Interior parent V stencils by child parity and component.
+    pub pvstencil: &'a [[[f64; 125]; 3]; 8],
+    /// Where each child parity's list in `nonzero` starts (nine entries).
+    pub nonzero_start: Vec<u32>,
+    /// The parent window indices where the parent stencils are nonzero, parity by parity.
+    pub nonzero: Vec<u32>,
+    /// 1-D tables against the parent depth (`pmass`, `pstiff`, `pvmass`, `pvderiv`), laid
+    /// out as `mass`.
+    pub pmass: Vec<f64>,
+    /// See `pmass`.
+    pub pstiff: Vec<f64>,
+    /// See `pmass`.
+    pub pvmass: Vec<f64>,
+    /// See `pmass`.
+    pub pvderiv: Vec<f64>,
     /// The nodes to relax, class after class: nodes of one class are relaxed at once.
     pub order: Vec<u32>,
     /// Where each class of `order` ends.
@@ -127,22 +186,34 @@ impl LevelSystem<'_> {
 }
 
 #[cfg(feature = "gpu")]
-/// The kernel's source for elements of degree `degree`, with the window tables it reads.
+/// The kernels' source for elements of degree `degree`, with the tables they read: the window
+/// tables (`octree::WINDOW`) and, per child position, the neighbouring broods whose nodes'
+/// clusters can touch a function, in the CPU's order (`solver::cluster_broods`).
 pub fn kernel_source(degree: u8) -> String {
+    let join = |v: &mut dyn Iterator<Item = u32>| v.map(|x| x.to_string()).collect::<Vec<_>>();
     let list = |rows: &[[u8; 125]; 8]| {
-        rows.iter()
-            .flat_map(|r| r.iter())
-            .map(|v| v.to_string())
-            .collect::<Vec<_>>()
-            .join(",")
+        join(&mut rows.iter().flat_map(|r| r.iter()).map(|&v| u32::from(v))).join(",")
     };
+    let broods = crate::solver::cluster_broods(degree);
+    let mut start = vec![0u32];
+    for b in &broods {
+        start.push(start[start.len() - 1] + b.len() as u32);
+    }
+    let all = || broods.iter().flatten();
     format!(
         "#define DEGREE {degree}\n\
          __constant__ unsigned char WSLOT[1000] = {{{}}};\n\
-         __constant__ unsigned char WBITS[1000] = {{{}}};\n{}",
+         __constant__ unsigned char WBITS[1000] = {{{}}};\n\
+         __constant__ unsigned int CBROOD_START[9] = {{{}}};\n\
+         __constant__ unsigned char CBROOD_SLOT[{n}] = {{{}}};\n\
+         __constant__ unsigned char CBROOD_MASK[{n}] = {{{}}};\n{}",
         list(WINDOW.slots()),
         list(WINDOW.child_bits()),
-        include_str!("relax.cu")
+        join(&mut start.iter().copied()).join(","),
+        join(&mut all().map(|&(slot, _)| u32::from(slot))).join(","),
+        join(&mut all().map(|&(_, mask)| u32::from(mask))).join(","),
+        include_str!("kernels.cu"),
+        n = start[8],
     )
 }
 

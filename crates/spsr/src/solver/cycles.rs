@@ -309,31 +309,12 @@ impl<'a> Cycles<'a> {
         g
     }
 
-    /// The right-hand side level `t` is relaxed against: `b_t`, minus the coarser solution's
-    /// coupling, minus the finer levels' `U_t`; stored in single precision, as the cascade's.
+    /// The right-hand side level `t` is relaxed against ([`cycle_right_hand_side`]).
     fn level_right_hand_side(&self, t: usize) -> Vec<f32> {
         let op = self.op(t);
         let pc = &self.pcum[t - 1];
         let coarse_chi = coarse_cluster_values(op, self.p.fem, pc);
-        let (b, u) = (&self.b[t], &self.u[t]);
-        (0..op.level.len() as u32)
-            .into_par_iter()
-            .map(|n| {
-                let i = op.index(n);
-                if !op.tab.range.contains(i) {
-                    return 0.0;
-                }
-                let mut s = f64::from(b[n as usize]);
-                s = op.add_coarse_coupling::<true, false>(s, n, i, pc, &[]);
-                op.for_each_cluster(n, i, |c, bv| {
-                    s -= op.cl.omega[c as usize] * bv * coarse_chi[c as usize];
-                });
-                if !u.is_empty() {
-                    s -= u[n as usize];
-                }
-                s as f32
-            })
-            .collect()
+        cycle_right_hand_side(op, &self.b[t], pc, &coarse_chi, &self.u[t])
     }
 
     /// `iters` Gauss–Seidel sweeps on level `t` from its current solution.
@@ -497,7 +478,7 @@ fn record(
 /// ([`super::right_hand_side`]), and, from the same walk over the parent windows, its fixed
 /// part: its constraints, the coarser V (`vc`, cumulative, on the parent level) and the
 /// screening targets `Σ_c ω_c B_i(p_c) τ`, which the further cycles keep.
-fn right_hand_sides(
+pub(super) fn right_hand_sides(
     op: &Op,
     fem: crate::bspline::Basis,
     tcons: &[f32],
@@ -505,6 +486,10 @@ fn right_hand_sides(
     vc: &[[f32; 3]],
 ) -> (Vec<f32>, Vec<f32>) {
     let coarse_chi = coarse_cluster_values(op, fem, pc);
+    #[cfg(feature = "gpu")]
+    if let Some(out) = op.first_right_hand_sides_gpu(tcons, pc, vc, &coarse_chi, true) {
+        return out;
+    }
     (0..op.level.len() as u32)
         .into_par_iter()
         .map(|n| {
@@ -521,6 +506,41 @@ fn right_hand_sides(
             (r as f32, b as f32)
         })
         .unzip()
+}
+
+/// The right-hand side a further cycle relaxes a level against: its fixed part `b`, minus the
+/// coarser solution's coupling (`pc`, cumulative, on the parent level, and `coarse_chi`, the
+/// coarser solution at the level's clusters), minus the finer levels' `u` (empty for none);
+/// stored in single precision, as the cascade's. On the GPU where the problem has one.
+pub(super) fn cycle_right_hand_side(
+    op: &Op,
+    b: &[f32],
+    pc: &[f64],
+    coarse_chi: &[f64],
+    u: &[f64],
+) -> Vec<f32> {
+    #[cfg(feature = "gpu")]
+    if let Some(r) = op.cycle_right_hand_side_gpu(b, pc, coarse_chi, u) {
+        return r;
+    }
+    (0..op.level.len() as u32)
+        .into_par_iter()
+        .map(|n| {
+            let i = op.index(n);
+            if !op.tab.range.contains(i) {
+                return 0.0;
+            }
+            let mut s = f64::from(b[n as usize]);
+            s = op.add_coarse_coupling::<true, false>(s, n, i, pc, &[]);
+            op.for_each_cluster(n, i, |c, bv| {
+                s -= op.cl.omega[c as usize] * bv * coarse_chi[c as usize];
+            });
+            if !u.is_empty() {
+                s -= u[n as usize];
+            }
+            s as f32
+        })
+        .collect()
 }
 
 /// `Σ_n (r_n − ((L + S) x)_n)²` over the level's functions, summed in a fixed order.

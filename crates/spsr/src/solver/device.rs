@@ -1,28 +1,72 @@
-//! The relaxation of one level on the GPU (`crate::gpu`): the level's system laid out for
-//! the kernel, and the order of [`Op::gauss_seidel_cpu`] as classes of independent nodes.
+//! The solver's steps on the GPU (`crate::gpu`): a level's system laid out for the kernels and
+//! kept on the card for the solve, the order of [`Op::gauss_seidel_cpu`] as classes of
+//! independent nodes, and the right-hand sides and relaxations run there. Each step returns
+//! `None` where the level cannot be put on the card (the device keeps the reason), and the
+//! caller then does it on the CPU.
 
 use rayon::prelude::*;
 
 use super::Op;
-use crate::gpu::{Device, LevelSystem};
+use crate::gpu::{Device, LevelSystem, Resident};
 
 impl Op<'_> {
-    /// [`Op::gauss_seidel_cpu`] on `dev`, with the same result to the last bit.
-    pub(super) fn gauss_seidel_gpu<R: Copy + Into<f64> + Sync>(
-        &self,
-        dev: &Device,
-        r: &[R],
-        x: &mut [f32],
-        iters: u32,
-    ) -> Result<(), String> {
-        let sys = self.level_system();
-        let rhs: Vec<f64> = r.par_iter().map(|&v| v.into()).collect();
-        let chi = self.cluster_values(|n| f64::from(x[n]));
-        dev.gauss_seidel(&sys, &rhs, x, &chi, iters)
+    /// The device and this level's system on it, copied there on first use; `None` without a
+    /// device, or where the copy failed (the device records why).
+    fn on_gpu(&self) -> Option<(&Device, &Resident)> {
+        let dev = self.gpu?;
+        let res = self.resident.get_or_init(|| {
+            dev.upload(&self.level_system())
+                .map_err(|reason| dev.record_failure(reason))
+                .ok()
+        });
+        res.as_ref().map(|r| (dev, r))
     }
 
-    /// The level's system as the kernel reads it.
-    fn level_system(&self) -> LevelSystem<'_> {
+    /// [`Op::gauss_seidel_cpu`] on the GPU, with the same result to the last bit; `false`
+    /// where it did not run there.
+    pub(super) fn gauss_seidel_gpu(&self, r: &[f32], x: &mut [f32], iters: u32) -> bool {
+        let Some((dev, lvl)) = self.on_gpu() else {
+            return false;
+        };
+        dev.gauss_seidel(lvl, r, x, iters)
+            .map_err(|reason| dev.record_failure(reason))
+            .is_ok()
+    }
+
+    /// The cascade's right-hand sides of the level on the GPU (`cycles::right_hand_sides`, and
+    /// with `fixed` false `super::right_hand_side`), bit for bit; `cchi` is the coarser
+    /// solution at the level's clusters.
+    pub(super) fn first_right_hand_sides_gpu(
+        &self,
+        tcons: &[f32],
+        pc: &[f64],
+        vc: &[[f32; 3]],
+        cchi: &[f64],
+        fixed: bool,
+    ) -> Option<(Vec<f32>, Vec<f32>)> {
+        let (dev, lvl) = self.on_gpu()?;
+        dev.first_right_hand_sides(lvl, tcons, pc, vc, cchi, fixed)
+            .map_err(|reason| dev.record_failure(reason))
+            .ok()
+    }
+
+    /// A further cycle's right-hand side of the level on the GPU
+    /// (`cycles::Cycles::level_right_hand_side`), bit for bit.
+    pub(super) fn cycle_right_hand_side_gpu(
+        &self,
+        b: &[f32],
+        pc: &[f64],
+        cchi: &[f64],
+        u: &[f64],
+    ) -> Option<Vec<f32>> {
+        let (dev, lvl) = self.on_gpu()?;
+        dev.cycle_right_hand_side(lvl, b, pc, cchi, u)
+            .map_err(|reason| dev.record_failure(reason))
+            .ok()
+    }
+
+    /// The level's system as the kernels read it.
+    pub(super) fn level_system(&self) -> LevelSystem<'_> {
         let (lo, hi) = (self.tab.range.lo, self.tab.range.hi);
         let row = |t: &crate::bspline::Table1D| -> Vec<f64> {
             (lo..=hi)
@@ -31,14 +75,33 @@ impl Op<'_> {
         };
         let (rank_bits, rank_before) = self.cl.of_node.words();
         let (order, class_ends) = self.relaxation_classes();
+        let parent = &self.tree.levels[self.t as usize - 1];
+        let mut nonzero_start = vec![0u32];
+        let mut nonzero = Vec::new();
+        for list in &self.tab.pnonzero {
+            nonzero.extend(list.iter().map(|&w| u32::from(w)));
+            nonzero_start.push(nonzero.len() as u32);
+        }
+        let (mut brood_start, mut brood_slot, mut brood_coef) = (vec![0u32], vec![], vec![]);
+        for row in self.brood.rows() {
+            for (slot, [coef]) in row {
+                brood_slot.push(u32::from(*slot));
+                brood_coef.extend_from_slice(coef);
+            }
+            brood_start.push(brood_slot.len() as u32);
+        }
         LevelSystem {
             degree: self.degree,
             depth: self.d,
+            nodes: self.level.len(),
             brood_nbrs: &self.level.brood_nbrs,
             brood_key: self.level.brood_keys(),
             lo,
             hi,
             stencil: &self.tab.stencil,
+            brood_start,
+            brood_slot,
+            brood_coef,
             mass: row(&self.tab.mass),
             stiff: row(&self.tab.stiff),
             rank_bits,
@@ -46,6 +109,17 @@ impl Op<'_> {
             omega: &self.cl.omega,
             first: &self.cl.first,
             vals: &self.cl.vals,
+            cl_node: &self.cl.node,
+            brood_parent: &self.level.brood_parent,
+            parent_nbrs: &parent.brood_nbrs,
+            pstencil: &self.tab.pstencil,
+            pvstencil: &self.tab.pvstencil,
+            nonzero_start,
+            nonzero,
+            pmass: row(&self.tab.pmass),
+            pstiff: row(&self.tab.pstiff),
+            pvmass: row(&self.tab.pvmass),
+            pvderiv: row(&self.tab.pvderiv),
             order,
             class_ends,
         }

@@ -16,7 +16,7 @@ fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
 }
 
 /// A fixed pseudo-random vector in [−1, 1).
-fn pseudo_random(n: usize, seed: u64) -> Vec<f64> {
+pub(super) fn pseudo_random(n: usize, seed: u64) -> Vec<f64> {
     let mut s = seed;
     (0..n)
         .map(|_| {
@@ -144,13 +144,13 @@ fn remove_mean_leaves_a_zero_sum_over_the_valid_entries_only() {
 }
 
 /// The system of a small reconstruction: a sphere at depth 6, levels above a base at depth 3.
-struct Fixture {
-    tree: Octree,
-    fem: Basis,
+pub(super) struct Fixture {
+    pub(super) tree: Octree,
+    pub(super) fem: Basis,
     tables: Vec<Option<DepthTables>>,
     clusters: Vec<Clusters>,
     v: Vec<Vec<[f32; 3]>>,
-    base_level: u32,
+    pub(super) base_level: u32,
     singular: bool,
 }
 
@@ -193,7 +193,7 @@ impl Fixture {
         }
     }
 
-    fn problem(&self) -> Problem<'_> {
+    pub(super) fn problem(&self) -> Problem<'_> {
         Problem {
             tree: &self.tree,
             fem: self.fem,
@@ -210,7 +210,7 @@ impl Fixture {
         }
     }
 
-    fn max_level(&self) -> u32 {
+    pub(super) fn max_level(&self) -> u32 {
         self.tree.levels.len() as u32 - 1
     }
 }
@@ -233,7 +233,7 @@ fn sphere(n: usize) -> PointCloud {
 
 /// The fixtures the operator tests run on: both degrees, screened and unscreened (built
 /// once, shared by the tests).
-fn fixtures() -> &'static [(&'static str, Fixture)] {
+pub(super) fn fixtures() -> &'static [(&'static str, Fixture)] {
     static FIXTURES: std::sync::OnceLock<Vec<(&'static str, Fixture)>> = std::sync::OnceLock::new();
     FIXTURES.get_or_init(|| {
         vec![
@@ -551,13 +551,16 @@ fn the_hierarchical_stiffness_is_symmetric() {
     }
 }
 
-/// Issue 17: on a machine with a usable GPU (and a build with the feature `gpu`), the GPU's
-/// sweeps give the CPU's coefficients bit for bit, on every level, from zero and from a
-/// nonzero start, and so does the whole solve, with every cycle shape. Skipped, with a
-/// message, where no GPU can be used.
+/// On a GPU, every level's right-hand sides and sweeps give the CPU's values bit for bit (from
+/// random inputs, with some coarser V zero, and from zero and a nonzero start), and so does the
+/// whole solve, with every solver path: the cascade alone, cascadic cycles and V-cycles.
+/// Skipped, with a message, where no GPU can be used.
 #[cfg(feature = "gpu")]
 #[test]
-fn the_gpu_relaxes_to_the_cpus_bits() {
+fn the_gpu_gives_the_cpus_bits() {
+    use crate::gpu::GpuKernel;
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+    let as_f32 = |v: Vec<f64>| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
     for (what, f) in fixtures() {
         let dev = match Device::open(f.fem.degree.get()) {
             Ok(dev) => dev,
@@ -566,47 +569,88 @@ fn the_gpu_relaxes_to_the_cpus_bits() {
                 return;
             }
         };
-        let p = f.problem();
+        let cpu_p = f.problem();
+        let gpu_p = Problem {
+            gpu: Some(&dev),
+            ..f.problem()
+        };
         for t in f.base_level + 1..=f.max_level() {
-            let op = Op::new(&p, t);
-            let r: Vec<f64> = pseudo_random(op.level.len(), u64::from(t));
-            let start: Vec<f32> = pseudo_random(op.level.len(), 7 + u64::from(t))
-                .iter()
-                .map(|&v| v as f32)
+            let (cpu_op, gpu_op) = (Op::new(&cpu_p, t), Op::new(&gpu_p, t));
+            let seed = u64::from(t);
+            let parents = f.tree.levels[t as usize - 1].len();
+            let tcons = as_f32(pseudo_random(cpu_op.level.len(), 11 + seed));
+            let pc = pseudo_random(parents, 13 + seed);
+            // Every third parent's V is zero, as the boundary coupling skips those.
+            let vc: Vec<[f32; 3]> = pseudo_random(3 * parents, 17 + seed)
+                .chunks(3)
+                .enumerate()
+                .map(|(q, v)| {
+                    if q % 3 == 0 {
+                        [0.0; 3]
+                    } else {
+                        [v[0] as f32, v[1] as f32, v[2] as f32]
+                    }
+                })
                 .collect();
-            for x0 in [vec![0.0f32; op.level.len()], start] {
+            let (r_cpu, b_cpu) = super::cycles::right_hand_sides(&cpu_op, f.fem, &tcons, &pc, &vc);
+            let (r_gpu, b_gpu) = super::cycles::right_hand_sides(&gpu_op, f.fem, &tcons, &pc, &vc);
+            assert_eq!(bits(&r_cpu), bits(&r_gpu), "{what}, level {t}: r");
+            assert_eq!(bits(&b_cpu), bits(&b_gpu), "{what}, level {t}: b");
+            let single = super::right_hand_side(&gpu_op, f.fem, &tcons, &pc, &vc);
+            assert_eq!(
+                bits(&r_cpu),
+                bits(&single),
+                "{what}, level {t}: cascade's r"
+            );
+            let r = as_f32(pseudo_random(cpu_op.level.len(), seed));
+            let start = as_f32(pseudo_random(cpu_op.level.len(), 7 + seed));
+            for x0 in [vec![0.0f32; cpu_op.level.len()], start] {
                 let mut cpu = x0.clone();
-                op.gauss_seidel_cpu(&r, &mut cpu, 3);
+                cpu_op.gauss_seidel_cpu(&r, &mut cpu, 3);
                 let mut gpu = x0;
-                op.gauss_seidel_gpu(&dev, &r, &mut gpu, 3)
-                    .expect("the GPU relaxes the level");
-                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
-                assert_eq!(bits(&cpu), bits(&gpu), "{what}, level {t}");
+                assert!(
+                    gpu_op.gauss_seidel_gpu(&r, &mut gpu, 3),
+                    "{what}, level {t}"
+                );
+                assert_eq!(bits(&cpu), bits(&gpu), "{what}, level {t}: sweeps");
             }
+            assert_eq!(dev.take_failure(), None, "{what}, level {t}");
         }
-        for solver in [crate::Solver::Cascadic, crate::Solver::VCycle] {
+        for (solver, cycles) in [
+            (crate::Solver::Cascadic, 1),
+            (crate::Solver::Cascadic, 2),
+            (crate::Solver::VCycle, 2),
+        ] {
             let cpu = solve(
                 &Problem {
                     solver,
-                    cycles: 2,
+                    cycles,
                     ..f.problem()
                 },
                 f.v.clone(),
             );
+            dev.take_timings();
             let gpu = solve(
                 &Problem {
                     solver,
-                    cycles: 2,
+                    cycles,
                     gpu: Some(&dev),
                     ..f.problem()
                 },
                 f.v.clone(),
             );
             assert_eq!(dev.take_failure(), None, "{what}");
+            let steps = dev.take_timings();
+            for kind in [GpuKernel::RightHandSide, GpuKernel::Relaxation] {
+                assert!(
+                    steps.iter().any(|s| s.kind == kind),
+                    "{what} {solver:?} x {cycles}: no {kind:?} on the GPU"
+                );
+            }
             assert_eq!(
                 solution_bits(&cpu),
                 solution_bits(&gpu),
-                "{what} {solver:?}"
+                "{what} {solver:?} x {cycles}"
             );
         }
         eprintln!("{what}: the GPU ({}) gave the CPU's bits", dev.name());

@@ -1,0 +1,401 @@
+// The solver's kernels on the GPU (ALGORITHM.md §7): the Gauss–Seidel relaxation of one
+// octree depth (§7.1), χ at the depth's screening clusters, and the depth's right-hand sides
+// (§7.2: the constraints, minus what the coarser solution meets, plus the screening targets).
+//
+// One thread handles one node (or one cluster). Every operation mirrors the CPU's code in
+// `solver.rs` and `solver/cycles.rs` in the same order, and the host compiles this file with
+// `--fmad=false`, so that each product and sum rounds as on the CPU: the results are the
+// CPU's to the last bit. The function named in each comment is the one mirrored.
+//
+// The relaxation: a launch covers the nodes of one (block colour, node colour) class of
+// `Op::gauss_seidel_cpu`; nodes of one node colour share no stiffness entry and no screening
+// cluster, so a launch has no races, and launching the classes in the CPU's order reproduces
+// the CPU's sweep exactly.
+//
+// The host prepends `DEGREE`, the window tables `WSLOT` and `WBITS` (octree::WINDOW) and the
+// cluster broods `CBROOD_START`, `CBROOD_SLOT` and `CBROOD_MASK` (solver.rs `cluster_broods`).
+
+#define NONE 0xffffffffu
+#define TAU 0.5
+
+typedef unsigned int u32;
+typedef unsigned long long u64;
+typedef long long i64;
+
+// The node `w` (window index of an offset in [-2,2]^3) away from node `n` (octree.rs
+// `neighbor_in`), or NONE.
+__device__ __forceinline__ u32 neighbour(const u32* __restrict__ nbrs, u32 n, int w) {
+    u32 c = n & 7u;
+    u32 b = nbrs[(u64)(n >> 3) * 27u + WSLOT[c * 125u + w]];
+    return b == NONE ? NONE : b * 8u + WBITS[c * 125u + w];
+}
+
+// The function index of node `n` (octree.rs `func_index` of `Level::key`).
+__device__ __forceinline__ void func_index(const u32* __restrict__ brood_key, int depth, u32 n,
+                                           i64 i[3]) {
+    const u32* key = brood_key + (u64)(n >> 3) * 3u;
+    i64 half = (i64)1 << depth;
+    i[0] = (i64)(2u * key[0] + (n & 1u)) - half;
+    i[1] = (i64)(2u * key[1] + ((n >> 1) & 1u)) - half;
+    i[2] = (i64)(2u * key[2] + ((n >> 2) & 1u)) - half;
+}
+
+// Every index at least `m` from both ends of `lo..=hi` (system.rs `Range::interior`).
+__device__ __forceinline__ bool interior(const i64 i[3], i64 lo, i64 hi, i64 m) {
+    for (int a = 0; a < 3; a++) {
+        if (i[a] - lo < m || hi - i[a] < m) return false;
+    }
+    return true;
+}
+
+__device__ __forceinline__ bool in_range(const i64 i[3], i64 lo, i64 hi) {
+    for (int a = 0; a < 3; a++) {
+        if (i[a] < lo || i[a] > hi) return false;
+    }
+    return true;
+}
+
+// A 1-D table entry for index `i` and offset `off` (bspline.rs `Table1D::get`): rows
+// `lo..=hi`, five offsets each, zero outside.
+__device__ __forceinline__ double table(const double* __restrict__ t, i64 lo, i64 hi, i64 i,
+                                        i64 off) {
+    if (off < -2 || off > 2 || i < lo || i > hi) return 0.0;
+    return t[(i - lo) * 5 + off + 2];
+}
+
+// `∫∇B_i·∇B_{i+o}` from the 1-D tables (system.rs `stiffness_3d`).
+__device__ __forceinline__ double stiffness(const double* __restrict__ mass,
+                                            const double* __restrict__ stiff, i64 lo, i64 hi,
+                                            const i64 i[3], const i64 o[3]) {
+    double m0 = table(mass, lo, hi, i[0], o[0]);
+    double m1 = table(mass, lo, hi, i[1], o[1]);
+    double m2 = table(mass, lo, hi, i[2], o[2]);
+    double k0 = table(stiff, lo, hi, i[0], o[0]);
+    double k1 = table(stiff, lo, hi, i[1], o[1]);
+    double k2 = table(stiff, lo, hi, i[2], o[2]);
+    return k0 * m1 * m2 + m0 * k1 * m2 + m0 * m1 * k2;
+}
+
+// The screening clusters of one depth.
+struct Clusters {
+    const u64* __restrict__ rank_bits;
+    const u32* __restrict__ rank_before;
+    u64 rank_words;
+    const double* __restrict__ omega;
+    const int* __restrict__ first;
+    const float* __restrict__ vals;
+};
+
+// Calls `f(c, B_i(p_c))` for every cluster `c` whose basis value at function `i` (node `n`)
+// is not zero, in the CPU's order (solver.rs `Op::for_each_cluster`): the neighbouring broods
+// of `CBROOD_SLOT` (the host's `cluster_broods`) in order, and in each brood the members of its
+// mask by child position. A brood's eight nodes share one rank word (`NodeRank::brood`).
+template <typename F>
+__device__ __forceinline__ void for_each_cluster(const u32* __restrict__ nbrs, u32 n,
+                                                 const i64 i[3], const Clusters& cl, F f) {
+    u32 pos = n & 7u;
+    const u32* around = nbrs + (u64)(n >> 3) * 27u;
+    for (u32 e = CBROOD_START[pos]; e < CBROOD_START[pos + 1]; e++) {
+        u32 b = around[CBROOD_SLOT[e]];
+        if (b == NONE) continue;
+        u64 k = b >> 3;
+        if (k >= cl.rank_words) continue;
+        u64 word = cl.rank_bits[k];
+        u32 shift = (b & 7u) * 8u;
+        u32 members = (u32)((word >> shift) & 0xffu);
+        if (members == 0) continue;
+        u32 first = cl.rank_before[k] + (u32)__popcll(word & ((1ull << shift) - 1ull));
+        u32 bits = members & (u32)CBROOD_MASK[e];
+        while (bits != 0) {
+            u32 kk = (u32)(__ffs(bits) - 1);
+            u32 c = first + (u32)__popc(members & ((1u << kk) - 1u));
+            // B_i(p_c) (system.rs `Clusters::basis_value`).
+            double bv = 1.0;
+            for (int a = 0; a < 3; a++) {
+                i64 off = i[a] - (i64)cl.first[(u64)c * 3u + a];
+                if (off < 0 || off > DEGREE) {
+                    bv = 0.0;
+                    break;
+                }
+                bv *= (double)cl.vals[(u64)c * 9u + a * 3 + off];
+            }
+            if (bv != 0.0) f(c, bv);
+            bits &= bits - 1u;
+        }
+    }
+}
+
+extern "C" __global__ void relax(
+    // The nodes of this launch: list[first .. first + count].
+    const u32* __restrict__ list, u64 first, u32 count,
+    // The level: 27 neighbouring broods and the key of each brood's parent.
+    const u32* __restrict__ nbrs, const u32* __restrict__ brood_key, int depth,
+    // Function index range, the interior stiffness stencil (125 entries) and the same by
+    // neighbouring brood: per child position entries brood_start[c]..brood_start[c + 1], each a
+    // brood slot and eight coefficients.
+    i64 lo, i64 hi, const double* __restrict__ stencil, const u32* __restrict__ brood_start,
+    const u32* __restrict__ brood_slot, const double* __restrict__ brood_coef,
+    // Same-depth 1-D mass and stiffness tables, rows lo..=hi.
+    const double* __restrict__ mass, const double* __restrict__ stiff,
+    // Clusters: the node rank bitmap, ω, first function index and basis values per axis.
+    const u64* __restrict__ rank_bits, const u32* __restrict__ rank_before, u64 rank_words,
+    const double* __restrict__ omega, const int* __restrict__ cfirst,
+    const float* __restrict__ cvals,
+    // Right-hand side (per node), coefficients (per node), χ at the clusters.
+    const float* __restrict__ rhs, float* x, double* chi) {
+    u32 t = blockIdx.x * blockDim.x + threadIdx.x;
+    if (t >= count) return;
+    u32 n = list[first + t];
+    i64 i[3];
+    func_index(brood_key, depth, n, i);
+    // Op::relax
+    if (!in_range(i, lo, hi)) return;
+    bool inner = interior(i, lo, hi, 3);
+    // Σ_j L_ij x_j over the same-depth window (Op::stiffness_row).
+    double s = 0.0;
+    if (inner) {
+        // By neighbouring brood, eight lanes summed pairwise (system.rs `BroodStencil::row`).
+        // A zero coefficient adds a zero, which changes no lane: it is skipped, and with it
+        // the nodes outside the window, which other threads of the launch may be writing.
+        const u32* around = nbrs + (u64)(n >> 3) * 27u;
+        double acc[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+        u32 pos = n & 7u;
+        for (u32 e = brood_start[pos]; e < brood_start[pos + 1]; e++) {
+            u32 b = around[brood_slot[e]];
+            if (b == NONE) continue;
+            for (int l = 0; l < 8; l++) {
+                double cf = brood_coef[(u64)e * 8u + l];
+                if (cf != 0.0) acc[l] += cf * (double)x[(u64)b * 8u + l];
+            }
+        }
+        s = ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]));
+    } else {
+        for (i64 z = -DEGREE; z <= DEGREE; z++) {
+            for (i64 y = -DEGREE; y <= DEGREE; y++) {
+                for (i64 xx = -DEGREE; xx <= DEGREE; xx++) {
+                    int w = (int)((xx + 2) + 5 * (y + 2) + 25 * (z + 2));
+                    u32 m = neighbour(nbrs, n, w);
+                    if (m == NONE) continue;
+                    double xm = (double)x[m];
+                    if (xm != 0.0) {
+                        i64 o[3] = {xx, y, z};
+                        s += stiffness(mass, stiff, lo, hi, i, o) * xm;
+                    }
+                }
+            }
+        }
+    }
+    double dg;
+    if (inner) {
+        dg = stencil[62];
+    } else {
+        i64 o[3] = {0, 0, 0};
+        dg = stiffness(mass, stiff, lo, hi, i, o);
+    }
+    Clusters cl = {rank_bits, rank_before, rank_words, omega, cfirst, cvals};
+    u32 touched_c[27];
+    double touched_b[27];
+    int k = 0;
+    for_each_cluster(nbrs, n, i, cl, [&](u32 c, double bv) {
+        double wc = omega[c] * bv;
+        s += wc * chi[c];
+        dg += wc * bv;
+        touched_c[k] = c;
+        touched_b[k] = bv;
+        k++;
+    });
+    double dx = ((double)rhs[n] - s) / dg;
+    x[n] = (float)((double)x[n] + dx);
+    for (int j = 0; j < k; j++) {
+        chi[touched_c[j]] = chi[touched_c[j]] + dx * touched_b[j];
+    }
+}
+
+// χ_d at every cluster from the level's coefficients `x` (solver.rs `cluster_value`).
+extern "C" __global__ void cluster_values(
+    u32 count, const u32* __restrict__ cl_node, const int* __restrict__ cfirst,
+    const float* __restrict__ cvals, const u32* __restrict__ nbrs,
+    const u32* __restrict__ brood_key, int depth, const float* __restrict__ x,
+    double* __restrict__ chi) {
+    u32 c = blockIdx.x * blockDim.x + threadIdx.x;
+    if (c >= count) return;
+    u32 node = cl_node[c];
+    i64 own[3];
+    func_index(brood_key, depth, node, own);
+    const int* f = cfirst + (u64)c * 3u;
+    const float* v = cvals + (u64)c * 9u;
+    double s = 0.0;
+    for (int z = 0; z <= DEGREE; z++) {
+        for (int y = 0; y <= DEGREE; y++) {
+            for (int xx = 0; xx <= DEGREE; xx++) {
+                i64 d0 = (i64)f[0] + xx - own[0];
+                i64 d1 = (i64)f[1] + y - own[1];
+                i64 d2 = (i64)f[2] + z - own[2];
+                int w = (int)((d0 + 2) + 5 * (d1 + 2) + 25 * (d2 + 2));
+                u32 m = neighbour(nbrs, node, w);
+                if (m == NONE) continue;
+                s += (double)v[0 * 3 + xx] * (double)v[1 * 3 + y] * (double)v[2 * 3 + z] *
+                     (double)x[m];
+            }
+        }
+    }
+    chi[c] = s;
+}
+
+// The parent depth as the coupling with the coarser levels reads it.
+struct Parent {
+    // Parent node of each brood of the level.
+    const u32* __restrict__ brood_parent;
+    // The parent level's 27 neighbouring broods.
+    const u32* __restrict__ nbrs;
+    // Interior parent stencils by child parity: stiffness [8][125], V [8][3][125].
+    const double* __restrict__ pstencil;
+    const double* __restrict__ pvstencil;
+    // By child parity, the window indices where they are nonzero: nonzero[start[c]..start[c+1]].
+    const u32* __restrict__ nonzero_start;
+    const u32* __restrict__ nonzero;
+    // 1-D tables against the parent's functions, rows lo..=hi, five offsets each.
+    const double* __restrict__ pmass;
+    const double* __restrict__ pstiff;
+    const double* __restrict__ pvmass;
+    const double* __restrict__ pvderiv;
+};
+
+// The coupling of function `i` (node `n`) with the coarser levels, into s[0] (and with `fix`,
+// the coarser V's term also into s[1]): `− Σ_q A_iq pc_q + ∫∇B_i·V_q` over the parent window
+// (solver.rs `Op::coarse_coupling`, with its interior and boundary halves). `sol` and `vec`
+// choose the terms; `vc` holds three floats per parent node.
+__device__ __forceinline__ void coarse_coupling(double s[2], bool sol, bool vec, bool fix, u32 n,
+                                                const i64 i[3], i64 lo, i64 hi,
+                                                const Parent& p, const double* __restrict__ pc,
+                                                const float* __restrict__ vc) {
+    u32 par = p.brood_parent[n >> 3];
+    if (interior(i, lo, hi, 4)) {
+        // Op::add_interior_coupling
+        u32 c = (u32)((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2));
+        const double* ps = p.pstencil + c * 125u;
+        const double* pv = p.pvstencil + c * 375u;
+        for (u32 k = p.nonzero_start[c]; k < p.nonzero_start[c + 1]; k++) {
+            int w = (int)p.nonzero[k];
+            u32 q = neighbour(p.nbrs, par, w);
+            if (q == NONE) continue;
+            if (sol) s[0] -= ps[w] * pc[q];
+            if (vec) {
+                const float* v = vc + (u64)q * 3u;
+                double term = (double)v[0] * pv[w] + (double)v[1] * pv[125 + w] +
+                              (double)v[2] * pv[250 + w];
+                s[0] += term;
+                if (fix) s[1] += term;
+            }
+        }
+        return;
+    }
+    // Op::add_boundary_coupling
+    double pm[3][5], pk[3][5], vm[3][5], vd[3][5];
+    for (int a = 0; a < 3; a++) {
+        for (int o = 0; o < 5; o++) {
+            pm[a][o] = table(p.pmass, lo, hi, i[a], o - 2);
+            pk[a][o] = table(p.pstiff, lo, hi, i[a], o - 2);
+            vm[a][o] = table(p.pvmass, lo, hi, i[a], o - 2);
+            vd[a][o] = table(p.pvderiv, lo, hi, i[a], o - 2);
+        }
+    }
+    for (int w = 0; w < 125; w++) {
+        int ox = w % 5, oy = (w / 5) % 5, oz = w / 25;
+        u32 q = neighbour(p.nbrs, par, w);
+        if (q == NONE) continue;
+        double xq = sol ? pc[q] : 0.0;
+        if (xq != 0.0) {
+            double k = pk[0][ox] * pm[1][oy] * pm[2][oz] + pm[0][ox] * pk[1][oy] * pm[2][oz] +
+                       pm[0][ox] * pm[1][oy] * pk[2][oz];
+            s[0] -= k * xq;
+        }
+        if (vec) {
+            const float* vf = vc + (u64)q * 3u;
+            if (vf[0] != 0.0f || vf[1] != 0.0f || vf[2] != 0.0f) {
+                double v0 = (double)vf[0], v1 = (double)vf[1], v2 = (double)vf[2];
+                double term = v0 * vd[0][ox] * vm[1][oy] * vm[2][oz] +
+                              v1 * vm[0][ox] * vd[1][oy] * vm[2][oz] +
+                              v2 * vm[0][ox] * vm[1][oy] * vd[2][oz];
+                s[0] += term;
+                if (fix) s[1] += term;
+            }
+        }
+    }
+}
+
+// The right-hand sides of the cascade's pass over one depth (cycles.rs `right_hand_sides`;
+// its first value is solver.rs `right_hand_side`'s): `r` against which the depth is relaxed
+// (constraints `tcons`, plus the coarser V `vc`, minus what the coarser solution `pc` meets,
+// plus the screening targets `Σ_c ω_c B_i(p_c) (τ − χ_{<d}(p_c))` with `cchi` = χ_{<d}), and
+// when `b` is not null its fixed part, which further cycles keep.
+extern "C" __global__ void first_right_hand_sides(
+    u32 count, const u32* __restrict__ nbrs, const u32* __restrict__ brood_key, int depth,
+    i64 lo, i64 hi, const u64* __restrict__ rank_bits, const u32* __restrict__ rank_before,
+    u64 rank_words, const double* __restrict__ omega, const int* __restrict__ cfirst,
+    const float* __restrict__ cvals, const u32* __restrict__ brood_parent,
+    const u32* __restrict__ pnbrs, const double* __restrict__ pstencil,
+    const double* __restrict__ pvstencil, const u32* __restrict__ nonzero_start,
+    const u32* __restrict__ nonzero, const double* __restrict__ pmass,
+    const double* __restrict__ pstiff, const double* __restrict__ pvmass,
+    const double* __restrict__ pvderiv, const float* __restrict__ tcons,
+    const double* __restrict__ pc, const float* __restrict__ vc,
+    const double* __restrict__ cchi, float* __restrict__ r, float* __restrict__ b) {
+    u32 n = blockIdx.x * blockDim.x + threadIdx.x;
+    if (n >= count) return;
+    i64 i[3];
+    func_index(brood_key, depth, n, i);
+    if (!in_range(i, lo, hi)) {
+        r[n] = 0.0f;
+        if (b) b[n] = 0.0f;
+        return;
+    }
+    Parent p = {brood_parent, pnbrs, pstencil, pvstencil, nonzero_start, nonzero,
+                pmass,        pstiff, pvmass,   pvderiv};
+    Clusters cl = {rank_bits, rank_before, rank_words, omega, cfirst, cvals};
+    double t = (double)tcons[n];
+    double s[2] = {t, t};
+    coarse_coupling(s, true, true, true, n, i, lo, hi, p, pc, vc);
+    double rr = s[0], bb = s[1];
+    for_each_cluster(nbrs, n, i, cl, [&](u32 c, double bv) {
+        rr += omega[c] * bv * (TAU - cchi[c]);
+        bb += omega[c] * bv * TAU;
+    });
+    r[n] = (float)rr;
+    if (b) b[n] = (float)bb;
+}
+
+// The right-hand side a further cycle relaxes a depth against (cycles.rs
+// `Cycles::level_right_hand_side`): the fixed part `b`, minus what the coarser solution `pc`
+// meets (with χ_{<d} = `cchi` at the clusters), minus the finer depths' coupling `u` (when not
+// null).
+extern "C" __global__ void cycle_right_hand_side(
+    u32 count, const u32* __restrict__ nbrs, const u32* __restrict__ brood_key, int depth,
+    i64 lo, i64 hi, const u64* __restrict__ rank_bits, const u32* __restrict__ rank_before,
+    u64 rank_words, const double* __restrict__ omega, const int* __restrict__ cfirst,
+    const float* __restrict__ cvals, const u32* __restrict__ brood_parent,
+    const u32* __restrict__ pnbrs, const double* __restrict__ pstencil,
+    const double* __restrict__ pvstencil, const u32* __restrict__ nonzero_start,
+    const u32* __restrict__ nonzero, const double* __restrict__ pmass,
+    const double* __restrict__ pstiff, const double* __restrict__ pvmass,
+    const double* __restrict__ pvderiv, const float* __restrict__ b,
+    const double* __restrict__ pc, const double* __restrict__ cchi,
+    const double* __restrict__ u, float* __restrict__ r) {
+    u32 n = blockIdx.x * blockDim.x + threadIdx.x;
+    if (n >= count) return;
+    i64 i[3];
+    func_index(brood_key, depth, n, i);
+    if (!in_range(i, lo, hi)) {
+        r[n] = 0.0f;
+        return;
+    }
+    Parent p = {brood_parent, pnbrs, pstencil, pvstencil, nonzero_start, nonzero,
+                pmass,        pstiff, pvmass,   pvderiv};
+    Clusters cl = {rank_bits, rank_before, rank_words, omega, cfirst, cvals};
+    double s[2] = {(double)b[n], 0.0};
+    coarse_coupling(s, true, false, false, n, i, lo, hi, p, pc, nullptr);
+    double rr = s[0];
+    for_each_cluster(nbrs, n, i, cl, [&](u32 c, double bv) { rr -= omega[c] * bv * cchi[c]; });
+    if (u) rr -= u[n];
+    r[n] = (float)rr;
+}
