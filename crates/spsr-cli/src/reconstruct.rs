@@ -221,10 +221,10 @@ pub struct ReconstructArgs {
     #[arg(long, value_name = "N", allow_negative_numbers = true)]
     pub cycles: Option<u32>,
 
-    /// Relax the solver's depths on an NVIDIA GPU, with the same mesh bit for bit: `--gpu`
-    /// (or `--gpu on`) fails with exit code 3 where no GPU can be used, `--gpu auto` falls
-    /// back to the CPU with a note. Needs a build with the cargo feature `gpu` and the CUDA
-    /// driver and NVRTC at run time. spsr's own
+    /// Solve the depths above the base (right-hand sides and relaxations) on an NVIDIA GPU,
+    /// with the same mesh bit for bit: `--gpu` (or `--gpu on`) fails with exit code 3 where no
+    /// GPU can be used, `--gpu auto` falls back to the CPU with a note. Needs a build with the
+    /// cargo feature `gpu` and the CUDA driver and NVRTC at run time. spsr's own
     #[arg(
         long,
         value_enum,

@@ -97,7 +97,7 @@ pub struct Params {
     /// bounding cube ([`crate::Reconstruction::grid`]; negative inside). Default none.
     #[serde(default)]
     pub grid_res: Option<u32>,
-    /// Where the solver relaxes the depths above the base: on the CPU (default), on an NVIDIA
+    /// Where the solver solves the depths above the base: on the CPU (default), on an NVIDIA
     /// GPU (an error where none can be used), or on a GPU where one can be used (issue 17;
     /// the build needs the cargo feature `gpu`). The mesh is the same bit for bit.
     #[serde(default)]

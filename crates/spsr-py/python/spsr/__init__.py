@@ -715,7 +715,8 @@ def reconstruct(
         (PoissonRecon's cascade, already as accurate); ``cycles=1, iters=8`` is
         PoissonRecon's solve.
     gpu : bool or "auto", default False
-        Relax the solver's depths on an NVIDIA GPU; the mesh is the same bit for bit. True
+        Solve the depths above the base (right-hand sides and relaxations) on an NVIDIA
+        GPU; the mesh is the same bit for bit. True
         raises ``RuntimeError`` where no GPU can be used (a wheel built without the cargo
         feature ``gpu``, no driver, no NVRTC); ``"auto"`` falls back to the CPU with a
         ``RuntimeWarning``.
