@@ -130,6 +130,22 @@ pub(crate) fn read_e57(
     file_len: u64,
     need_normals: bool,
 ) -> Result<PointCloud> {
+    super::whole_cloud(|emit| {
+        read_e57_chunks(path, reader, file_len, need_normals, usize::MAX, emit)
+    })
+}
+
+/// [`read_e57`] handed to `emit` in clouds of at most `chunk` points, in file order, each
+/// with its scan origins counted from its own first point (the origin in force at its start
+/// first). With an unbounded `chunk`, one cloud: the whole file.
+pub(crate) fn read_e57_chunks(
+    path: &Path,
+    reader: BufReader<File>,
+    file_len: u64,
+    need_normals: bool,
+    chunk: usize,
+    emit: &mut dyn FnMut(PointCloud) -> Result<()>,
+) -> Result<()> {
     let mut e57 = E57Reader::new(reader).map_err(|e| e57_err(path, e))?;
     let scans = e57.pointclouds();
     let mut attributes: Vec<Attribute> = Vec::new();
@@ -146,34 +162,32 @@ pub(crate) fn read_e57(
         });
     }
     let total: u64 = scans.iter().map(|pc| pc.records).sum();
-    let cap = total.min(file_len).min(usize::MAX as u64) as usize;
-    let mut positions: Vec<[f64; 3]> = Vec::with_capacity(cap);
-    let mut normals: Vec<[f64; 3]> = Vec::with_capacity(if has_normals { cap } else { 0 });
-    for a in &mut attributes {
+    let cap = total.min(file_len).min(chunk as u64).min(usize::MAX as u64) as usize;
+    let mut out = Columns {
+        cloud: PointCloud {
+            positions: Vec::with_capacity(cap),
+            normals: Vec::with_capacity(if has_normals { cap } else { 0 }),
+            attributes,
+            scan_origins: Vec::with_capacity(scans.len().min(cap.max(1))),
+        },
+        has_normals,
+        chunk,
+        cap,
+        origin: [0.0; 3],
+        carried: false,
+        emitted: false,
+        emit,
+    };
+    for a in &mut out.cloud.attributes {
         a.data.reserve(cap);
     }
-    let mut scan_origins = Vec::with_capacity(scans.len());
     for (s, (pc, roles)) in scans.iter().zip(&roles).enumerate() {
-        scan_origins.push(ScanOrigin {
-            first_point: positions.len(),
-            origin: pc.transform.as_ref().map_or([0.0; 3], |t| {
-                [t.translation.x, t.translation.y, t.translation.z]
-            }),
-        });
-        let mut out = Columns {
-            positions: &mut positions,
-            normals: &mut normals,
-            attributes: &mut attributes,
-            has_normals,
-        };
+        out.start_scan(pc.transform.as_ref().map_or([0.0; 3], |t| {
+            [t.translation.x, t.translation.y, t.translation.z]
+        }));
         read_scan(path, &mut e57, s, pc, roles, &mut out)?;
     }
-    Ok(PointCloud {
-        positions,
-        normals,
-        attributes,
-        scan_origins,
-    })
+    out.finish()
 }
 
 /// The role of each record of scan `s`, adding its attributes to `attributes` (in order of
@@ -250,12 +264,76 @@ fn scan_roles(
     Ok((r, axes[0]))
 }
 
-/// Where the points of one scan go.
-struct Columns<'a> {
-    positions: &'a mut Vec<[f64; 3]>,
-    normals: &'a mut Vec<[f64; 3]>,
-    attributes: &'a mut [Attribute],
+/// Where the points go: the chunk being filled, handed to `emit` when it holds `chunk`
+/// points.
+struct Columns<'e> {
+    cloud: PointCloud,
     has_normals: bool,
+    chunk: usize,
+    /// Points reserved per chunk.
+    cap: usize,
+    /// The scan origin in force (the scan being read).
+    origin: [f64; 3],
+    /// Whether the chunk's only scan origin is the one carried over from the previous chunk.
+    carried: bool,
+    emitted: bool,
+    emit: &'e mut dyn FnMut(PointCloud) -> Result<()>,
+}
+
+impl Columns<'_> {
+    /// A scan begins at the next point, seen from `origin`.
+    fn start_scan(&mut self, origin: [f64; 3]) {
+        self.origin = origin;
+        let first_point = self.cloud.positions.len();
+        if self.carried && first_point == 0 {
+            // The origin carried into this chunk is replaced before it covers any point.
+            self.cloud.scan_origins.clear();
+        }
+        self.carried = false;
+        self.cloud.scan_origins.push(ScanOrigin {
+            first_point,
+            origin,
+        });
+    }
+
+    /// After each point: hands the chunk over when it is full.
+    fn point_done(&mut self) -> Result<()> {
+        if self.cloud.positions.len() < self.chunk {
+            return Ok(());
+        }
+        let next = PointCloud {
+            positions: Vec::with_capacity(self.cap),
+            normals: Vec::with_capacity(if self.has_normals { self.cap } else { 0 }),
+            attributes: self
+                .cloud
+                .attributes
+                .iter()
+                .map(|a| {
+                    let mut data = AttributeData::new(a.data.scalar_type());
+                    data.reserve(self.cap);
+                    Attribute::new(a.name.clone(), data)
+                })
+                .collect(),
+            scan_origins: vec![ScanOrigin {
+                first_point: 0,
+                origin: self.origin,
+            }],
+        };
+        self.carried = true;
+        self.emitted = true;
+        (self.emit)(std::mem::replace(&mut self.cloud, next))
+    }
+
+    /// Hands over the last chunk (also an empty one when nothing was handed over yet).
+    fn finish(mut self) -> Result<()> {
+        if self.cloud.positions.is_empty() && self.emitted {
+            return Ok(());
+        }
+        if self.carried && self.cloud.positions.is_empty() {
+            self.cloud.scan_origins.clear();
+        }
+        (self.emit)(self.cloud)
+    }
 }
 
 /// Reads the points of scan `s` into `out`, in the file's frame.
@@ -267,7 +345,7 @@ fn read_scan(
     roles: &[Role],
     out: &mut Columns,
 ) -> Result<()> {
-    let mut vals = vec![0.0f64; out.attributes.len()];
+    let mut vals = vec![0.0f64; out.cloud.attributes.len()];
     let rot = pc.transform.as_ref().map(rotation);
     let shift = pc.transform.as_ref().map_or([0.0; 3], |t| {
         [t.translation.x, t.translation.y, t.translation.z]
@@ -329,10 +407,11 @@ fn read_scan(
             p = apply(rot, p);
             normal = apply(rot, normal);
         }
-        out.positions
+        out.cloud
+            .positions
             .push([p[0] + shift[0], p[1] + shift[1], p[2] + shift[2]]);
         if out.has_normals {
-            out.normals.push(normal);
+            out.cloud.normals.push(normal);
         }
         for role in roles {
             if let Role::Attr {
@@ -346,9 +425,10 @@ fn read_scan(
                 }
             }
         }
-        for (a, &v) in out.attributes.iter_mut().zip(&vals) {
+        for (a, &v) in out.cloud.attributes.iter_mut().zip(&vals) {
             a.data.push_f64(v);
         }
+        out.point_done()?;
     }
     Ok(())
 }

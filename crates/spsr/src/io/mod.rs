@@ -416,9 +416,10 @@ pub(crate) fn whole_cloud(
 
 /// Reads an oriented point cloud as [`read_points`] does, but hands it to `emit` in clouds of
 /// at most `chunk` points, in file order, so that a file larger than memory can be passed
-/// over: PLY, text and LAS/LAZ are read chunk by chunk (LAS/LAZ in whole decoder chunks of
-/// 65,536 points, so its chunks may be up to that much longer); E57, PCD and mesh files are
-/// read whole and handed over as one cloud. An empty file gives one empty cloud. Each chunk's
+/// over: PLY, text, LAS/LAZ, E57 and PCD are read chunk by chunk (LAS/LAZ in whole decoder
+/// chunks of 65,536 points, so its chunks may be up to that much longer); a PCD
+/// `binary_compressed` body (its fields stored one after another) and mesh files are read
+/// whole and handed over as one cloud. An empty file gives one empty cloud. Each chunk's
 /// scan origins count its points from its own first (the origin in force at its start comes
 /// first). Whether a text file's colours are bytes is decided per chunk. Slab runs read their
 /// inputs so.
@@ -441,6 +442,8 @@ pub fn read_points_chunks(
         CloudFormat::Ply => read_ply::read_cloud_chunks(path, reader, len, true, chunk, emit),
         CloudFormat::Text => text::read_text_chunks(reader, path, true, chunk, emit),
         CloudFormat::Las => las_file::read_las_chunks(path, reader, len, true, chunk, emit),
+        CloudFormat::E57 => e57_file::read_e57_chunks(path, reader, len, true, chunk, emit),
+        CloudFormat::Pcd => pcd::read_pcd_chunks(path, reader, len, true, chunk, emit),
         _ => emit(read_points(path)?),
     }
 }

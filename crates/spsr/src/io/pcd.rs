@@ -145,16 +145,25 @@ struct Header {
     lines: usize,
 }
 
-/// The output being filled; positions and normals are indexed, attributes pushed in order.
-struct Sink {
+/// The output being filled: positions and normals are indexed (within the chunk), attributes
+/// pushed in order. Streamed bodies hand it to `emit` each time it holds `chunk` points.
+struct Sink<'e> {
     positions: Vec<[f64; 3]>,
     normals: Vec<[f64; 3]>,
     attributes: Vec<Attribute>,
+    has_normals: bool,
+    chunk: usize,
+    /// Points reserved per chunk.
+    cap: usize,
+    /// Each chunk's scan origins (the viewpoint, if any).
+    scan_origins: Vec<ScanOrigin>,
+    emitted: bool,
+    emit: &'e mut dyn FnMut(PointCloud) -> Result<()>,
 }
 
-impl Sink {
-    /// Stores element `k` of field `f` of point `i`, given as `f64` (packed colours as their
-    /// bits).
+impl Sink<'_> {
+    /// Stores element `k` of field `f` of point `i` (of the chunk), given as `f64` (packed
+    /// colours as their bits).
     #[inline]
     fn put(&mut self, f: &Field, i: usize, k: usize, v: f64) {
         match f.role {
@@ -172,6 +181,57 @@ impl Sink {
             Role::Attr(first) => self.attributes[first + k].data.push_f64(v),
             Role::Skip => {}
         }
+    }
+
+    /// Starts a point; returns its index in the chunk.
+    fn push_point(&mut self) -> usize {
+        self.positions.push([0.0; 3]);
+        if self.has_normals {
+            self.normals.push([0.0; 3]);
+        }
+        self.positions.len() - 1
+    }
+
+    /// The chunk so far, leaving an empty one with the same attributes.
+    fn take(&mut self) -> PointCloud {
+        let cap = self.cap;
+        let attributes = self
+            .attributes
+            .iter()
+            .map(|a| {
+                let mut data = AttributeData::new(a.data.scalar_type());
+                data.reserve(cap);
+                Attribute::new(a.name.clone(), data)
+            })
+            .collect();
+        PointCloud {
+            positions: std::mem::replace(&mut self.positions, Vec::with_capacity(cap)),
+            normals: std::mem::replace(
+                &mut self.normals,
+                Vec::with_capacity(if self.has_normals { cap } else { 0 }),
+            ),
+            attributes: std::mem::replace(&mut self.attributes, attributes),
+            scan_origins: self.scan_origins.clone(),
+        }
+    }
+
+    /// After each point of a streamed body: hands the chunk over when it is full.
+    fn point_done(&mut self) -> Result<()> {
+        if self.positions.len() < self.chunk {
+            return Ok(());
+        }
+        self.emitted = true;
+        let full = self.take();
+        (self.emit)(full)
+    }
+
+    /// Hands over the last chunk (also an empty one when nothing was handed over yet).
+    fn finish(mut self) -> Result<()> {
+        if self.positions.is_empty() && self.emitted {
+            return Ok(());
+        }
+        let last = self.take();
+        (self.emit)(last)
     }
 }
 
@@ -508,10 +568,27 @@ fn make_attributes(fields: &mut [Field], cap: usize) -> Vec<Attribute> {
 
 pub(crate) fn read_pcd<R: BufRead>(
     path: &Path,
-    mut reader: R,
+    reader: R,
     file_len: u64,
     need_normals: bool,
 ) -> Result<PointCloud> {
+    super::whole_cloud(|emit| {
+        read_pcd_chunks(path, reader, file_len, need_normals, usize::MAX, emit)
+    })
+}
+
+/// [`read_pcd`] handed to `emit` in clouds of at most `chunk` points, in file order; each
+/// carries the viewpoint's scan origin, if any. A `binary_compressed` body stores the fields
+/// one after another, so its points are complete only at its end: it is handed over as one
+/// cloud. With an unbounded `chunk`, one cloud: the whole file.
+pub(crate) fn read_pcd_chunks<R: BufRead>(
+    path: &Path,
+    mut reader: R,
+    file_len: u64,
+    need_normals: bool,
+    chunk: usize,
+    emit: &mut dyn FnMut(PointCloud) -> Result<()>,
+) -> Result<()> {
     let (mut h, header_len) = parse_header(path, &mut reader)?;
     if need_normals && !h.has_normals {
         return Err(Error::MissingNormals {
@@ -568,18 +645,12 @@ pub(crate) fn read_pcd<R: BufRead>(
             n + 1
         }
     };
-    let cap = n.min(fits).min(usize::MAX as u64) as usize;
-    let mut sink = Sink {
-        positions: Vec::with_capacity(cap),
-        normals: Vec::with_capacity(if h.has_normals { cap } else { 0 }),
-        attributes: make_attributes(&mut h.fields, cap),
+    let whole = n.min(fits).min(usize::MAX as u64) as usize;
+    let cap = if compressed.is_some() {
+        whole
+    } else {
+        whole.min(chunk)
     };
-    match (h.data, compressed) {
-        (Data::Ascii, _) => read_ascii(path, reader, &h, &mut sink)?,
-        (Data::Binary, _) => read_binary(path, reader, &h, record, &mut sink)?,
-        (_, Some(csize)) => read_compressed(path, reader.take(csize), &h, &mut sink)?,
-        (Data::Compressed, None) => unreachable!("sizes are read above"),
-    }
     let scan_origins = match h.viewpoint {
         Some(v) if v != [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0] => vec![ScanOrigin {
             first_point: 0,
@@ -587,12 +658,24 @@ pub(crate) fn read_pcd<R: BufRead>(
         }],
         _ => Vec::new(),
     };
-    Ok(PointCloud {
-        positions: sink.positions,
-        normals: sink.normals,
-        attributes: sink.attributes,
+    let mut sink = Sink {
+        positions: Vec::with_capacity(cap),
+        normals: Vec::with_capacity(if h.has_normals { cap } else { 0 }),
+        attributes: make_attributes(&mut h.fields, cap),
+        has_normals: h.has_normals,
+        chunk,
+        cap,
         scan_origins,
-    })
+        emitted: false,
+        emit,
+    };
+    match (h.data, compressed) {
+        (Data::Ascii, _) => read_ascii(path, reader, &h, &mut sink)?,
+        (Data::Binary, _) => read_binary(path, reader, &h, record, &mut sink)?,
+        (_, Some(csize)) => read_compressed(path, reader.take(csize), &h, &mut sink)?,
+        (Data::Compressed, None) => unreachable!("sizes are read above"),
+    }
+    sink.finish()
 }
 
 fn body_err(path: &Path, e: std::io::Error, what: &str) -> Error {
@@ -602,13 +685,6 @@ fn body_err(path: &Path, e: std::io::Error, what: &str) -> Error {
         parse_err(path, format!("the compressed body is corrupt: {e}"))
     } else {
         io_err(path, e)
-    }
-}
-
-fn push_point(sink: &mut Sink, has_normals: bool) {
-    sink.positions.push([0.0; 3]);
-    if has_normals {
-        sink.normals.push([0.0; 3]);
     }
 }
 
@@ -637,7 +713,7 @@ fn read_ascii<R: BufRead>(path: &Path, mut reader: R, h: &Header, sink: &mut Sin
                 break t;
             }
         };
-        push_point(sink, h.has_normals);
+        let at = sink.push_point();
         let mut tok = text.split_ascii_whitespace();
         for f in &h.fields {
             let packed = matches!(f.role, Role::Color { .. });
@@ -658,7 +734,7 @@ fn read_ascii<R: BufRead>(path: &Path, mut reader: R, h: &Header, sink: &mut Sin
                         ),
                     )
                 })?;
-                sink.put(f, i, k, v);
+                sink.put(f, at, k, v);
             }
         }
         if let Some(t) = tok.next() {
@@ -670,6 +746,7 @@ fn read_ascii<R: BufRead>(path: &Path, mut reader: R, h: &Header, sink: &mut Sin
                 ),
             ));
         }
+        sink.point_done()?;
     }
     Ok(())
 }
@@ -705,16 +782,16 @@ fn read_binary<R: BufRead>(
                 &format!("points {done} to {} (0-based) of {n}", done + m - 1),
             )
         })?;
-        for (r, rec) in bytes.chunks_exact(record).enumerate() {
-            let i = done + r;
-            push_point(sink, h.has_normals);
+        for rec in bytes.chunks_exact(record) {
+            let at = sink.push_point();
             let mut off = 0;
             for f in &h.fields {
                 for k in 0..f.count {
-                    sink.put(f, i, k, value(f, &rec[off..]));
+                    sink.put(f, at, k, value(f, &rec[off..]));
                     off += f.ty.size;
                 }
             }
+            sink.point_done()?;
         }
         done += m;
     }

@@ -1329,3 +1329,69 @@ fn write_fuzz_seeds() {
         }
     }
 }
+
+/// E57 and PCD are streamed too: chunks of the asked size in file order, whose concatenation
+/// is the whole file, each with the scan origin in force at its start (E57: per scan; PCD: the
+/// viewpoint). A `binary_compressed` PCD body is one chunk.
+#[test]
+fn e57_and_pcd_are_read_in_chunks() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("scans.e57");
+    write_e57(&p);
+    let whole = read_points(&p).unwrap();
+    let origins = |chunk: usize| {
+        let mut out = Vec::new();
+        read_points_chunks(&p, chunk, &mut |c| {
+            out.push(
+                c.scan_origins
+                    .iter()
+                    .map(|o| (o.first_point, o.origin[0]))
+                    .collect::<Vec<_>>(),
+            );
+            Ok(())
+        })
+        .unwrap();
+        out
+    };
+    let (sizes, joined) = chunks(&p, 3);
+    assert_eq!(sizes, [3, 3, 2]);
+    assert_eq!(joined.positions, whole.positions);
+    assert_eq!(joined.normals, whole.normals);
+    assert_eq!(joined.attributes, whole.attributes);
+    assert_eq!(
+        origins(3),
+        [vec![(0, 10.0)], vec![(0, 10.0), (2, 0.0)], vec![(0, 0.0)]]
+    );
+    // A chunk that ends with a scan: the next starts with the next scan's origin only.
+    assert_eq!(chunks(&p, 5).0, [5, 3]);
+    assert_eq!(origins(5), [vec![(0, 10.0)], vec![(0, 0.0)]]);
+    let (sizes, one) = chunks(&p, 100);
+    assert_eq!(sizes, [8]);
+    same_cloud(&one, &whole);
+
+    for (name, kind, expect) in [
+        ("a.pcd", pcd_rs::DataKind::Ascii, vec![400, 400, 200]),
+        ("b.pcd", pcd_rs::DataKind::Binary, vec![400, 400, 200]),
+        ("c.pcd", pcd_rs::DataKind::BinaryCompressed, vec![1000]),
+    ] {
+        let p = dir.path().join(name);
+        write_pcd(&p, kind, 1000);
+        let whole = read_points(&p).unwrap();
+        let (sizes, joined) = chunks(&p, 400);
+        assert_eq!(sizes, expect, "{name}");
+        let same = |x: f64, y: f64| x == y || (x.is_nan() && y.is_nan());
+        for (a, b) in joined.normals.iter().zip(&whole.normals) {
+            assert!((0..3).all(|k| same(a[k], b[k])), "{name}");
+        }
+        assert_eq!(joined.positions, whole.positions, "{name}");
+        assert_eq!(joined.attributes, whole.attributes, "{name}");
+        let mut seen = 0;
+        read_points_chunks(&p, 400, &mut |c| {
+            assert_eq!(c.scan_origins, whole.scan_origins, "{name}");
+            seen += 1;
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(seen, expect.len());
+    }
+}
