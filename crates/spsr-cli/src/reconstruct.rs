@@ -595,10 +595,11 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
 
     if let Slabs::Count(k) = args.slabs {
         if slabs::streams(args) {
-            return slabs::run_streamed(args, &params, k, trim_params.is_some(), start);
+            return slabs::run_streamed(args, &params, k, start);
         }
-        let (result, reading, progress) = slabs::run(args, &params, k, trim_params.is_some())?;
-        return finish(args, result, None, None, reading, start, progress);
+        let (result, trimmed, reading, progress) =
+            slabs::run(args, &params, k, trim_params.as_ref())?;
+        return finish(args, result, trimmed, None, reading, start, progress);
     }
 
     // Reading, the library's stages, writing; estimating normals is added when it happens.
@@ -671,9 +672,9 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
                     spsr::gib(short.limit)
                 );
                 if slabs::streams(args) {
-                    return slabs::run_streamed(args, &params, k, false, start);
+                    return slabs::run_streamed(args, &params, k, start);
                 }
-                let (result, more, progress) = slabs::run(args, &params, k, false)?;
+                let (result, _, more, progress) = slabs::run(args, &params, k, None)?;
                 return finish(
                     args,
                     result,
