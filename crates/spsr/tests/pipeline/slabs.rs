@@ -415,12 +415,11 @@ fn slab_density_is_the_in_core_density() {
                 whole.triangles.len(),
                 "depth {depth}, {k} slabs"
             );
-            // The vertices lie within 1e-4 cells of the in-core ones; the density moves with
-            // them by as little, except where a vertex crosses a cell face of the estimator.
-            assert!(
-                off * 1000 <= out.vertices.len(),
-                "depth {depth}, {k} slabs: {off} differ"
-            );
+            // The vertices lie within 1e-4 cells of the in-core ones and the density moves
+            // with them by as little (at most 8e-5 here). Slabs reading their own estimator
+            // at every depth are up to 5e-3 off at depth 8 (4 vertices over 1e-3 with 5
+            // slabs): the coarse depths must be the whole cloud's.
+            assert_eq!(off, 0, "depth {depth}, {k} slabs: {off} vertices differ");
         }
     }
 }
