@@ -11,12 +11,12 @@
 //! | [`prepare`] | coordinator | the input files | `job.json`, the column files |
 //! | [`noise`] (adaptive noise only) | slab task | columns | `slab-s.noise`, `slab-s.measured` |
 //! | [`smoothing`] | coordinator | every `slab-s.noise` | the smoothing depth in `job.json` |
-//! | [`coarse`] | slab task | columns (or `slab-s.measured`) | `slab-s.samples`, `slab-s.coarse`, `slab-s.constraints` |
-//! | [`solve_coarse`] | coordinator | every `slab-s.coarse` | `slab-s.coarse-solution`; deletes the columns and `.measured` |
+//! | [`coarse`] | slab task | columns (or `slab-s.measured`) | `slab-s.samples`, `slab-s.coarse` (with the density, its density cells), `slab-s.constraints` |
+//! | [`solve_coarse`] | coordinator | every `slab-s.coarse` | `slab-s.coarse-solution`, `density.coarse` (with the density); deletes the columns and `.measured` |
 //! | [`solve`] | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.constraints` | `slab-s.solution`, `slab-s.solved` |
 //! | [`iso`] | coordinator | every `slab-s.solved` | the iso-value in `job.json` |
-//! | [`extract`] | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.solution`, the neighbours' `.solved` | `slab-s.part` |
-//! | [`finish`] | coordinator | every `slab-s.part` | the output mesh |
+//! | [`extract`] | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.solution`, the neighbours' `.solved`, `density.coarse` | `slab-s.part` |
+//! | [`finish`] | coordinator | every `slab-s.part` | the output mesh (trimmed in memory when the job trims) |
 //!
 //! The tasks are pure functions of their inputs and write every file atomically (to a
 //! temporary name, renamed when complete), so a task that dies half-way leaves nothing behind

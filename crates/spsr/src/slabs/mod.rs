@@ -20,9 +20,15 @@
 //! The phases are in [`phases`]; they exchange plain data and files in a work folder, so that
 //! they can run as separate tasks.
 //!
-//! Not yet in slab mode (refused with a message): per-vertex density and trimming, attributes,
-//! weights from a property. The orientation repair (stage 2a) and the far-outlier check are
-//! whole-cloud steps and are skipped.
+//! Per-vertex density is the in-core estimator's at each vertex: a slab's own estimator at the
+//! depths its padding covers, the whole cloud's (summed by the coordinator from the slabs'
+//! cells, `phases::density_depth`) at the coarser ones. Trimming assembles the mesh in memory
+//! and trims it as in one piece ([`reconstruct_and_trim`]): its threshold is a quantile of the
+//! whole mesh's densities and its islands and holes cross slabs.
+//!
+//! Not yet in slab mode (refused with a message): attributes, weights from a property. The
+//! orientation repair (stage 2a) and the far-outlier check are whole-cloud steps and are
+//! skipped.
 
 mod codec;
 pub mod job;
@@ -88,8 +94,8 @@ pub struct SlabOptions {
     pub work_dir: PathBuf,
 }
 
-/// The names [`reconstruct`] (or, with `streamed`, [`reconstruct_into`]) reports to its
-/// progress callback, in order.
+/// The names [`reconstruct`] (or, with `streamed`, [`reconstruct_into`]; with `trimming`,
+/// [`reconstruct_and_trim`]) reports to its progress callback, in order.
 pub fn stage_plan(params: &Params, streamed: bool, trimming: bool) -> Vec<String> {
     let adaptive = params.noise == Noise::Adaptive;
     let in_memory = !streamed;
