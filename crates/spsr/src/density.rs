@@ -145,6 +145,10 @@ pub struct Density {
     rho: Vec<FxHashMap<u64, f64>>,
 }
 
+/// An occupied cell of the estimator at some depth: the cell, `Σ w` and `Σ w·p` of the
+/// samples in it.
+pub type Cell = ([i64; 3], f64, [f64; 3]);
+
 /// Where a sample sits in the hierarchy: its fractional depth and its area weight.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DepthAndArea {
@@ -179,11 +183,7 @@ impl Density {
     /// The estimator's occupied cells at unit depth `depth` (at most the kernel depth):
     /// the cell, `Σ w` and `Σ w·p`, in Morton order, summed exactly as [`Density::build`]
     /// sums them (the samples into the kernel depth's cells, then child by child).
-    pub(crate) fn cells_at(
-        samples: &[Sample],
-        kernel_depth: u32,
-        depth: u32,
-    ) -> Vec<([i64; 3], f64, [f64; 3])> {
+    pub(crate) fn cells_at(samples: &[Sample], kernel_depth: u32, depth: u32) -> Vec<Cell> {
         let mut level = kernel_cells(keyed_samples(samples, kernel_depth));
         for _ in depth..kernel_depth {
             level = merge_up(level);
@@ -281,9 +281,9 @@ fn keyed_samples(samples: &[Sample], depth: u32) -> Vec<(u64, [i64; 3], f64, [f6
 /// The occupied cells of `(Morton code, cell, w, w·p)` entries in the order of the samples
 /// (or finer cells) they come from: `Σ w` and `Σ w·p` per cell, in Morton order. The sort is
 /// stable, so each cell's sums run in the entries' order.
-fn kernel_cells(mut cells: Vec<(u64, [i64; 3], f64, [f64; 3])>) -> Vec<([i64; 3], f64, [f64; 3])> {
+fn kernel_cells(mut cells: Vec<(u64, [i64; 3], f64, [f64; 3])>) -> Vec<Cell> {
     cells.par_sort_by_key(|e| e.0);
-    let mut level: Vec<([i64; 3], f64, [f64; 3])> = Vec::new();
+    let mut level: Vec<Cell> = Vec::new();
     for (key, c, w, wp) in cells.iter().copied() {
         match level.last_mut() {
             Some(last) if morton_cell(last.0) == key => {
@@ -299,8 +299,8 @@ fn kernel_cells(mut cells: Vec<(u64, [i64; 3], f64, [f64; 3])>) -> Vec<([i64; 3]
 }
 
 /// The cells of the next coarser depth: siblings, adjacent in Morton order, summed in order.
-fn merge_up(level: Vec<([i64; 3], f64, [f64; 3])>) -> Vec<([i64; 3], f64, [f64; 3])> {
-    let mut up: Vec<([i64; 3], f64, [f64; 3])> = Vec::with_capacity(level.len() / 2);
+fn merge_up(level: Vec<Cell>) -> Vec<Cell> {
+    let mut up: Vec<Cell> = Vec::with_capacity(level.len() / 2);
     for (c, w, wp) in level {
         let pc = [c[0] >> 1, c[1] >> 1, c[2] >> 1];
         match up.last_mut() {
@@ -317,7 +317,7 @@ fn merge_up(level: Vec<([i64; 3], f64, [f64; 3])>) -> Vec<([i64; 3], f64, [f64; 
 }
 
 /// The splatted values of depths `0..=top` from the occupied cells of depth `top`.
-fn splat_levels(mut level: Vec<([i64; 3], f64, [f64; 3])>, top: u32) -> Vec<FxHashMap<u64, f64>> {
+fn splat_levels(mut level: Vec<Cell>, top: u32) -> Vec<FxHashMap<u64, f64>> {
     let sigma = sigma();
     let mut rho: Vec<FxHashMap<u64, f64>> = (0..=top).map(|_| FxHashMap::default()).collect();
     let mut d = top;
@@ -348,11 +348,11 @@ fn splat_levels(mut level: Vec<([i64; 3], f64, [f64; 3])>, top: u32) -> Vec<FxHa
 /// as [`Density::cells_at`] sums them; a deeper one, samples (one per finest cell), which are
 /// summed into the kernel depth's cells here in Morton order of their finest cells.
 pub(crate) fn coarse_levels(
-    parts: Vec<Vec<([i64; 3], f64, [f64; 3])>>,
+    parts: Vec<Vec<Cell>>,
     depth: u32,
     kernel_depth: u32,
 ) -> Vec<FxHashMap<u64, f64>> {
-    let mut all: Vec<([i64; 3], f64, [f64; 3])> = parts.into_iter().flatten().collect();
+    let mut all: Vec<Cell> = parts.into_iter().flatten().collect();
     all.par_sort_by_key(|e| morton_cell(e.0));
     if depth > kernel_depth {
         let shift = depth - kernel_depth;

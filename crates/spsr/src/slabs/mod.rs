@@ -218,10 +218,10 @@ pub fn reconstruct(
     options: &SlabOptions,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<Reconstruction> {
-    let (mesh, stats, _, _) = run(source, params, options, None, None, progress)?;
+    let out = run(source, params, options, None, None, progress)?;
     Ok(Reconstruction {
-        mesh: mesh.expect("assembled in memory"),
-        stats,
+        mesh: out.mesh.expect("assembled in memory"),
+        stats: out.stats,
         grid: None,
     })
 }
@@ -239,13 +239,13 @@ pub fn reconstruct_and_trim(
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<(Reconstruction, TrimStats)> {
     trim.validate()?;
-    let (mesh, stats, _, trimmed) = run(source, params, options, None, Some(trim), progress)?;
+    let out = run(source, params, options, None, Some(trim), progress)?;
     let reconstruction = Reconstruction {
-        mesh: mesh.expect("assembled in memory"),
-        stats,
+        mesh: out.mesh.expect("assembled in memory"),
+        stats: out.stats,
         grid: None,
     };
-    Ok((reconstruction, trimmed.expect("trimmed")))
+    Ok((reconstruction, out.trimmed.expect("trimmed")))
 }
 
 /// As [`reconstruct`], writing the mesh to `output` (binary PLY) slab by slab, so that it
@@ -258,8 +258,19 @@ pub fn reconstruct_into(
     output: &Path,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<(Stats, Written)> {
-    let (_, stats, written, _) = run(source, params, options, Some(output), None, progress)?;
-    Ok((stats, written.expect("written")))
+    let out = run(source, params, options, Some(output), None, progress)?;
+    Ok((out.stats, out.written.expect("written")))
+}
+
+/// What [`run`] made.
+struct Outcome {
+    /// The mesh, when assembled in memory (without an output).
+    mesh: Option<crate::Mesh>,
+    stats: Stats,
+    /// The counts of the mesh written as it was produced (with an output).
+    written: Option<Written>,
+    /// The trimming's figures (with trimming).
+    trimmed: Option<TrimStats>,
 }
 
 /// The slab run; with `output`, the mesh goes to that file as it is produced; with `trim`
@@ -271,12 +282,7 @@ fn run(
     output: Option<&Path>,
     trim: Option<&TrimParams>,
     progress: &(dyn Fn(&str) + Sync),
-) -> Result<(
-    Option<crate::Mesh>,
-    Stats,
-    Option<Written>,
-    Option<TrimStats>,
-)> {
+) -> Result<Outcome> {
     params.validate()?;
     check_supported(params)?;
     let asked = params;
@@ -392,7 +398,12 @@ fn run(
             found, params, samples, iso, mean_depth, k, diagnosis, warnings,
         )
     };
-    Ok((mesh, stats, written, trimmed))
+    Ok(Outcome {
+        mesh,
+        stats,
+        written,
+        trimmed,
+    })
 }
 
 /// The end of a run whose mesh is whole in memory (in the input's frame), as in one piece:

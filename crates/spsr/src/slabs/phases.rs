@@ -64,13 +64,13 @@ pub struct CoarsePart {
     /// The slab's own samples.
     pub samples: usize,
     /// With per-vertex density: the density estimator's occupied cells in the slab's own
-    /// columns at [`density_depth`] (`cell, Σw, Σw·p`), for the whole cloud's coarse depths
-    /// of the estimator ([`save_coarse_density`]); empty otherwise.
+    /// columns at `density_depth` (`cell, Σw, Σw·p`), for the whole cloud's coarse depths
+    /// of the estimator (`save_coarse_density`); empty otherwise.
     pub density: Vec<DensityCell>,
 }
 
 /// An occupied cell of the density estimator: the cell, `Σ w`, `Σ w·p`.
-pub type DensityCell = ([i64; 3], f64, [f64; 3]);
+pub type DensityCell = crate::density::Cell;
 
 /// A coefficient near a slab's face: tree depth, node key, value.
 pub type FaceCoefficient = (u32, [u32; 3], f32);
