@@ -595,10 +595,11 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
 
     if let Slabs::Count(k) = args.slabs {
         if slabs::streams(args) {
-            return slabs::run_streamed(args, &params, k, trim_params.is_some(), start);
+            return slabs::run_streamed(args, &params, k, start);
         }
-        let (result, reading, progress) = slabs::run(args, &params, k, trim_params.is_some())?;
-        return finish(args, result, None, None, reading, start, progress);
+        let (result, trimmed, reading, progress) =
+            slabs::run(args, &params, k, trim_params.as_ref())?;
+        return finish(args, result, trimmed, None, reading, start, progress);
     }
 
     // Reading, the library's stages, writing; estimating normals is added when it happens.
@@ -651,41 +652,40 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
     };
 
     // The cloud is handed over so that it is released once the points are normalised.
-    let (result, trimmed) = match &trim_params {
-        Some(p) => {
-            let (result, stats) =
-                spsr::reconstruct_and_trim(cloud, &params, p, &|s| progress.stage(s))
-                    .map_err(fail)?;
-            (result, Some(stats))
-        }
-        None => match spsr::reconstruct_owned(cloud, &params, &|s| progress.stage(s)) {
-            Err(spsr::Error::ResourceLimit(short))
-                if args.slabs == Slabs::Auto && slabs::can_help(&short, &params) =>
-            {
-                drop(progress);
-                let k = slabs::enough(&short, &params);
-                eprintln!(
-                    "spsr: note: the run needs about {} in one piece, over the limit of {}; \
-                     running it in {k} slabs (--slabs)",
-                    spsr::gib(short.estimate),
-                    spsr::gib(short.limit)
-                );
-                if slabs::streams(args) {
-                    return slabs::run_streamed(args, &params, k, false, start);
-                }
-                let (result, more, progress) = slabs::run(args, &params, k, false)?;
-                return finish(
-                    args,
-                    result,
-                    None,
-                    estimated,
-                    reading + more,
-                    start,
-                    progress,
-                );
+    let attempt = match &trim_params {
+        Some(p) => spsr::reconstruct_and_trim(cloud, &params, p, &|s| progress.stage(s))
+            .map(|(result, stats)| (result, Some(stats))),
+        None => spsr::reconstruct_owned(cloud, &params, &|s| progress.stage(s))
+            .map(|result| (result, None)),
+    };
+    let (result, trimmed) = match attempt {
+        Err(spsr::Error::ResourceLimit(short))
+            if args.slabs == Slabs::Auto && slabs::can_help(&short, &params) =>
+        {
+            drop(progress);
+            let k = slabs::enough(&short, &params);
+            eprintln!(
+                "spsr: note: the run needs about {} in one piece, over the limit of {}; \
+                 running it in {k} slabs (--slabs)",
+                spsr::gib(short.estimate),
+                spsr::gib(short.limit)
+            );
+            if slabs::streams(args) {
+                return slabs::run_streamed(args, &params, k, start);
             }
-            r => (r.map_err(fail)?, None),
-        },
+            let (result, trimmed, more, progress) =
+                slabs::run(args, &params, k, trim_params.as_ref())?;
+            return finish(
+                args,
+                result,
+                trimmed,
+                estimated,
+                reading + more,
+                start,
+                progress,
+            );
+        }
+        r => r.map_err(fail)?,
     };
     finish(args, result, trimmed, estimated, reading, start, progress)
 }

@@ -11,8 +11,14 @@ use crate::progress::Progress;
 use crate::reconstruct::ReconstructArgs;
 use crate::{usage, words, Failure};
 
-/// Whether the slab run writes its mesh as it goes: a binary PLY file.
+/// Whether the slab run writes its mesh as it goes: a binary PLY file, untrimmed (trimming
+/// needs the whole mesh: `spsr::slabs::reconstruct_and_trim`).
 pub(crate) fn streams(args: &ReconstructArgs) -> bool {
+    args.trim.is_none() && writes_binary_ply(args)
+}
+
+/// Whether the output is a binary PLY file.
+fn writes_binary_ply(args: &ReconstructArgs) -> bool {
     let out = &args.output;
     out.as_os_str() != "-"
         && !args.common.ascii
@@ -27,11 +33,10 @@ pub(crate) fn run_streamed(
     args: &ReconstructArgs,
     params: &spsr::Params,
     k: usize,
-    trimming: bool,
     start: std::time::Instant,
 ) -> Result<(), Failure> {
-    let (inputs, options) = check(args, trimming)?;
-    let plan = spsr::slabs::stage_plan(params, true);
+    let (inputs, options) = check(args)?;
+    let plan = spsr::slabs::stage_plan(params, true, false);
     let progress = Progress::new(plan.len(), std::io::stderr().is_terminal());
     let input = args.input();
     let (stats, written) = spsr::slabs::reconstruct_into(
@@ -89,17 +94,7 @@ pub(crate) fn run_streamed(
 }
 
 /// The checks of a slab run's arguments; the inputs and the work folder.
-fn check(
-    args: &ReconstructArgs,
-    trimming: bool,
-) -> Result<(Vec<PathBuf>, spsr::slabs::SlabOptions), Failure> {
-    if trimming {
-        return Err(usage(
-            "--trim is not supported with --slabs yet (slab runs do not compute the per-vertex \
-             density it needs); run without --slabs to trim"
-                .into(),
-        ));
-    }
+fn check(args: &ReconstructArgs) -> Result<(Vec<PathBuf>, spsr::slabs::SlabOptions), Failure> {
     let inputs = args.inputs();
     if inputs.iter().any(|p| p.as_os_str() == "-") {
         return Err(usage(
@@ -117,29 +112,45 @@ fn check(
     Ok((inputs, spsr::slabs::SlabOptions { slabs: 0, work_dir }))
 }
 
-/// Runs the reconstruction in `k` slabs; returns the result, the time spent reading (within
-/// the run: the inputs are read as the run goes) and the progress bar for writing.
+/// The result of a slab run whose mesh is whole in memory, with its trimming.
+pub(crate) type InMemory = (
+    spsr::Reconstruction,
+    Option<spsr::trim::TrimStats>,
+    Duration,
+    Progress,
+);
+
+/// Runs the reconstruction in `k` slabs, the mesh assembled in memory (and trimmed with
+/// `trim`); returns the result, the trimming's figures, the time spent reading (within the
+/// run: the inputs are read as the run goes) and the progress bar for writing.
 pub(crate) fn run(
     args: &ReconstructArgs,
     params: &spsr::Params,
     k: usize,
-    trimming: bool,
-) -> Result<(spsr::Reconstruction, Duration, Progress), Failure> {
-    let (inputs, options) = check(args, trimming)?;
+    trim: Option<&spsr::trim::TrimParams>,
+) -> Result<InMemory, Failure> {
+    let (inputs, options) = check(args)?;
     let options = spsr::slabs::SlabOptions {
         slabs: k,
         ..options
     };
-    let plan = spsr::slabs::stage_plan(params, false);
+    let plan = spsr::slabs::stage_plan(params, false, trim.is_some());
     let progress = Progress::new(plan.len() + 1, std::io::stderr().is_terminal());
     let input = args.input();
-    let result = spsr::slabs::reconstruct(
-        spsr::slabs::Source::Files(&inputs),
-        params,
-        &options,
-        &|s| progress.stage(s),
-    )
-    .map_err(|e| Failure::from_spsr(e, input_name(input)))?;
+    let source = spsr::slabs::Source::Files(&inputs);
+    let stage = |s: &str| progress.stage(s);
+    let (result, trimmed) = match trim {
+        Some(t) => {
+            let (r, t) = spsr::slabs::reconstruct_and_trim(source, params, &options, t, &stage)
+                .map_err(|e| Failure::from_spsr(e, input_name(input)))?;
+            (r, Some(t))
+        }
+        None => (
+            spsr::slabs::reconstruct(source, params, &options, &stage)
+                .map_err(|e| Failure::from_spsr(e, input_name(input)))?,
+            None,
+        ),
+    };
     let reading = result
         .stats
         .stages
@@ -147,7 +158,7 @@ pub(crate) fn run(
         .filter(|(n, _)| n == "reading points")
         .map(|s| s.1)
         .sum();
-    Ok((result, reading, progress))
+    Ok((result, trimmed, reading, progress))
 }
 
 /// The folder for the spill files: `--work-dir`, else the output's folder (the system's
@@ -203,6 +214,8 @@ pub struct ClusterRun {
     pub work_dir: PathBuf,
     /// The reconstruction's parameters, checked.
     pub params: spsr::Params,
+    /// `--trim` and its areas, checked: the mesh is trimmed by density.
+    pub trim: Option<spsr::trim::TrimParams>,
     /// `--threads`: the threads of each task (`None`: all the worker's cores).
     pub threads: Option<usize>,
     /// `-v`: print the run's figures.
@@ -220,7 +233,7 @@ pub fn cluster_run(argv: &[String]) -> Result<ClusterRun, Result<clap::Error, Fa
         unreachable!("parsed as reconstruct")
     };
     let refuse = |m: &str| Err(Err(usage(m.into())));
-    if !streams(&args) {
+    if !writes_binary_ply(&args) {
         return refuse(
             "a cluster run writes binary PLY: give an output file ending in .ply (not -), \
              without --ascii",
@@ -229,11 +242,16 @@ pub fn cluster_run(argv: &[String]) -> Result<ClusterRun, Result<clap::Error, Fa
     if args.preview.is_some() {
         return refuse("--preview is not supported on a cluster; run `spsr render` on the mesh");
     }
-    let (inputs, options) = check(&args, args.trim.is_some()).map_err(Err)?;
+    let (inputs, options) = check(&args).map_err(Err)?;
     let params = args.params();
     params
         .validate()
         .map_err(|e| Err(Failure::from_spsr(e, input_name(args.input()))))?;
+    let trim = args.trim_params();
+    if let Some(t) = &trim {
+        t.validate()
+            .map_err(|e| Err(Failure::from_spsr(e, input_name(args.input()))))?;
+    }
     Ok(ClusterRun {
         inputs,
         output: args.output.clone(),
@@ -243,6 +261,7 @@ pub fn cluster_run(argv: &[String]) -> Result<ClusterRun, Result<clap::Error, Fa
         },
         work_dir: options.work_dir,
         params,
+        trim,
         threads: args.common.threads.threads,
         verbose: args.common.verbose,
     })

@@ -52,6 +52,7 @@ fn _spsr(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(params::defaults, m)?)?;
     m.add_function(wrap_pyfunction!(slabs::slab_params, m)?)?;
     m.add_function(wrap_pyfunction!(slabs::slab_args, m)?)?;
+    m.add_function(wrap_pyfunction!(slabs::slab_trim, m)?)?;
     m.add_function(wrap_pyfunction!(slabs::slab_prepare, m)?)?;
     m.add_function(wrap_pyfunction!(slabs::slab_step, m)?)?;
     m.add_function(wrap_pyfunction!(slabs::slab_finish, m)?)?;

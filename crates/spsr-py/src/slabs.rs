@@ -9,11 +9,12 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use spsr::slabs::job;
+use spsr::trim::{Threshold, TrimParams};
 use spsr::Params;
 
 use crate::detach::{run_detached, threads_arg};
 use crate::errors::{self, py_err, value_error, Call};
-use crate::params::MethodKeywords;
+use crate::params::{threshold_arg, trim_params, MethodKeywords};
 
 /// The parameters of `spsr.reconstruct`'s method keywords (one dict) as the job's JSON (the
 /// form `job.json` keeps them in), checked.
@@ -30,6 +31,58 @@ fn params_from(json: &str) -> PyResult<Params> {
     serde_json::from_str(json).map_err(|e| value_error(format!("not spsr parameters: {e}")))
 }
 
+/// `spsr.reconstruct`'s trimming keywords as the job's JSON (`None` without `trim`), checked.
+#[pyfunction]
+#[pyo3(signature = (trim, min_island_area, hole_area))]
+pub fn slab_trim(
+    py: Python<'_>,
+    trim: &Bound<'_, PyAny>,
+    min_island_area: f64,
+    hole_area: f64,
+) -> PyResult<Option<String>> {
+    let Some(threshold) = threshold_arg(trim, "trim")? else {
+        return Ok(None);
+    };
+    let t = trim_params(py, threshold, min_island_area, hole_area, Call::Reconstruct)?;
+    Ok(Some(trim_json(&t)))
+}
+
+fn trim_json(t: &TrimParams) -> String {
+    let threshold = match t.threshold {
+        Threshold::Auto => serde_json::Value::Null,
+        Threshold::Value(v) => serde_json::json!(v),
+    };
+    serde_json::json!({
+        "threshold": threshold,
+        "min_island_area": t.min_island_area,
+        "hole_area": t.hole_area,
+    })
+    .to_string()
+}
+
+fn trim_from(json: &str) -> PyResult<TrimParams> {
+    let v: serde_json::Value = serde_json::from_str(json)
+        .map_err(|e| value_error(format!("not spsr trimming parameters: {e}")))?;
+    let area = |k: &str| {
+        v.get(k)
+            .and_then(serde_json::Value::as_f64)
+            .ok_or_else(|| value_error(format!("trimming parameters without {k}")))
+    };
+    let threshold = match v.get("threshold") {
+        None | Some(serde_json::Value::Null) => Threshold::Auto,
+        Some(x) => Threshold::Value(
+            x.as_f64()
+                .ok_or_else(|| value_error("trimming threshold: not a number"))?
+                as f32,
+        ),
+    };
+    Ok(TrimParams {
+        threshold,
+        min_island_area: area("min_island_area")?,
+        hole_area: area("hole_area")?,
+    })
+}
+
 /// `python -m spsr.distributed`'s arguments after its own: `spsr reconstruct`'s flags, parsed
 /// and checked by the command line's parser. Returns a dict (inputs, output, slabs or None,
 /// work_dir, params as JSON, threads or None, verbose), or the exit code after printing the
@@ -44,6 +97,7 @@ pub fn slab_args<'py>(py: Python<'py>, argv: Vec<String>) -> PyResult<Bound<'py,
             d.set_item("slabs", run.slabs)?;
             d.set_item("work_dir", run.work_dir)?;
             d.set_item("params", params_json(&run.params)?)?;
+            d.set_item("trim", run.trim.as_ref().map(trim_json))?;
             d.set_item("threads", run.threads)?;
             d.set_item("verbose", run.verbose)?;
             Ok(d.into_any())
@@ -61,10 +115,11 @@ pub fn slab_args<'py>(py: Python<'py>, argv: Vec<String>) -> PyResult<Bound<'py,
     }
 }
 
-/// Reads the inputs into a new job folder inside `work_dir`, cut into at most `slabs` slabs;
-/// returns (the job folder, the slab count, whether the noise phase runs).
+/// Reads the inputs into a new job folder inside `work_dir`, cut into at most `slabs` slabs,
+/// the mesh to be trimmed with `trim` (from `slab_trim`); returns (the job folder, the slab
+/// count, whether the noise phase runs).
 #[pyfunction]
-#[pyo3(signature = (inputs, work_dir, slabs, params, threads=None))]
+#[pyo3(signature = (inputs, work_dir, slabs, params, threads=None, trim=None))]
 pub fn slab_prepare(
     py: Python<'_>,
     inputs: Vec<PathBuf>,
@@ -72,8 +127,10 @@ pub fn slab_prepare(
     slabs: i64,
     params: &str,
     threads: Option<i64>,
+    trim: Option<&str>,
 ) -> PyResult<(PathBuf, usize, bool)> {
     let params = params_from(params)?;
+    let trim = trim.map(trim_from).transpose()?;
     if slabs < 1 {
         return Err(errors::invalid("slabs", slabs, "an integer of at least 1"));
     }
@@ -86,6 +143,7 @@ pub fn slab_prepare(
         job::prepare(
             spsr::slabs::Source::Files(&inputs),
             &params,
+            trim.as_ref(),
             slabs,
             &work_dir,
         )

@@ -83,6 +83,26 @@ def test_parameters_reach_the_tasks(client, tiles, tmp_path):
     assert os.listdir(work) == []
 
 
+def test_density_and_trimming_give_the_command_lines_bytes(client, tiles, tmp_path):
+    # The density of every vertex, and the whole mesh trimmed with one threshold, in the last
+    # task (issue 15): the same bytes as the command line's --slabs 3.
+    for flags, keywords in [
+        (["--density"], {"density": True}),
+        (["--trim", "auto"], {"trim": "auto"}),
+        (["--trim", "5.9", "--density"], {"trim": 5.9, "density": True}),
+    ]:
+        expected = command_line(tiles, tmp_path / "cli.ply", "--slabs", "3", *flags)
+        out = tmp_path / "dask.ply"
+        stats = spsr.distributed.reconstruct(
+            tiles, out, client=client, slabs=3, depth=int(DEPTH), **keywords
+        )
+        assert out.read_bytes() == expected, flags
+        mesh = spsr.read_mesh(out)
+        assert len(mesh.vertices) == stats["vertices"] and len(mesh.faces) == stats["faces"]
+        assert (mesh.density is not None) == ("--density" in flags), flags
+        assert job_folders(tmp_path) == []
+
+
 def test_a_killed_worker_changes_nothing(client, tiles, tmp_path):
     expected = command_line(tiles, tmp_path / "cli.ply", "--slabs", "3")
     marker = tmp_path / "died"
@@ -140,8 +160,10 @@ def test_keywords_are_checked_before_anything_runs(tiles, tmp_path):
     out = tmp_path / "out.ply"
     with pytest.raises(ValueError, match="depth=0"):
         spsr.distributed.reconstruct(tiles, out, depth=0)
-    with pytest.raises(ValueError, match="trim= is not supported on a cluster"):
-        spsr.distributed.reconstruct(tiles, out, trim="auto")
+    with pytest.raises(ValueError, match="trim"):
+        spsr.distributed.reconstruct(tiles, out, trim="often")
+    with pytest.raises(ValueError, match="hole_area"):
+        spsr.distributed.reconstruct(tiles, out, trim="auto", hole_area=2.0)
     with pytest.raises(ValueError, match="colors="):
         spsr.distributed.reconstruct(tiles, out, colors=np.zeros((3, 3)))
     with pytest.raises(TypeError, match="unexpected keyword argument 'dpeth'"):
@@ -179,12 +201,18 @@ def test_the_module_runs_reconstructs_flags_on_a_local_cluster(tiles, tmp_path):
     assert out.read_bytes() == expected
     assert "in 3 slabs on 2 workers" in r.stdout
     assert "samples" in r.stderr
+    # The command line's trimming too.
+    expected = command_line(tiles, tmp_path / "cli.ply", "--slabs", "3", "--trim", "auto")
+    r = module("--workers", "2", *tiles, "-o", str(out), "--depth", DEPTH, "--slabs", "3",
+               "--trim", "auto")
+    assert r.returncode == 0, r.stderr
+    assert out.read_bytes() == expected
 
 
 def test_the_module_refuses_what_a_cluster_cannot_do(tiles, tmp_path):
     r = module(*tiles, "-o", str(tmp_path / "out.obj"))
     assert r.returncode == 2 and "binary PLY" in r.stderr
-    r = module(*tiles, "-o", str(tmp_path / "out.ply"), "--trim", "auto")
+    r = module(*tiles, "-o", str(tmp_path / "out.ply"), "--trim", "often")
     assert r.returncode == 2 and "--trim" in r.stderr
     r = module(*tiles, "-o", str(tmp_path / "out.ply"), "--depth", "0")
     assert r.returncode == 2 and "--depth" in r.stderr

@@ -145,6 +145,10 @@ pub struct Density {
     rho: Vec<FxHashMap<u64, f64>>,
 }
 
+/// An occupied cell of the estimator at some depth: the cell, `Σ w` and `Σ w·p` of the
+/// samples in it.
+pub type Cell = ([i64; 3], f64, [f64; 3]);
+
 /// Where a sample sits in the hierarchy: its fractional depth and its area weight.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DepthAndArea {
@@ -157,69 +161,35 @@ pub struct DepthAndArea {
 impl Density {
     /// Splats the samples at depths `0..=kernel_depth` (ALGORITHM.md §3.5).
     pub fn build(samples: &[Sample], kernel_depth: u32, samples_per_node: f64) -> Self {
-        let sigma = sigma();
-        // Occupied cells at the kernel depth, then merged upwards.
-        let mut cells: Vec<(u64, [i64; 3], f64, [f64; 3])> = samples
-            .par_iter()
-            .map(|s| {
-                let c = cell_of(s.pos, kernel_depth);
-                (morton_cell(c), c, s.weight, s.pos)
-            })
-            .collect();
-        cells.par_sort_by_key(|e| e.0);
-        let mut level: Vec<([i64; 3], f64, [f64; 3])> = Vec::new();
-        for (key, c, w, p) in cells.iter().copied() {
-            match level.last_mut() {
-                Some(last) if morton_cell(last.0) == key => {
-                    last.1 += w;
-                    for a in 0..3 {
-                        last.2[a] += w * p[a];
-                    }
-                }
-                _ => level.push((c, w, [w * p[0], w * p[1], w * p[2]])),
-            }
-        }
-        let mut rho: Vec<FxHashMap<u64, f64>> =
-            (0..=kernel_depth).map(|_| FxHashMap::default()).collect();
-        let mut d = kernel_depth;
-        loop {
-            let h = (1i64 << d) as f64;
-            let map = &mut rho[d as usize];
-            for &(c, w, wp) in &level {
-                let t: [f64; 3] =
-                    std::array::from_fn(|a| (wp[a] / w * h - c[a] as f64).clamp(0.0, 1.0));
-                for_each_quadratic_neighbour(t, |o, wt| {
-                    let key = pack([c[0] + o[0], c[1] + o[1], c[2] + o[2]]);
-                    *map.entry(key).or_insert(0.0) += sigma * w * wt;
-                });
-            }
-            if d == 0 {
-                break;
-            }
-            // Merge into parents; cells are in Morton order, so siblings are adjacent.
-            let mut up: Vec<([i64; 3], f64, [f64; 3])> = Vec::with_capacity(level.len() / 2);
-            for (c, w, wp) in level {
-                let pc = [c[0] >> 1, c[1] >> 1, c[2] >> 1];
-                match up.last_mut() {
-                    Some(last) if last.0 == pc => {
-                        last.1 += w;
-                        for a in 0..3 {
-                            last.2[a] += wp[a];
-                        }
-                    }
-                    _ => up.push((pc, w, wp)),
-                }
-            }
-            level = up;
-            d -= 1;
-        }
+        let level = kernel_cells(keyed_samples(samples, kernel_depth));
         Self {
             kernel_depth,
             samples_per_node,
-            rho,
+            rho: splat_levels(level, kernel_depth),
         }
     }
 
+    /// Replaces the splatted values at depths `0..rho.len()` by `rho` (from
+    /// [`coarse_levels`]): a slab's estimator with the whole cloud's coarse depths, whose
+    /// cells are wider than the slab's padding.
+    pub(crate) fn replace_coarse(&mut self, rho: Vec<FxHashMap<u64, f64>>) {
+        for (d, map) in rho.into_iter().enumerate() {
+            if let Some(slot) = self.rho.get_mut(d) {
+                *slot = map;
+            }
+        }
+    }
+
+    /// The estimator's occupied cells at unit depth `depth` (at most the kernel depth):
+    /// the cell, `Σ w` and `Σ w·p`, in Morton order, summed exactly as [`Density::build`]
+    /// sums them (the samples into the kernel depth's cells, then child by child).
+    pub(crate) fn cells_at(samples: &[Sample], kernel_depth: u32, depth: u32) -> Vec<Cell> {
+        let mut level = kernel_cells(keyed_samples(samples, kernel_depth));
+        for _ in depth..kernel_depth {
+            level = merge_up(level);
+        }
+        level
+    }
     /// Samples per node around `p`, evaluated with the 3×3×3 cells around `p`'s cell at `d`.
     fn spn(&self, d: u32, p: [f64; 3]) -> f64 {
         let c = cell_of(p, d);
@@ -285,6 +255,120 @@ impl Density {
             depth: 0.0,
             area: if fine > 0.0 { 1.0 / fine } else { 1.0 },
         }
+    }
+}
+
+/// Each sample with its cell at `depth` (and that cell's Morton code), `w` and `w·p`.
+fn keyed_samples(samples: &[Sample], depth: u32) -> Vec<(u64, [i64; 3], f64, [f64; 3])> {
+    samples
+        .par_iter()
+        .map(|s| {
+            let c = cell_of(s.pos, depth);
+            (
+                morton_cell(c),
+                c,
+                s.weight,
+                [
+                    s.weight * s.pos[0],
+                    s.weight * s.pos[1],
+                    s.weight * s.pos[2],
+                ],
+            )
+        })
+        .collect()
+}
+
+/// The occupied cells of `(Morton code, cell, w, w·p)` entries in the order of the samples
+/// (or finer cells) they come from: `Σ w` and `Σ w·p` per cell, in Morton order. The sort is
+/// stable, so each cell's sums run in the entries' order.
+fn kernel_cells(mut cells: Vec<(u64, [i64; 3], f64, [f64; 3])>) -> Vec<Cell> {
+    cells.par_sort_by_key(|e| e.0);
+    let mut level: Vec<Cell> = Vec::new();
+    for (key, c, w, wp) in cells.iter().copied() {
+        match level.last_mut() {
+            Some(last) if morton_cell(last.0) == key => {
+                last.1 += w;
+                for a in 0..3 {
+                    last.2[a] += wp[a];
+                }
+            }
+            _ => level.push((c, w, wp)),
+        }
+    }
+    level
+}
+
+/// The cells of the next coarser depth: siblings, adjacent in Morton order, summed in order.
+fn merge_up(level: Vec<Cell>) -> Vec<Cell> {
+    let mut up: Vec<Cell> = Vec::with_capacity(level.len() / 2);
+    for (c, w, wp) in level {
+        let pc = [c[0] >> 1, c[1] >> 1, c[2] >> 1];
+        match up.last_mut() {
+            Some(last) if last.0 == pc => {
+                last.1 += w;
+                for a in 0..3 {
+                    last.2[a] += wp[a];
+                }
+            }
+            _ => up.push((pc, w, wp)),
+        }
+    }
+    up
+}
+
+/// The splatted values of depths `0..=top` from the occupied cells of depth `top`.
+fn splat_levels(mut level: Vec<Cell>, top: u32) -> Vec<FxHashMap<u64, f64>> {
+    let sigma = sigma();
+    let mut rho: Vec<FxHashMap<u64, f64>> = (0..=top).map(|_| FxHashMap::default()).collect();
+    let mut d = top;
+    loop {
+        let h = (1i64 << d) as f64;
+        let map = &mut rho[d as usize];
+        for &(c, w, wp) in &level {
+            let t: [f64; 3] =
+                std::array::from_fn(|a| (wp[a] / w * h - c[a] as f64).clamp(0.0, 1.0));
+            for_each_quadratic_neighbour(t, |o, wt| {
+                let key = pack([c[0] + o[0], c[1] + o[1], c[2] + o[2]]);
+                *map.entry(key).or_insert(0.0) += sigma * w * wt;
+            });
+        }
+        if d == 0 {
+            break;
+        }
+        level = merge_up(level);
+        d -= 1;
+    }
+    rho
+}
+
+/// The whole cloud's splatted values at depths `0..=min(depth, kernel_depth)`, from the
+/// occupied cells of unit depth `depth` of every part of the cloud (slabs), each part's in
+/// Morton order and the parts' cells disjoint: what [`Density::build`] computes at those
+/// depths over all the samples, bit for bit. A `depth` below the kernel depth gives cells
+/// as [`Density::cells_at`] sums them; a deeper one, samples (one per finest cell), which are
+/// summed into the kernel depth's cells here in Morton order of their finest cells.
+pub(crate) fn coarse_levels(
+    parts: Vec<Vec<Cell>>,
+    depth: u32,
+    kernel_depth: u32,
+) -> Vec<FxHashMap<u64, f64>> {
+    let mut all: Vec<Cell> = parts.into_iter().flatten().collect();
+    all.par_sort_by_key(|e| morton_cell(e.0));
+    if depth > kernel_depth {
+        let shift = depth - kernel_depth;
+        // Each entry is one sample: its cell at `depth` (whose ancestor is the sample's
+        // kernel cell, as `cell_of` gives it), w and w·p.
+        let level = kernel_cells(
+            all.into_iter()
+                .map(|(c, w, wp)| {
+                    let k = c.map(|x| x >> shift);
+                    (morton_cell(k), k, w, wp)
+                })
+                .collect(),
+        );
+        splat_levels(level, kernel_depth)
+    } else {
+        splat_levels(all, depth)
     }
 }
 

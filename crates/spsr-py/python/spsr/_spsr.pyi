@@ -93,8 +93,16 @@ def _defaults() -> Dict[str, Dict[str, Any]]: ...
 # The steps of a slab run on a cluster (spsr.distributed).
 def slab_params(params: Dict[str, Any]) -> str: ...
 def slab_args(argv: List[str]) -> Union[int, Dict[str, Any]]: ...
+def slab_trim(
+    trim: Union[float, str, None], min_island_area: float, hole_area: float
+) -> Optional[str]: ...
 def slab_prepare(
-    inputs: List[str], work_dir: str, slabs: int, params: str, threads: Optional[int] = None
+    inputs: List[str],
+    work_dir: str,
+    slabs: int,
+    params: str,
+    threads: Optional[int] = None,
+    trim: Optional[str] = None,
 ) -> Tuple[str, int, bool]: ...
 def slab_step(
     step: str, dir: str, slab: Optional[int] = None, threads: Optional[int] = None

@@ -60,10 +60,6 @@ _REFUSED = {
     "weights": "per-point weights are carried only by in-core runs",
     "point_attributes": "attributes given as arrays are carried only by in-core runs "
     "(attributes stored in the input files are carried)",
-    "trim": "trimming needs the per-vertex density, which slab runs do not compute yet; trim "
-    "the mesh afterwards with spsr.trim on a machine that holds it",
-    "min_island_area": "it belongs to trim=, which slab runs do not support yet",
-    "hole_area": "it belongs to trim=, which slab runs do not support yet",
     "keep_implicit": "the implicit function lives in the slabs' tasks and is not kept; "
     "reconstruct in-core to evaluate it",
 }
@@ -78,6 +74,8 @@ _DEFAULT_ONLY = {
 }
 # Keywords of spsr.reconstruct that are not parameters of the method.
 _NOT_PARAMS = {"points", "normals", "threads"}
+# The trimming's keywords: the job trims the whole mesh in its last step.
+_TRIM = ("trim", "min_island_area", "hole_area")
 
 # The steps of one run, in order: (step, whether it is per slab); the noise phase runs only
 # when the noise is adaptive.
@@ -95,10 +93,18 @@ def _parameter_defaults() -> Dict[str, Any]:
     """The method's keywords and their defaults: spsr.reconstruct's, so both stay one."""
     out = {}
     for name, p in inspect.signature(_reconstruct).parameters.items():
-        if name in _NOT_PARAMS or name in _REFUSED:
+        if name in _NOT_PARAMS or name in _REFUSED or name in _TRIM:
             continue
         out[name] = p.default
     return out
+
+
+def _trim_json(params: Dict[str, Any]) -> Optional[str]:
+    """The job's trimming (checked by the library) from reconstruct's trimming keywords, which
+    are taken out of `params`; None without trim=."""
+    defaults = inspect.signature(_reconstruct).parameters
+    kw = {name: params.pop(name, defaults[name].default) for name in _TRIM}
+    return _spsr.slab_trim(kw["trim"], kw["min_island_area"], kw["hole_area"])
 
 
 def _params_json(params: Dict[str, Any]) -> str:
@@ -132,9 +138,14 @@ def _paths(inputs: Union[PathLike, Sequence[PathLike]]) -> List[str]:
 
 
 def _prepare_task(
-    inputs: List[str], work_dir: str, slabs: int, params: str, threads: Optional[int]
+    inputs: List[str],
+    work_dir: str,
+    slabs: int,
+    params: str,
+    threads: Optional[int],
+    trim: Optional[str] = None,
 ) -> Tuple[str, int, bool]:
-    folder, k, noise = _spsr.slab_prepare(inputs, work_dir, slabs, params, threads)
+    folder, k, noise = _spsr.slab_prepare(inputs, work_dir, slabs, params, threads, trim)
     return os.fspath(folder), k, noise
 
 
@@ -258,9 +269,12 @@ def reconstruct(
     **params
         The method's parameters, as keywords of :func:`spsr.reconstruct` (``depth``,
         ``degree``, ``samples_per_node``, ``noise``, ``max_memory`` ...), with the same
-        defaults. ``colors``, ``weights``, ``point_attributes``, ``trim`` and
-        ``keep_implicit`` are refused, and so are ``width``, ``depth="auto"`` and
-        ``grid_res`` (a slab run takes a plain depth and makes no grid).
+        defaults. ``density=True`` writes each vertex's density; ``trim=`` (with
+        ``min_island_area`` and ``hole_area``) trims the mesh with one threshold for the
+        whole mesh, as in one piece, in the last task, which holds the whole mesh in memory.
+        ``colors``, ``weights``, ``point_attributes`` and ``keep_implicit`` are refused, and
+        so are ``width``, ``depth="auto"`` and ``grid_res`` (a slab run takes a plain depth
+        and makes no grid).
 
     Returns
     -------
@@ -276,6 +290,8 @@ def reconstruct(
         written and the job folder is removed.
     """
     start = time.perf_counter()
+    params = dict(params)
+    trim_json = _trim_json(params)
     params_json = _params_json(params)
     paths = _paths(inputs)
     out = os.path.abspath(os.fspath(output))
@@ -297,7 +313,9 @@ def reconstruct(
     try:
         if slabs is None:
             slabs = 2 * max(1, len(client.scheduler_info()["workers"]))
-        stats = _run(client, paths, out, folder_parent, int(slabs), params_json, threads, _fault)
+        stats = _run(
+            client, paths, out, folder_parent, int(slabs), params_json, threads, _fault, trim_json
+        )
     finally:
         if own_cluster is not None:
             client.close()
@@ -317,10 +335,18 @@ def _run(
     params: str,
     threads: Optional[int],
     fault: Optional[Tuple[str, int, str]],
+    trim: Optional[str] = None,
 ) -> Dict[str, Any]:
     token = uuid.uuid4().hex[:12]
     prepared = client.submit(
-        _prepare_task, inputs, work_dir, slabs, params, threads, key=f"spsr-prepare-{token}"
+        _prepare_task,
+        inputs,
+        work_dir,
+        slabs,
+        params,
+        threads,
+        trim,
+        key=f"spsr-prepare-{token}",
     )
     folder, k, noise = _settle(client, [prepared])[0]
     try:
@@ -480,6 +506,7 @@ def main(argv: Optional[List[str]] = None) -> int:
             run["params"],
             run["threads"],
             None,
+            run["trim"],
         )
     except Exception as e:
         print(f"spsr: error: {e}", file=sys.stderr)

@@ -314,6 +314,8 @@ pub struct Part {
     /// Triangles: a local vertex index, or [`FOREIGN`] plus the edge key of a vertex that
     /// another part owns (on a face the parts share).
     pub triangles: Vec<[u64; 3]>,
+    /// Per-vertex density, when asked for (set by the caller: `crate::slabs`).
+    pub density: Option<Vec<f32>>,
 }
 
 /// Marks a triangle corner of a [`Part`] that refers to another part's vertex by edge key.
@@ -340,6 +342,7 @@ impl Blocks {
             normals: with_normals.then(|| Vec::with_capacity(total)),
             keys: Vec::with_capacity(total),
             triangles: Vec::with_capacity(chunks.iter().map(|c| c.tris.len()).sum()),
+            density: None,
         };
         let mut base = 0u64;
         let mut bases = Vec::with_capacity(chunks.len());
@@ -372,6 +375,14 @@ impl Blocks {
             }
         }
         part
+    }
+
+    /// The vertex positions in the order [`Blocks::assemble`] and [`Blocks::into_part`]
+    /// number them (each block's owned vertices, then its barycentres).
+    pub fn vertices(&self) -> impl Iterator<Item = &[f64; 3]> {
+        self.chunks
+            .iter()
+            .flat_map(|c| c.owned_pos.iter().chain(&c.bary))
     }
 
     /// The blocks of several parts (slabs) in order, to be numbered as one mesh.

@@ -172,7 +172,7 @@ fn get3_f64(i: &mut In) -> Result<[f64; 3]> {
 }
 
 impl Record for CoarsePart {
-    const TAG: &'static [u8; 8] = b"spsrCPT1";
+    const TAG: &'static [u8; 8] = b"spsrCPT2";
     fn put(&self, o: &mut Out) -> std::io::Result<()> {
         put_levels_u64(o, &self.refined)?;
         o.list(&self.nodes, |o, l| {
@@ -190,7 +190,12 @@ impl Record for CoarsePart {
             })
         })?;
         put3_f64(o, self.sums)?;
-        o.len(self.samples)
+        o.len(self.samples)?;
+        o.list(&self.density, |o, &(c, w, wp)| {
+            c.iter().try_for_each(|&x| o.u64(x as u64))?;
+            o.f64(w)?;
+            put3_f64(o, wp)
+        })
     }
     fn get(i: &mut In) -> Result<Self> {
         Ok(CoarsePart {
@@ -203,6 +208,10 @@ impl Record for CoarsePart {
             })?,
             sums: get3_f64(i)?,
             samples: i.u64()? as usize,
+            density: i.list(56, |i| {
+                let c = [i.u64()? as i64, i.u64()? as i64, i.u64()? as i64];
+                Ok((c, i.f64()?, get3_f64(i)?))
+            })?,
         })
     }
 }
@@ -230,7 +239,7 @@ impl Record for Solved {
 }
 
 impl Record for Part {
-    const TAG: &'static [u8; 8] = b"spsrPRT1";
+    const TAG: &'static [u8; 8] = b"spsrPRT2";
     fn put(&self, o: &mut Out) -> std::io::Result<()> {
         o.list(&self.vertices, |o, &v| put3_f64(o, v))?;
         match &self.normals {
@@ -241,7 +250,14 @@ impl Record for Part {
             }
         }
         o.list(&self.keys, |o, &k| o.u64(k))?;
-        o.list(&self.triangles, |o, t| t.iter().try_for_each(|&c| o.u64(c)))
+        o.list(&self.triangles, |o, t| t.iter().try_for_each(|&c| o.u64(c)))?;
+        match &self.density {
+            None => o.u32(0),
+            Some(d) => {
+                o.u32(1)?;
+                o.list(d, |o, &x| o.f32(x))
+            }
+        }
     }
     fn get(i: &mut In) -> Result<Self> {
         let vertices = i.list(24, get3_f64)?;
@@ -249,12 +265,51 @@ impl Record for Part {
             0 => None,
             _ => Some(i.list(12, get3_f32)?),
         };
+        let keys = i.list(8, In::u64)?;
+        let triangles = i.list(24, |i| Ok([i.u64()?, i.u64()?, i.u64()?]))?;
+        let density = match i.u32()? {
+            0 => None,
+            _ => Some(i.list(4, In::f32)?),
+        };
+        let n = vertices.len();
+        if normals.as_ref().is_some_and(|x| x.len() != n)
+            || keys.len() != n
+            || density.as_ref().is_some_and(|x| x.len() != n)
+        {
+            return Err(i.bad("does not give every vertex its values"));
+        }
         Ok(Part {
             vertices,
             normals,
-            keys: i.list(8, In::u64)?,
-            triangles: i.list(24, |i| Ok([i.u64()?, i.u64()?, i.u64()?]))?,
+            keys,
+            triangles,
+            density,
         })
+    }
+}
+
+/// The whole cloud's density estimator at its coarse depths (`phases::coarse_density`).
+pub(crate) struct CoarseDensity(pub Vec<rustc_hash::FxHashMap<u64, f64>>);
+
+impl Record for CoarseDensity {
+    const TAG: &'static [u8; 8] = b"spsrDEN1";
+    fn put(&self, o: &mut Out) -> std::io::Result<()> {
+        o.list(&self.0, |o, map| {
+            // In key order, so that the file's bytes do not depend on the hash map.
+            let mut entries: Vec<(u64, f64)> = map.iter().map(|(&k, &v)| (k, v)).collect();
+            entries.sort_unstable_by_key(|e| e.0);
+            o.list(&entries, |o, &(k, v)| {
+                o.u64(k)?;
+                o.f64(v)
+            })
+        })
+    }
+    fn get(i: &mut In) -> Result<Self> {
+        let levels = i.list(8, |i| {
+            let entries = i.list(16, |i| Ok((i.u64()?, i.f64()?)))?;
+            Ok(entries.into_iter().collect())
+        })?;
+        Ok(CoarseDensity(levels))
     }
 }
 

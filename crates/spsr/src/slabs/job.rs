@@ -11,12 +11,12 @@
 //! | [`prepare`] | coordinator | the input files | `job.json`, the column files |
 //! | [`noise`] (adaptive noise only) | slab task | columns | `slab-s.noise`, `slab-s.measured` |
 //! | [`smoothing`] | coordinator | every `slab-s.noise` | the smoothing depth in `job.json` |
-//! | [`coarse`] | slab task | columns (or `slab-s.measured`) | `slab-s.samples`, `slab-s.coarse`, `slab-s.constraints` |
-//! | [`solve_coarse`] | coordinator | every `slab-s.coarse` | `slab-s.coarse-solution`; deletes the columns and `.measured` |
+//! | [`coarse`] | slab task | columns (or `slab-s.measured`) | `slab-s.samples`, `slab-s.coarse` (with the density, its density cells), `slab-s.constraints` |
+//! | [`solve_coarse`] | coordinator | every `slab-s.coarse` | `slab-s.coarse-solution`, `density.coarse` (with the density); deletes the columns and `.measured` |
 //! | [`solve`] | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.constraints` | `slab-s.solution`, `slab-s.solved` |
 //! | [`iso`] | coordinator | every `slab-s.solved` | the iso-value in `job.json` |
-//! | [`extract`] | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.solution`, the neighbours' `.solved` | `slab-s.part` |
-//! | [`finish`] | coordinator | every `slab-s.part` | the output mesh |
+//! | [`extract`] | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.solution`, the neighbours' `.solved`, `density.coarse` | `slab-s.part` |
+//! | [`finish`] | coordinator | every `slab-s.part` | the output mesh (trimmed in memory when the job trims) |
 //!
 //! The tasks are pure functions of their inputs and write every file atomically (to a
 //! temporary name, renamed when complete), so a task that dies half-way leaves nothing behind
@@ -34,6 +34,7 @@ use super::phases::{self, Coarse, CoarsePart, Solved};
 use super::{spill_points, Found, Plan, Source, Spilled, WorkDir, Written};
 use crate::extract::Part;
 use crate::pipeline::{prepare::Frame, Stats};
+use crate::trim::{Threshold, TrimParams};
 use crate::{Error, Noise, Params, Result};
 
 /// What [`prepare`] made: the job folder and its slabs.
@@ -63,9 +64,43 @@ struct JobFile {
     smooth: Option<u32>,
     /// The iso-value, once [`iso`] has run.
     iso: Option<f64>,
+    /// The trimming of the mesh, when asked for ([`finish`] trims).
+    trim: Option<TrimSpec>,
 }
 
-const VERSION: u32 = 1;
+/// [`TrimParams`] as the job's description stores them.
+#[derive(Serialize, Deserialize, Clone, Copy)]
+struct TrimSpec {
+    /// The density level; `None` for the automatic one.
+    threshold: Option<f32>,
+    min_island_area: f64,
+    hole_area: f64,
+}
+
+impl From<&TrimParams> for TrimSpec {
+    fn from(t: &TrimParams) -> TrimSpec {
+        TrimSpec {
+            threshold: match t.threshold {
+                Threshold::Value(v) => Some(v),
+                Threshold::Auto => None,
+            },
+            min_island_area: t.min_island_area,
+            hole_area: t.hole_area,
+        }
+    }
+}
+
+impl From<TrimSpec> for TrimParams {
+    fn from(t: TrimSpec) -> TrimParams {
+        TrimParams {
+            threshold: t.threshold.map_or(Threshold::Auto, Threshold::Value),
+            min_island_area: t.min_island_area,
+            hole_area: t.hole_area,
+        }
+    }
+}
+
+const VERSION: u32 = 2;
 
 impl JobFile {
     fn read(dir: &Path) -> Result<JobFile> {
@@ -90,6 +125,11 @@ impl JobFile {
     fn write(&self, dir: &Path) -> Result<()> {
         let text = serde_json::to_vec_pretty(self).expect("plain data");
         crate::io::write_with(&dir.join("job.json"), |w| w.write_all(&text))
+    }
+
+    /// The parameters the phases run with (the density computed also for trimming).
+    fn solving(&self) -> Params {
+        super::solving(&self.params, self.trim.is_some())
     }
 
     fn plan(&self) -> Plan {
@@ -134,10 +174,20 @@ fn slab_file(dir: &Path, s: usize, kind: &str) -> PathBuf {
 }
 
 /// Reads the points of `source` (two passes: the bounding cube, then the spill files) into a
-/// new job folder inside `work_dir`, cut into at most `slabs` slabs.
-pub fn prepare(source: Source, params: &Params, slabs: usize, work_dir: &Path) -> Result<Job> {
+/// new job folder inside `work_dir`, cut into at most `slabs` slabs. With `trim`, [`finish`]
+/// trims the mesh as [`super::reconstruct_and_trim`] does.
+pub fn prepare(
+    source: Source,
+    params: &Params,
+    trim: Option<&TrimParams>,
+    slabs: usize,
+    work_dir: &Path,
+) -> Result<Job> {
     params.validate()?;
     super::check_supported(params)?;
+    if let Some(t) = trim {
+        t.validate()?;
+    }
     if slabs == 0 {
         return Err(Error::invalid("slabs", 0, "at least 1"));
     }
@@ -158,6 +208,7 @@ pub fn prepare(source: Source, params: &Params, slabs: usize, work_dir: &Path) -
         dropped: found.dropped,
         smooth: None,
         iso: None,
+        trim: trim.map(TrimSpec::from),
     };
     let k = job.plan().slabs.len();
     job.write(&work.0)?;
@@ -173,7 +224,7 @@ pub fn noise(dir: &Path, s: usize) -> Result<()> {
     crate::resources::return_large_blocks_when_freed();
     let job = JobFile::read(dir)?;
     let plan = job.slab(s)?;
-    let h = phases::noise_depths(dir, &plan, s, &job.params)?;
+    let h = phases::noise_depths(dir, &plan, s, &job.solving())?;
     save(&slab_file(dir, s, "noise"), &Histogram(h))
 }
 
@@ -193,7 +244,7 @@ pub fn coarse(dir: &Path, s: usize) -> Result<()> {
     crate::resources::return_large_blocks_when_freed();
     let job = JobFile::read(dir)?;
     let plan = job.slab(s)?;
-    let part = phases::coarse(dir, &plan, s, &job.params, job.smooth()?)?;
+    let part = phases::coarse(dir, &plan, s, &job.solving(), job.smooth()?)?;
     save(&slab_file(dir, s, "coarse"), &part)
 }
 
@@ -202,14 +253,22 @@ pub fn solve_coarse(dir: &Path) -> Result<()> {
     crate::resources::return_large_blocks_when_freed();
     let job = JobFile::read(dir)?;
     let plan = job.plan();
-    let parts = (0..plan.slabs.len())
+    let params = job.solving();
+    let mut parts = (0..plan.slabs.len())
         .map(|s| load::<CoarsePart>(&slab_file(dir, s, "coarse")))
         .collect::<Result<Vec<_>>>()?;
     let samples = parts.iter().map(|p| p.samples as u64).sum();
     // Every coarse task has ended (a barrier before this step).
     super::remove_spent_files(dir, &plan)?;
-    let c = phases::solve_coarse(parts, &plan, &job.params)?;
-    save_crops(dir, &plan, &job.params, &c, samples)
+    if params.density {
+        let cells = parts
+            .iter_mut()
+            .map(|p| std::mem::take(&mut p.density))
+            .collect();
+        phases::save_coarse_density(dir, &plan, &params, cells)?;
+    }
+    let c = phases::solve_coarse(parts, &plan, &params)?;
+    save_crops(dir, &plan, &params, &c, samples)
 }
 
 /// Writes each slab's part of the coarse solve ([`phases::crop`]) to `slab-s.coarse-solution`,
@@ -286,8 +345,9 @@ pub fn solve(dir: &Path, s: usize) -> Result<()> {
     crate::resources::return_large_blocks_when_freed();
     let job = JobFile::read(dir)?;
     let plan = job.slab(s)?;
-    let (coarse, _) = read_crop(dir, &plan, s, &job.params)?;
-    let solved = phases::solve(dir, &plan, s, &job.params, &coarse)?;
+    let params = job.solving();
+    let (coarse, _) = read_crop(dir, &plan, s, &params)?;
+    let solved = phases::solve(dir, &plan, s, &params, &coarse)?;
     save(&slab_file(dir, s, "solved"), &solved)
 }
 
@@ -309,7 +369,8 @@ pub fn extract(dir: &Path, s: usize) -> Result<()> {
     let plan = job.slab(s)?;
     let iso = job.iso.ok_or_else(|| out_of_order("iso"))?;
     let k = plan.slabs.len();
-    let (coarse, _) = read_crop(dir, &plan, s, &job.params)?;
+    let params = job.solving();
+    let (coarse, _) = read_crop(dir, &plan, s, &params)?;
     let neighbour = |n: Option<usize>, face: usize| -> Result<Vec<_>> {
         match n {
             Some(n) => {
@@ -321,28 +382,57 @@ pub fn extract(dir: &Path, s: usize) -> Result<()> {
     };
     let before = neighbour(s.checked_sub(1), 1)?;
     let after = neighbour((s + 1 < k).then_some(s + 1), 0)?;
-    let (blocks, _) = phases::extract(dir, &plan, s, &job.params, &coarse, iso, [&before, &after])?;
-    save(&slab_file(dir, s, "part"), &blocks.into_part())
+    let extracted = phases::extract(dir, &plan, s, &params, &coarse, iso, [&before, &after])?;
+    save(&slab_file(dir, s, "part"), &extracted.into_part())
 }
 
 /// Coordinator: the slabs' parts stitched into one mesh, written to `output` (binary PLY),
-/// with the run's statistics (no stage timings: the tasks ran elsewhere).
+/// with the run's statistics (no stage timings: the tasks ran elsewhere). A job with
+/// trimming assembles the mesh in memory and trims it (see [`super::reconstruct_and_trim`]).
 pub fn finish(dir: &Path, output: &Path) -> Result<(Stats, Written)> {
     let job = JobFile::read(dir)?;
     let plan = job.plan();
     let iso = job.iso.ok_or_else(|| out_of_order("iso"))?;
     // Every slab's part of the coarse solve carries the whole cloud's sample count and depth.
-    let (coarse, samples) = read_crop(dir, &plan, 0, &job.params)?;
+    let (coarse, samples) = read_crop(dir, &plan, 0, &job.solving())?;
+    let found = Found {
+        points: job.points,
+        dropped: job.dropped,
+    };
+    if let Some(trim) = job.trim {
+        let parts = (0..plan.slabs.len())
+            .map(|s| load::<Part>(&slab_file(dir, s, "part")))
+            .collect::<Result<Vec<_>>>()?;
+        let mesh = super::output::assemble(parts, plan.frame)?;
+        let mut run = crate::pipeline::Run::new(&|_| {});
+        let trim = TrimParams::from(trim);
+        let (mesh, warnings, diagnosis, _) =
+            super::finish_in_memory(mesh, &job.params, Some(&trim), plan.frame, &mut run)?;
+        crate::io::write_mesh(output, &mesh, &crate::io::WriteOptions { ascii: false })?;
+        let written = Written {
+            vertices: mesh.vertices.len() as u64,
+            triangles: mesh.triangles.len() as u64,
+            pieces: diagnosis.pieces,
+            open_edges: diagnosis.boundary_edges as u64,
+        };
+        let stats = super::slab_stats(
+            found,
+            &job.params,
+            samples as usize,
+            iso,
+            coarse.mean_depth,
+            plan.slabs.len(),
+            diagnosis,
+            warnings,
+        );
+        return Ok((stats, written));
+    }
     let mut files = MeshFiles::new(dir, super::face_planes(&plan, &job.params))?;
     for s in 0..plan.slabs.len() {
         let part: Part = load(&slab_file(dir, s, "part"))?;
         files.add(part, plan.frame)?;
     }
     let written = files.finish(output)?;
-    let found = Found {
-        points: job.points,
-        dropped: job.dropped,
-    };
     let stats = super::slab_stats(
         found,
         &job.params,

@@ -20,9 +20,15 @@
 //! The phases are in [`phases`]; they exchange plain data and files in a work folder, so that
 //! they can run as separate tasks.
 //!
-//! Not yet in slab mode (refused with a message): per-vertex density and trimming, attributes,
-//! weights from a property. The orientation repair (stage 2a) and the far-outlier check are
-//! whole-cloud steps and are skipped.
+//! Per-vertex density is the in-core estimator's at each vertex: a slab's own estimator at the
+//! depths its padding covers, the whole cloud's (summed by the coordinator from the slabs'
+//! cells, `phases::density_depth`) at the coarser ones. Trimming assembles the mesh in memory
+//! and trims it as in one piece ([`reconstruct_and_trim`]): its threshold is a quantile of the
+//! whole mesh's densities and its islands and holes cross slabs.
+//!
+//! Not yet in slab mode (refused with a message): attributes, weights from a property. The
+//! orientation repair (stage 2a) and the far-outlier check are whole-cloud steps and are
+//! skipped.
 
 mod codec;
 pub mod job;
@@ -36,6 +42,7 @@ use std::path::{Path, PathBuf};
 use crate::error::Warning;
 use crate::pipeline::prepare::{self, Bounds, Frame, MIN_POINTS};
 use crate::pipeline::{diagnose::Diagnosis, fragments, Reconstruction, Run, Stats};
+use crate::trim::{TrimParams, TrimStats};
 use crate::{io, Error, Noise, Params, PointCloud, PointWeights, Result};
 use output::MeshFiles;
 pub use output::Written;
@@ -87,11 +94,12 @@ pub struct SlabOptions {
     pub work_dir: PathBuf,
 }
 
-/// The names [`reconstruct`] (or, with `streamed`, [`reconstruct_into`]) reports to its
-/// progress callback, in order.
-pub fn stage_plan(params: &Params, streamed: bool) -> Vec<String> {
+/// The names [`reconstruct`] (or, with `streamed`, [`reconstruct_into`]; with `trimming`,
+/// [`reconstruct_and_trim`]) reports to its progress callback, in order.
+pub fn stage_plan(params: &Params, streamed: bool, trimming: bool) -> Vec<String> {
     let adaptive = params.noise == Noise::Adaptive;
     let in_memory = !streamed;
+    let trimming = in_memory && trimming;
     ["reading points", "spilling points"]
         .into_iter()
         .chain(adaptive.then_some("noise"))
@@ -104,6 +112,7 @@ pub fn stage_plan(params: &Params, streamed: bool) -> Vec<String> {
         .chain(streamed.then_some("writing"))
         .chain(in_memory.then_some("numbering vertices"))
         .chain((in_memory && adaptive).then_some("fragments"))
+        .chain(trimming.then_some("trimming"))
         .chain(in_memory.then_some("checking the mesh"))
         .map(String::from)
         .collect()
@@ -153,9 +162,6 @@ fn check_supported(params: &Params) -> Result<()> {
             "its default in slab mode (not supported there yet)".to_string(),
         ))
     };
-    if params.density {
-        return refuse("density", "on");
-    }
     if let PointWeights::Property(name) = &params.weights {
         return refuse("weights", name);
     }
@@ -212,12 +218,34 @@ pub fn reconstruct(
     options: &SlabOptions,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<Reconstruction> {
-    let (mesh, stats, _) = run(source, params, options, None, progress)?;
+    let out = run(source, params, options, None, None, progress)?;
     Ok(Reconstruction {
-        mesh: mesh.expect("assembled in memory"),
-        stats,
+        mesh: out.mesh.expect("assembled in memory"),
+        stats: out.stats,
         grid: None,
     })
+}
+
+/// As [`reconstruct`], then the mesh trimmed by density as the run in one piece trims it
+/// (`crate::reconstruct_and_trim`): the density is computed for the trimming and kept on the
+/// mesh only when `params.density` asks for it. The trimming needs the whole mesh (its
+/// threshold is a quantile of the whole mesh's densities, and its islands and holes are
+/// pieces that cross slabs), so the mesh is assembled in memory.
+pub fn reconstruct_and_trim(
+    source: Source,
+    params: &Params,
+    options: &SlabOptions,
+    trim: &TrimParams,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<(Reconstruction, TrimStats)> {
+    trim.validate()?;
+    let out = run(source, params, options, None, Some(trim), progress)?;
+    let reconstruction = Reconstruction {
+        mesh: out.mesh.expect("assembled in memory"),
+        stats: out.stats,
+        grid: None,
+    };
+    Ok((reconstruction, out.trimmed.expect("trimmed")))
 }
 
 /// As [`reconstruct`], writing the mesh to `output` (binary PLY) slab by slab, so that it
@@ -230,20 +258,37 @@ pub fn reconstruct_into(
     output: &Path,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<(Stats, Written)> {
-    let (_, stats, written) = run(source, params, options, Some(output), progress)?;
-    Ok((stats, written.expect("written")))
+    let out = run(source, params, options, Some(output), None, progress)?;
+    Ok((out.stats, out.written.expect("written")))
 }
 
-/// The slab run; with `output`, the mesh goes to that file as it is produced.
+/// What [`run`] made.
+struct Outcome {
+    /// The mesh, when assembled in memory (without an output).
+    mesh: Option<crate::Mesh>,
+    stats: Stats,
+    /// The counts of the mesh written as it was produced (with an output).
+    written: Option<Written>,
+    /// The trimming's figures (with trimming).
+    trimmed: Option<TrimStats>,
+}
+
+/// The slab run; with `output`, the mesh goes to that file as it is produced; with `trim`
+/// (and no `output`), the mesh is trimmed.
 fn run(
     source: Source,
     params: &Params,
     options: &SlabOptions,
     output: Option<&Path>,
+    trim: Option<&TrimParams>,
     progress: &(dyn Fn(&str) + Sync),
-) -> Result<(Option<crate::Mesh>, Stats, Option<Written>)> {
+) -> Result<Outcome> {
     params.validate()?;
     check_supported(params)?;
+    let asked = params;
+    // Trimming needs the per-vertex density, kept on the mesh only when asked for.
+    let solved = solving(params, trim.is_some());
+    let params = &solved;
     if options.slabs == 0 {
         return Err(Error::invalid("slabs", 0, "at least 1"));
     }
@@ -267,16 +312,23 @@ fn run(
     } else {
         None
     };
-    let parts = run.stage("coarse constraints", || {
+    let mut parts = run.stage("coarse constraints", || {
         (0..k)
             .map(|s| phases::coarse(dir, &plan, s, params, smooth))
             .collect::<Result<Vec<_>>>()
     })?;
     let samples: usize = parts.iter().map(|p| p.samples).sum();
+    let density_cells: Vec<_> = parts
+        .iter_mut()
+        .map(|p| std::mem::take(&mut p.density))
+        .collect();
     // The later phases read the slabs' samples as the coarse phase kept them.
     remove_spent_files(dir, &plan)?;
     // Each slab reads only its part of the coarse solve: the whole of it is not kept.
     let mean_depth = run.stage("solving coarse depths", || -> Result<f64> {
+        if params.density {
+            phases::save_coarse_density(dir, &plan, params, density_cells)?;
+        }
         let coarse = phases::solve_coarse(parts, &plan, params)?;
         job::save_crops(dir, &plan, params, &coarse, samples as u64)?;
         Ok(coarse.mean_depth)
@@ -290,7 +342,7 @@ fn run(
     let iso = iso_value(&solved);
     let mut sink = match output {
         Some(_) => Sink::Files(MeshFiles::new(dir, face_planes(&plan, params))?),
-        None => Sink::Memory(Vec::with_capacity(k)),
+        None => Sink::Memory(Vec::with_capacity(k), Vec::new()),
     };
     run.stage("extraction", || -> Result<()> {
         for s in 0..k {
@@ -301,38 +353,39 @@ fn run(
                 &[]
             };
             let coarse = coarse_of(s)?;
-            let (blocks, _) =
-                phases::extract(dir, &plan, s, params, &coarse, iso, [before, after])?;
+            let extracted = phases::extract(dir, &plan, s, params, &coarse, iso, [before, after])?;
             match &mut sink {
-                Sink::Memory(all) => all.push(blocks),
-                Sink::Files(files) => files.add(blocks.into_part(), frame)?,
+                Sink::Memory(all, density) => {
+                    density.extend(extracted.density.iter().flatten());
+                    all.push(extracted.blocks);
+                }
+                Sink::Files(files) => files.add(extracted.into_part(), frame)?,
             }
         }
         Ok(())
     })?;
     let mut warnings = Vec::new();
+    let mut trimmed = None;
     let (mesh, written, diagnosis) = match (sink, output) {
         (Sink::Files(files), Some(path)) => {
             let written = run.stage("writing", || files.finish(path))?;
             (None, Some(written), written_diagnosis(&written))
         }
-        (Sink::Memory(blocks), _) => {
+        (Sink::Memory(blocks, density), _) => {
             drop(work);
             let mut mesh = run.stage("numbering vertices", || {
                 crate::extract::Blocks::concat(blocks).assemble()
             })?;
+            if params.density {
+                mesh.density = Some(density);
+            }
             for p in &mut mesh.vertices {
                 *p = frame.to_world(*p);
             }
-            if params.noise == Noise::Adaptive {
-                let removed = run.stage("fragments", || fragments::remove_fragments(&mut mesh));
-                if removed > 0 {
-                    warnings.push(Warning::FragmentsRemoved { pieces: removed });
-                }
-            }
-            let diagnosis = run.stage("checking the mesh", || {
-                Diagnosis::of(&mesh, frame, params.depth, 0.0)
-            });
+            let (mesh, more, diagnosis, cut) =
+                finish_in_memory(mesh, asked, trim, frame, &mut run)?;
+            warnings = more;
+            trimmed = cut;
             (Some(mesh), None, diagnosis)
         }
         (Sink::Files(_), None) => unreachable!("files only with an output"),
@@ -345,7 +398,54 @@ fn run(
             found, params, samples, iso, mean_depth, k, diagnosis, warnings,
         )
     };
-    Ok((mesh, stats, written))
+    Ok(Outcome {
+        mesh,
+        stats,
+        written,
+        trimmed,
+    })
+}
+
+/// The end of a run whose mesh is whole in memory (in the input's frame), as in one piece:
+/// small pieces removed (with adaptive noise), the trimming (with `trim`; the density is
+/// dropped afterwards unless `params` asks for it) and the checks of the result.
+#[allow(clippy::type_complexity)]
+fn finish_in_memory(
+    mut mesh: crate::Mesh,
+    params: &Params,
+    trim: Option<&TrimParams>,
+    frame: Frame,
+    run: &mut Run,
+) -> Result<(crate::Mesh, Vec<Warning>, Diagnosis, Option<TrimStats>)> {
+    let mut warnings = Vec::new();
+    if params.noise == Noise::Adaptive {
+        let removed = run.stage("fragments", || fragments::remove_fragments(&mut mesh));
+        if removed > 0 {
+            warnings.push(Warning::FragmentsRemoved { pieces: removed });
+        }
+    }
+    let mut trimmed = None;
+    if let Some(t) = trim {
+        let (cut, stats) = run.stage("trimming", || crate::trim::trim(&mesh, t))?;
+        mesh = cut;
+        if !params.density {
+            mesh.density = None;
+        }
+        trimmed = Some(stats);
+    }
+    let diagnosis = run.stage("checking the mesh", || Diagnosis {
+        trimmed: trim.is_some(),
+        ..Diagnosis::of(&mesh, frame, params.depth, 0.0)
+    });
+    Ok((mesh, warnings, diagnosis, trimmed))
+}
+
+/// The parameters the phases run with: the density computed also for trimming.
+fn solving(params: &Params, trimming: bool) -> Params {
+    Params {
+        density: params.density || trimming,
+        ..params.clone()
+    }
 }
 
 /// What the first pass found: the points read and those left out as unusable.
@@ -503,8 +603,9 @@ fn slab_stats(
 
 /// Where the slabs' meshes go.
 enum Sink {
-    /// Kept, to be numbered as one mesh in memory.
-    Memory(Vec<crate::extract::Blocks>),
+    /// Kept, to be numbered as one mesh in memory, with the vertices' density (when asked
+    /// for) in the order the blocks number them.
+    Memory(Vec<crate::extract::Blocks>, Vec<f32>),
     /// Written to the work folder as they come.
     Files(MeshFiles),
 }

@@ -36,6 +36,8 @@ pub(crate) struct MeshFiles {
     vertices: BufWriter<File>,
     triangles: BufWriter<File>,
     normals: Option<bool>,
+    /// Whether the vertices carry their density (the parts must agree).
+    density: Option<bool>,
     vertex_count: u64,
     triangle_count: u64,
     /// Whether every coordinate survives a round trip through `f32`.
@@ -72,6 +74,7 @@ impl MeshFiles {
             vertices: open("mesh.vertices")?,
             triangles: open("mesh.triangles")?,
             normals: None,
+            density: None,
             vertex_count: 0,
             triangle_count: 0,
             fits_f32: true,
@@ -95,11 +98,27 @@ impl MeshFiles {
                 "the slabs disagree on vertex normals".into(),
             ));
         }
+        let has_density = part.density.is_some();
+        if *self.density.get_or_insert(has_density) != has_density {
+            return Err(Error::InvalidMesh(
+                "the slabs disagree on vertex density".into(),
+            ));
+        }
+        if part
+            .density
+            .as_ref()
+            .is_some_and(|d| d.len() != part.vertices.len())
+        {
+            return Err(Error::InvalidMesh(
+                "a slab's mesh has a density for some of its vertices only".into(),
+            ));
+        }
+        let len = vertex_record(has_normals, has_density);
         let vpath = self.dir.join("mesh.vertices");
         for (i, p) in part.vertices.iter().enumerate() {
             let w = frame.to_world(*p);
             self.fits_f32 &= w.iter().all(|&c| f64::from(c as f32) == c);
-            let mut rec = [0u8; 36];
+            let mut rec = [0u8; 40];
             for a in 0..3 {
                 rec[a * 8..a * 8 + 8].copy_from_slice(&w[a].to_le_bytes());
             }
@@ -108,7 +127,9 @@ impl MeshFiles {
                     rec[24 + a * 4..28 + a * 4].copy_from_slice(&n[i][a].to_le_bytes());
                 }
             }
-            let len = if has_normals { 36 } else { 24 };
+            if let Some(d) = &part.density {
+                rec[len - 4..len].copy_from_slice(&d[i].to_le_bytes());
+            }
             self.vertices
                 .write_all(&rec[..len])
                 .map_err(|e| io_err(&vpath, e))?;
@@ -175,6 +196,7 @@ impl MeshFiles {
         drop(self.triangles);
         self.open_edges += self.face_edges.values().filter(|&&n| n != 2).count() as u64;
         let normals = self.normals.unwrap_or(false);
+        let density = self.density.unwrap_or(false);
         let nv = self.vertex_count;
         let nt = self.triangle_count;
         let faces = &self.face_vertices;
@@ -189,13 +211,16 @@ impl MeshFiles {
             if normals {
                 h.push_str("property float nx\nproperty float ny\nproperty float nz\n");
             }
+            if density {
+                h.push_str("property float density\n");
+            }
             h.push_str(&format!(
                 "element face {nt}\nproperty list uchar int vertex_indices\nend_header\n"
             ));
             out.write_all(h.as_bytes())?;
             let mut r = BufReader::with_capacity(1 << 16, File::open(&vpath)?);
-            let len = if normals { 36 } else { 24 };
-            let mut rec = [0u8; 36];
+            let len = vertex_record(normals, density);
+            let mut rec = [0u8; 40];
             for _ in 0..nv {
                 r.read_exact(&mut rec[..len])?;
                 for a in 0..3 {
@@ -206,9 +231,8 @@ impl MeshFiles {
                         out.write_all(&c.to_le_bytes())?;
                     }
                 }
-                if normals {
-                    out.write_all(&rec[24..36])?;
-                }
+                // Normals and density, as they were written.
+                out.write_all(&rec[24..len])?;
             }
             let mut r = BufReader::with_capacity(1 << 16, File::open(&tpath)?);
             let mut rec = [0u8; 24];
@@ -265,6 +289,79 @@ impl MeshFiles {
             open_edges: self.open_edges,
         })
     }
+}
+
+/// The slabs' parts (in slab order) numbered as one mesh in memory, in the input's frame:
+/// the vertices and triangles [`MeshFiles`] writes, in the same order (and so the mesh
+/// [`crate::extract::Blocks::assemble`] gives for the slabs' blocks).
+pub(crate) fn assemble(parts: Vec<Part>, frame: Frame) -> Result<crate::Mesh> {
+    let nv: usize = parts.iter().map(|p| p.vertices.len()).sum();
+    if nv >= u32::MAX as usize {
+        return Err(Error::InvalidMesh(
+            "too many vertices for 32-bit indices".into(),
+        ));
+    }
+    let mut owners: FxHashMap<u64, u32> = FxHashMap::default();
+    let mut base = 0u64;
+    for p in &parts {
+        for (i, &k) in p.keys.iter().enumerate() {
+            if k != u64::MAX {
+                owners.insert(k, (base + i as u64) as u32);
+            }
+        }
+        base += p.vertices.len() as u64;
+    }
+    let with_normals = parts.first().is_some_and(|p| p.normals.is_some());
+    let with_density = parts.first().is_some_and(|p| p.density.is_some());
+    if parts
+        .iter()
+        .any(|p| p.normals.is_some() != with_normals || p.density.is_some() != with_density)
+    {
+        return Err(Error::InvalidMesh(
+            "the slabs disagree on vertex normals or density".into(),
+        ));
+    }
+    let mut mesh = crate::Mesh {
+        vertices: Vec::with_capacity(nv),
+        normals: with_normals.then(|| Vec::with_capacity(nv)),
+        density: with_density.then(|| Vec::with_capacity(nv)),
+        ..crate::Mesh::default()
+    };
+    let mut base = 0u64;
+    for p in parts {
+        for t in &p.triangles {
+            let mut tri = [0u32; 3];
+            for (c, &r) in t.iter().enumerate() {
+                tri[c] = if r & FOREIGN != 0 {
+                    *owners.get(&(r & !FOREIGN)).ok_or_else(|| {
+                        Error::InvalidMesh(
+                            "a triangle refers to a vertex no slab owns (a crack between slabs)"
+                                .into(),
+                        )
+                    })?
+                } else {
+                    (base + r) as u32
+                };
+            }
+            mesh.triangles.push(tri);
+        }
+        base += p.vertices.len() as u64;
+        mesh.vertices
+            .extend(p.vertices.iter().map(|&v| frame.to_world(v)));
+        if let (Some(all), Some(n)) = (&mut mesh.normals, p.normals) {
+            all.extend(n);
+        }
+        if let (Some(all), Some(d)) = (&mut mesh.density, p.density) {
+            all.extend(d);
+        }
+    }
+    Ok(mesh)
+}
+
+/// Bytes of a vertex in the work file: x y z (f64), then nx ny nz (f32) and density (f32)
+/// when present.
+fn vertex_record(normals: bool, density: bool) -> usize {
+    24 + if normals { 12 } else { 0 } + if density { 4 } else { 0 }
 }
 
 fn find(parent: &mut [u32], mut v: u32) -> u32 {

@@ -23,11 +23,13 @@ use std::fs::File;
 use std::io::{BufReader, Read};
 use std::path::{Path, PathBuf};
 
-use super::codec::{load as load_record, save};
+use rayon::prelude::*;
+
+use super::codec::{load as load_record, save, CoarseDensity};
 use super::plan::Plan;
 use super::spill::{io_err, read_columns};
 use crate::bspline::{Basis, Degree};
-use crate::density::{DepthAndArea, Sample};
+use crate::density::{Density, DepthAndArea, Sample};
 use crate::evaluate::Evaluator;
 use crate::extract::Blocks;
 use crate::octree::{Octree, TreeRequest, DEPTH_OFFSET};
@@ -61,7 +63,14 @@ pub struct CoarsePart {
     pub sums: [f64; 3],
     /// The slab's own samples.
     pub samples: usize,
+    /// With per-vertex density: the density estimator's occupied cells in the slab's own
+    /// columns at `density_depth` (`cell, Σw, Σw·p`), for the whole cloud's coarse depths
+    /// of the estimator (`save_coarse_density`); empty otherwise.
+    pub density: Vec<DensityCell>,
 }
+
+/// An occupied cell of the density estimator: the cell, `Σ w`, `Σ w·p`.
+pub type DensityCell = crate::density::Cell;
 
 /// A coefficient near a slab's face: tree depth, node key, value.
 pub type FaceCoefficient = (u32, [u32; 3], f32);
@@ -300,6 +309,11 @@ pub fn coarse(
     let refined_keys = (0..tc).map(|t| closed.refined_keys(t)).collect();
     drop(closed);
     let samples = owned.iter().filter(|&&o| o).count();
+    let density = if params.density {
+        density_cells(&sampled, &owned, plan, s, params)
+    } else {
+        Vec::new()
+    };
     // V of the slab's own samples, and of its padding's, on the slab's tree (which holds
     // every node that the own samples' V touches, as the in-core tree does).
     let pad_splats: Vec<_> = refined
@@ -352,6 +366,7 @@ pub fn coarse(
         return Ok(CoarsePart {
             refined: refined_keys,
             samples,
+            density,
             ..CoarsePart::default()
         });
     };
@@ -403,7 +418,92 @@ pub fn coarse(
             field.mean_depth * field.weight,
         ],
         samples,
+        density,
     })
+}
+
+/// The unit depth whose occupied cells the slabs hand in for the whole cloud's density
+/// estimator ([`DensityCell`]). A vertex's density reads the estimator at each depth within
+/// three cells of the vertex; a slab's padding (six cells of the coarse depth, which is the
+/// kernel depth here) covers that down to one depth above the kernel depth, so the depths
+/// from the kernel depth − 2 up are taken from the whole cloud, from cells within one column
+/// each (hence at least the block depth), which one slab owns whole. When the kernel depth
+/// is above the block depth (shallow runs), no depth is within one column: the slabs hand
+/// in their samples (one per cell of the finest depth) and every depth of the estimator is
+/// the whole cloud's.
+pub(crate) fn density_depth(plan: &Plan, params: &Params) -> u32 {
+    let kernel = params.kernel_depth();
+    if plan.block_depth <= kernel {
+        kernel.saturating_sub(2).max(plan.block_depth)
+    } else {
+        params.depth
+    }
+}
+
+/// The slab's share of the whole cloud's coarse density ([`density_depth`]): the estimator's
+/// cells at that depth within the slab's own columns, or its own samples.
+fn density_cells(
+    sampled: &Sampled,
+    owned: &[bool],
+    plan: &Plan,
+    s: usize,
+    params: &Params,
+) -> Vec<DensityCell> {
+    let depth = density_depth(plan, params);
+    let kernel = params.kernel_depth();
+    if depth > kernel {
+        return (sampled.samples.iter().zip(owned))
+            .filter(|(_, &o)| o)
+            .map(|(x, _)| {
+                let wp = [
+                    x.weight * x.pos[0],
+                    x.weight * x.pos[1],
+                    x.weight * x.pos[2],
+                ];
+                (crate::density::cell_of(x.pos, depth), x.weight, wp)
+            })
+            .collect();
+    }
+    let range = &plan.slabs[s];
+    let shift = depth - plan.block_depth;
+    crate::density::Density::cells_at(&sampled.samples, kernel, depth)
+        .into_iter()
+        .filter(|(c, _, _)| range.contains(&(c[0] >> shift)))
+        .collect()
+}
+
+fn coarse_density_path(dir: &Path) -> PathBuf {
+    dir.join("density.coarse")
+}
+
+/// Coordinator: the whole cloud's density estimator at the depths up to [`density_depth`],
+/// from every slab's cells ([`CoarsePart::density`]), written for the extraction phase.
+pub(crate) fn save_coarse_density(
+    dir: &Path,
+    plan: &Plan,
+    params: &Params,
+    parts: Vec<Vec<DensityCell>>,
+) -> Result<()> {
+    let depth = density_depth(plan, params);
+    let rho = crate::density::coarse_levels(parts, depth, params.kernel_depth());
+    save(&coarse_density_path(dir), &CoarseDensity(rho))
+}
+
+/// The slab's density estimator for its vertices: its own samples' (with the padding's) at
+/// the finer depths, the whole cloud's at the coarser ones, so that every vertex of the
+/// slab's own columns reads the in-core estimator.
+fn slab_density(dir: &Path, sampled: &Sampled, params: &Params) -> Result<Density> {
+    let coarse: CoarseDensity = load_record(&coarse_density_path(dir))?;
+    let kernel = params.kernel_depth();
+    if coarse.0.len() > kernel as usize + 1 {
+        return Err(crate::Error::Parse {
+            path: coarse_density_path(dir),
+            message: "the coarse density has more depths than the run's estimator".into(),
+        });
+    }
+    let mut density = Density::build(&sampled.samples, kernel, params.samples_per_node);
+    density.replace_coarse(coarse.0);
+    Ok(density)
 }
 
 /// The node of `tree` at tree depth `t` with key `key`, if the tree has it.
@@ -755,11 +855,15 @@ pub fn extract(
     coarse: &Coarse,
     iso: f64,
     neighbours: [&[FaceCoefficient]; 2],
-) -> Result<(Blocks, usize)> {
+) -> Result<Extracted> {
     crate::resources::release_free_memory();
     let Loaded { sampled, .. } = load_slab(dir, plan, s)?;
     let tc = plan.coarse_level();
     let refined = slab_tree(&sampled, params, coarse)?;
+    let density = params
+        .density
+        .then(|| slab_density(dir, &sampled, params))
+        .transpose()?;
     drop(sampled);
     let tree = refined.tree;
     let (fem, tabs) = tables(&tree, params);
@@ -786,7 +890,41 @@ pub fn extract(
     }
     let range = plan.slabs[s].clone();
     let blocks = extract::slab_blocks(&tree, fem, &sol, iso, params, plan.block_depth, range)?;
-    Ok((blocks, missing))
+    drop(sol);
+    drop(tree);
+    // Each vertex's density, as the in-core extraction computes it (unit-cube position).
+    let density = density.map(|d| {
+        let positions: Vec<[f64; 3]> = blocks.vertices().copied().collect();
+        positions
+            .par_iter()
+            .map(|p| d.query(*p).depth as f32)
+            .collect()
+    });
+    Ok(Extracted {
+        blocks,
+        density,
+        missing,
+    })
+}
+
+/// A slab's part of the mesh (phase 5).
+pub struct Extracted {
+    /// The slab's polygonised blocks.
+    pub blocks: Blocks,
+    /// Each vertex's density (in the order [`Blocks::vertices`] gives them), when asked for.
+    pub density: Option<Vec<f32>>,
+    /// Coefficients of the neighbours' face bands that the slab's tree lacks.
+    pub missing: usize,
+}
+
+impl Extracted {
+    /// The slab's mesh as a part of the whole, with its density.
+    pub fn into_part(self) -> crate::extract::Part {
+        crate::extract::Part {
+            density: self.density,
+            ..self.blocks.into_part()
+        }
+    }
 }
 
 /// Writes per-node values of the levels from `from` on, atomically (a task that dies

@@ -3,6 +3,7 @@
 
 use spsr::metrics::MeshDistance;
 use spsr::slabs::{self, SlabOptions, Source};
+use spsr::trim::{Threshold, TrimParams};
 use spsr::{Mesh, Noise, Params, PointCloud};
 
 use crate::common::torus;
@@ -159,8 +160,20 @@ fn run_job(
     root: &std::path::Path,
     out: &std::path::Path,
 ) -> slabs::Written {
+    run_job_trimmed(cloud, params, None, k, root, out)
+}
+
+/// As [`run_job`], for a job that trims its mesh (`trim`).
+fn run_job_trimmed(
+    cloud: &PointCloud,
+    params: &Params,
+    trim: Option<&TrimParams>,
+    k: usize,
+    root: &std::path::Path,
+    out: &std::path::Path,
+) -> slabs::Written {
     use slabs::job;
-    let j = job::prepare(Source::Cloud(cloud), params, k, root).unwrap();
+    let j = job::prepare(Source::Cloud(cloud), params, trim, k, root).unwrap();
     let order: Vec<usize> = (0..j.slabs).rev().collect();
     let each = |task: fn(&std::path::Path, usize) -> spsr::Result<()>| {
         for &s in &order {
@@ -219,7 +232,7 @@ fn slab_tasks_refuse_steps_out_of_order_and_foreign_folders() {
     use slabs::job;
     let cloud = torus(5_000, 1.0, 0.35, 3);
     let dir = tempfile::tempdir().unwrap();
-    let j = job::prepare(Source::Cloud(&cloud), &plain(6), 2, dir.path()).unwrap();
+    let j = job::prepare(Source::Cloud(&cloud), &plain(6), None, 2, dir.path()).unwrap();
     // Extraction before the iso-value, a slab the job lacks, a solve before the coarse solve.
     let e = job::extract(&j.dir, 0).unwrap_err().to_string();
     assert!(e.contains("iso"), "{e}");
@@ -302,4 +315,228 @@ fn slabs_solve_cascadic_cycles_as_one_cascade_of_their_sweeps() {
         "{text}"
     );
     assert_eq!(note(&cascade.stats.warnings), None);
+}
+
+/// For each vertex of `a`, the index of the nearest vertex of `b` and its distance (a grid of
+/// buckets of width `h`, searched in the 27 around the vertex).
+fn nearest_vertices(a: &Mesh, b: &Mesh, h: f64) -> Vec<(usize, f64)> {
+    use std::collections::HashMap;
+    let key = |p: [f64; 3]| p.map(|c| (c / h).floor() as i64);
+    let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
+    for (i, p) in b.vertices.iter().enumerate() {
+        grid.entry(key(*p)).or_default().push(i);
+    }
+    a.vertices
+        .iter()
+        .map(|p| {
+            let k = key(*p);
+            let mut best = (usize::MAX, f64::INFINITY);
+            for o in 0..27i64 {
+                let c = [k[0] + o % 3 - 1, k[1] + (o / 3) % 3 - 1, k[2] + o / 9 - 1];
+                for &j in grid.get(&c).into_iter().flatten() {
+                    let q = b.vertices[j];
+                    let d = (0..3).map(|x| (p[x] - q[x]).powi(2)).sum::<f64>().sqrt();
+                    if d < best.1 {
+                        best = (j, d);
+                    }
+                }
+            }
+            best
+        })
+        .collect()
+}
+
+fn slab_options(k: usize, dir: &std::path::Path) -> SlabOptions {
+    SlabOptions {
+        slabs: k,
+        work_dir: dir.to_path_buf(),
+    }
+}
+
+/// The density of each slab vertex is the in-core estimator's at that place: the slabs read
+/// the whole cloud's estimator at the depths coarser than their padding (the bunny's open
+/// bottom is closed by surface far from the samples, whose density walks up to those
+/// depths). At depth 6 the kernel depth lies above the columns' depth and every depth is the
+/// whole cloud's; at depth 8 the finer depths are the slab's own.
+#[test]
+fn slab_density_is_the_in_core_density() {
+    let cloud = bunny();
+    let dir = tempfile::tempdir().unwrap();
+    for depth in [6, 8] {
+        let params = Params {
+            density: true,
+            cycles: Some(1),
+            iters: Some(8),
+            ..plain(depth)
+        };
+        let whole = spsr::reconstruct(&cloud, &params).unwrap().mesh;
+        let h = cell(&cloud, &params);
+        let wd = whole.density.as_ref().expect("in-core density");
+        let (lo, hi) = wd
+            .iter()
+            .fold((f32::MAX, f32::MIN), |(lo, hi), &d| (lo.min(d), hi.max(d)));
+        for k in [3, 5] {
+            let out = slabs::reconstruct(
+                Source::Cloud(&cloud),
+                &params,
+                &slab_options(k, dir.path()),
+                &|_| {},
+            )
+            .unwrap()
+            .mesh;
+            let sd = out.density.as_ref().expect("slab density");
+            assert_eq!(sd.len(), out.vertices.len());
+            let near = nearest_vertices(&out, &whole, h);
+            let mut worst = 0.0f64;
+            let mut off = 0;
+            for (i, &(j, dist)) in near.iter().enumerate() {
+                assert!(
+                    dist < 0.01 * h,
+                    "depth {depth}, {k} slabs: vertex {i} {dist} from in-core"
+                );
+                let diff = f64::from((sd[i] - wd[j]).abs());
+                worst = worst.max(diff);
+                if diff > 1e-3 {
+                    off += 1;
+                }
+            }
+            eprintln!(
+                "depth {depth}, {k} slabs: {} / {} vertices, density {lo}..{hi}, largest difference {worst:.2e}, {off} over 1e-3",
+                out.vertices.len(),
+                whole.vertices.len()
+            );
+            assert_eq!(
+                out.vertices.len(),
+                whole.vertices.len(),
+                "depth {depth}, {k} slabs"
+            );
+            assert_eq!(
+                out.triangles.len(),
+                whole.triangles.len(),
+                "depth {depth}, {k} slabs"
+            );
+            // The vertices lie within 1e-4 cells of the in-core ones and the density moves
+            // with them by as little (at most 8e-5 here). Slabs reading their own estimator
+            // at every depth are up to 5e-3 off at depth 8 (4 vertices over 1e-3 with 5
+            // slabs): the coarse depths must be the whole cloud's.
+            assert_eq!(off, 0, "depth {depth}, {k} slabs: {off} vertices differ");
+        }
+    }
+}
+
+/// `--density` in slabs, written as the slabs come: the density of the mesh assembled in
+/// memory, and the same bytes from the tasks of a job. (The slab count moves the vertices by
+/// up to 1e-4 finest cells, as it does without density, so the bytes depend on it; the
+/// estimator the density is read from does not: see `slab_density_is_the_in_core_density`.)
+#[test]
+fn slab_density_is_written_as_the_slabs_come_and_by_tasks() {
+    let cloud = bunny();
+    let dir = tempfile::tempdir().unwrap();
+    let params = Params {
+        density: true,
+        ..plain(8)
+    };
+    let options = slab_options(3, dir.path());
+    let in_memory = slabs::reconstruct(Source::Cloud(&cloud), &params, &options, &|_| {})
+        .unwrap()
+        .mesh;
+    let one = dir.path().join("one.ply");
+    slabs::reconstruct_into(Source::Cloud(&cloud), &params, &options, &one, &|_| {}).unwrap();
+    let read = spsr::io::read_mesh(&one).unwrap();
+    assert_eq!(read.triangles, in_memory.triangles);
+    assert_eq!(
+        read.density, in_memory.density,
+        "the density written as the slabs come"
+    );
+    let tasks = dir.path().join("tasks.ply");
+    run_job(&cloud, &params, 3, dir.path(), &tasks);
+    assert!(
+        std::fs::read(&one).unwrap() == std::fs::read(&tasks).unwrap(),
+        "the tasks' mesh differs from the one-process run's"
+    );
+}
+
+/// `--trim` in slabs: one threshold for the whole mesh, chosen from the whole mesh's
+/// densities as in one piece, and the trimmed mesh of one piece within a fraction of a cell
+/// (same counts, pieces and boundary) for any slab count; the tasks of a job write the bytes
+/// of the one-process run.
+#[test]
+fn slab_trim_is_the_in_core_trim() {
+    let cloud = bunny();
+    let dir = tempfile::tempdir().unwrap();
+    let params = Params {
+        cycles: Some(1),
+        iters: Some(8),
+        ..plain(8)
+    };
+    let h = cell(&cloud, &params);
+    for threshold in [Threshold::Auto, Threshold::Value(6.5)] {
+        let trim = TrimParams {
+            threshold,
+            ..TrimParams::default()
+        };
+        let (whole, wt) =
+            spsr::reconstruct_and_trim(cloud.clone(), &params, &trim, &|_| {}).unwrap();
+        let mut meshes = Vec::new();
+        for k in [2, 3] {
+            let (out, st) = slabs::reconstruct_and_trim(
+                Source::Cloud(&cloud),
+                &params,
+                &slab_options(k, dir.path()),
+                &trim,
+                &|_| {},
+            )
+            .unwrap();
+            eprintln!(
+                "{threshold:?}, {k} slabs: threshold {} (in one piece {}), {} / {} vertices, {} / {} triangles, pieces {} / {}",
+                st.threshold,
+                wt.threshold,
+                out.mesh.vertices.len(),
+                whole.mesh.vertices.len(),
+                out.mesh.triangles.len(),
+                whole.mesh.triangles.len(),
+                out.stats.diagnosis.pieces,
+                whole.stats.diagnosis.pieces,
+            );
+            assert!(
+                (st.threshold - wt.threshold).abs() < 1e-4,
+                "{threshold:?}: thresholds"
+            );
+            assert!(
+                out.mesh.density.is_none(),
+                "density kept only when asked for"
+            );
+            assert_eq!(out.mesh.triangles.len(), whole.mesh.triangles.len());
+            assert_eq!(out.mesh.vertices.len(), whole.mesh.vertices.len());
+            assert_eq!(out.stats.diagnosis.pieces, whole.stats.diagnosis.pieces);
+            assert_eq!(out.stats.diagnosis.closed, whole.stats.diagnosis.closed);
+            assert_eq!(
+                out.stats.diagnosis.boundary_edges,
+                whole.stats.diagnosis.boundary_edges
+            );
+            let (max, mean) = distances(&out.mesh, &whole.mesh);
+            assert!(
+                max <= 0.01 * h,
+                "{threshold:?}, {k} slabs: {} cells apart",
+                max / h
+            );
+            assert!(
+                mean <= 1e-3 * h,
+                "{threshold:?}, {k} slabs: mean {} cells",
+                mean / h
+            );
+            meshes.push(out.mesh);
+        }
+        // The tasks of a job write the same bytes as the one-process run.
+        let one = dir.path().join("one.ply");
+        spsr::io::write_mesh(&one, &meshes[1], &spsr::io::WriteOptions { ascii: false }).unwrap();
+        let tasks = dir.path().join("tasks.ply");
+        run_job_trimmed(&cloud, &params, Some(&trim), 3, dir.path(), &tasks);
+        assert!(
+            std::fs::read(&one).unwrap() == std::fs::read(&tasks).unwrap(),
+            "{threshold:?}: the tasks' trimmed mesh differs"
+        );
+    }
+    // Only the meshes are left.
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
 }
