@@ -91,7 +91,12 @@ pub(crate) fn slab_blocks(
     columns: std::ops::Range<i64>,
 ) -> Result<Blocks> {
     let eval = Evaluator::new(tree, fem, solution);
-    let cells = TreeCells::columns(tree, block_depth, columns);
+    let mut cells = TreeCells::columns(tree, block_depth, columns);
+    // Edge keys in units of the asked depth, whatever depth the slab's tree reaches: the
+    // slabs' keys must agree on the faces they share (and a sparse cloud's tree may stop
+    // short of the asked depth, in some slabs or all). Scaling by a power of two moves no
+    // vertex.
+    cells.max_depth = cells.max_depth.max(params.depth);
     let field = CornerField::new(&eval, cells.max_depth);
     let options = ExtractOptions {
         linear_fit: params.linear_fit,

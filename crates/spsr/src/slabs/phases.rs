@@ -553,6 +553,20 @@ pub fn solve_coarse(mut parts: Vec<CoarsePart>, plan: &Plan, params: &Params) ->
     let tc = plan.coarse_level();
     let refined: Vec<&[Vec<u64>]> = parts.iter().map(|p| p.refined.as_slice()).collect();
     let (tree, refined_keys) = coarse_tree_of(&refined, plan, params);
+    if tree.levels.len() as u32 <= tc {
+        // So sparse a cloud has nothing finer than the coarse depths for the slabs to solve
+        // apart, and is small: it runs in one piece.
+        return Err(crate::Error::invalid(
+            "slabs",
+            plan.slabs.len(),
+            format!(
+                "one piece for this cloud: its octree stops at depth {}, above depth {}, where \
+                 the slabs part; leave out --slabs (it is small enough to run in one piece)",
+                (tree.levels.len() as u32).saturating_sub(1 + crate::octree::DEPTH_OFFSET),
+                plan.coarse_depth
+            ),
+        ));
+    }
     for part in &mut parts {
         part.refined = Vec::new();
     }
@@ -927,11 +941,11 @@ impl Extracted {
     }
 }
 
-/// Writes per-node values of the levels from `from` on, atomically (a task that dies
-/// leaves no half file).
+/// Writes per-node values of the levels from `from` on (none where a sparse slab's tree
+/// stops above `from`), atomically (a task that dies leaves no half file).
 fn write_levels(path: &Path, levels: &[Vec<f32>], from: u32) -> Result<()> {
     crate::io::write_with(path, |w| {
-        for x in &levels[from as usize..] {
+        for x in levels.get(from as usize..).unwrap_or_default() {
             w.write_all(&(x.len() as u64).to_le_bytes())?;
             for v in x {
                 w.write_all(&v.to_le_bytes())?;
