@@ -9,7 +9,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::tests::{fixtures, pseudo_random};
+use super::tests::{fixtures, pseudo_random, right_hand_side_inputs};
 use super::{coarse_cluster_values, cycles, right_hand_side, Op};
 use crate::gpu::{kernel_source, LevelSystem};
 
@@ -473,18 +473,7 @@ fn the_gpu_kernels_run_on_the_cpu_give_the_solvers_bits() {
             let op = Op::new(&p, t);
             let sys = op.level_system();
             let seed = u64::from(t);
-            let parents = f.tree.levels[t as usize - 1].len();
-            let tcons = as_f32(pseudo_random(op.level.len(), 11 + seed));
-            let pc = pseudo_random(parents, 13 + seed);
-            // Every third parent's V is zero, as the boundary coupling skips those.
-            let vc: Vec<[f32; 3]> = pseudo_random(3 * parents, 17 + seed)
-                .chunks(3)
-                .enumerate()
-                .map(|(q, v)| match q % 3 {
-                    0 => [0.0; 3],
-                    _ => [v[0] as f32, v[1] as f32, v[2] as f32],
-                })
-                .collect();
+            let (tcons, pc, vc) = right_hand_side_inputs(f, t);
             let cchi = coarse_cluster_values(&op, f.fem, &pc);
             let (r, b) = cycles::right_hand_sides(&op, f.fem, &tcons, &pc, &vc);
             let (er, eb) = first_right_hand_sides(&kernels, &sys, &tcons, &pc, &vc, &cchi);

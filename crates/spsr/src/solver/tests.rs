@@ -551,6 +551,31 @@ fn the_hierarchical_stiffness_is_symmetric() {
     }
 }
 
+/// Random inputs of level `t`'s right-hand sides: its constraints, and the parent level's
+/// cumulative solution and V, every third parent's V zero (the boundary coupling skips those).
+#[cfg(feature = "gpu")]
+pub(super) fn right_hand_side_inputs(f: &Fixture, t: u32) -> (Vec<f32>, Vec<f64>, Vec<[f32; 3]>) {
+    let seed = u64::from(t);
+    let (nodes, parents) = (
+        f.tree.levels[t as usize].len(),
+        f.tree.levels[t as usize - 1].len(),
+    );
+    let tcons = pseudo_random(nodes, 11 + seed)
+        .iter()
+        .map(|&x| x as f32)
+        .collect();
+    let pc = pseudo_random(parents, 13 + seed);
+    let vc = pseudo_random(3 * parents, 17 + seed)
+        .chunks(3)
+        .enumerate()
+        .map(|(q, v)| match q % 3 {
+            0 => [0.0; 3],
+            _ => [v[0] as f32, v[1] as f32, v[2] as f32],
+        })
+        .collect();
+    (tcons, pc, vc)
+}
+
 /// On a GPU, every level's right-hand sides and sweeps give the CPU's values bit for bit (from
 /// random inputs, with some coarser V zero, and from zero and a nonzero start), and so does the
 /// whole solve, with every solver path: the cascade alone, cascadic cycles and V-cycles.
@@ -577,21 +602,7 @@ fn the_gpu_gives_the_cpus_bits() {
         for t in f.base_level + 1..=f.max_level() {
             let (cpu_op, gpu_op) = (Op::new(&cpu_p, t), Op::new(&gpu_p, t));
             let seed = u64::from(t);
-            let parents = f.tree.levels[t as usize - 1].len();
-            let tcons = as_f32(pseudo_random(cpu_op.level.len(), 11 + seed));
-            let pc = pseudo_random(parents, 13 + seed);
-            // Every third parent's V is zero, as the boundary coupling skips those.
-            let vc: Vec<[f32; 3]> = pseudo_random(3 * parents, 17 + seed)
-                .chunks(3)
-                .enumerate()
-                .map(|(q, v)| {
-                    if q % 3 == 0 {
-                        [0.0; 3]
-                    } else {
-                        [v[0] as f32, v[1] as f32, v[2] as f32]
-                    }
-                })
-                .collect();
+            let (tcons, pc, vc) = right_hand_side_inputs(f, t);
             let (r_cpu, b_cpu) = super::cycles::right_hand_sides(&cpu_op, f.fem, &tcons, &pc, &vc);
             let (r_gpu, b_gpu) = super::cycles::right_hand_sides(&gpu_op, f.fem, &tcons, &pc, &vc);
             assert_eq!(bits(&r_cpu), bits(&r_gpu), "{what}, level {t}: r");
