@@ -72,8 +72,7 @@ fn trim_from(json: &str) -> PyResult<TrimParams> {
         None | Some(serde_json::Value::Null) => Threshold::Auto,
         Some(x) => Threshold::Value(
             x.as_f64()
-                .ok_or_else(|| value_error("trimming threshold: not a number"))?
-                as f32,
+                .ok_or_else(|| value_error("trimming threshold: not a number"))? as f32,
         ),
     };
     Ok(TrimParams {
