@@ -128,6 +128,22 @@ fn chunks(path: &Path, chunk: usize) -> (Vec<usize>, PointCloud) {
     (sizes, all.unwrap())
 }
 
+/// Each chunk's scan origins, as (first point, x of the origin).
+fn chunk_origins(path: &Path, chunk: usize) -> Vec<Vec<(usize, f64)>> {
+    let mut out = Vec::new();
+    read_points_chunks(path, chunk, &mut |c| {
+        out.push(
+            c.scan_origins
+                .iter()
+                .map(|o| (o.first_point, o.origin[0]))
+                .collect(),
+        );
+        Ok(())
+    })
+    .unwrap();
+    out
+}
+
 #[test]
 fn chunked_reading_gives_the_whole_file_in_order() {
     let dir = tempfile::tempdir().unwrap();
@@ -156,19 +172,8 @@ fn chunked_reading_gives_the_whole_file_in_order() {
     }
     // Scan origins, counted from each chunk's first point: the one in force, then any new.
     let p = dir.path().join("c.ply");
-    let mut origins = Vec::new();
-    read_points_chunks(&p, 5, &mut |c| {
-        origins.push(
-            c.scan_origins
-                .iter()
-                .map(|o| (o.first_point, o.origin[0]))
-                .collect::<Vec<_>>(),
-        );
-        Ok(())
-    })
-    .unwrap();
     assert_eq!(
-        origins,
+        chunk_origins(&p, 5),
         [
             vec![(0, 0.1), (4, -1.0)],
             vec![(0, -1.0)],
@@ -1339,20 +1344,7 @@ fn e57_and_pcd_are_read_in_chunks() {
     let p = dir.path().join("scans.e57");
     write_e57(&p);
     let whole = read_points(&p).unwrap();
-    let origins = |chunk: usize| {
-        let mut out = Vec::new();
-        read_points_chunks(&p, chunk, &mut |c| {
-            out.push(
-                c.scan_origins
-                    .iter()
-                    .map(|o| (o.first_point, o.origin[0]))
-                    .collect::<Vec<_>>(),
-            );
-            Ok(())
-        })
-        .unwrap();
-        out
-    };
+    let origins = |chunk: usize| chunk_origins(&p, chunk);
     let (sizes, joined) = chunks(&p, 3);
     assert_eq!(sizes, [3, 3, 2]);
     assert_eq!(joined.positions, whole.positions);
