@@ -2,13 +2,20 @@
 """Issue 15's measurements: `spsr reconstruct --slabs K` against the same run in one piece.
 
 For each input and depth: the run in one piece, then the slab runs, alternating run by run; wall
-time and peak resident memory of the whole process (/usr/bin/time); the distance between each
+time and peak resident memory (the sum over the whole process tree, sampled every 0.1 s, so that a
+Dask run counts its scheduler, nannies and workers too); the distance between each
 slab mesh and the one-piece mesh (Hausdorff and mean, both directions, in finest cells: the
 bounding cube's side / 2^depth) and each mesh's Chamfer distance to the ground truth (spsr eval,
 relative to the truth's bounding-box diagonal).
 
     ~/.cache/spsr-bench-venv/bin/python bench/slabs/run.py [--inputs bunny_1m spot_1m] [--depth 10] [--slabs 1 2 4 8 16]
-        [--big spot:4000000] [--name issue15-slabs] [--extra '--cycles 1 --iters 8']
+        [--big spot:4000000] [--name issue15-slabs] [--extra '--cycles 1 --iters 8'] [--workers 0 1 2]
+
+`--workers 0` (the default) runs the slabs one after another with `spsr reconstruct --slabs K`;
+`--workers W` (W ≥ 1) runs them as Dask tasks with `python -m spsr.distributed --workers W` (a
+LocalCluster of W worker processes, each with 2 / W threads, so that every run uses the machine's 2
+cores; the Python that runs this script must have spsr and dask[distributed] installed). With more
+than one runner, a plot of time and peak memory against slabs goes beside the table.
 
 Inputs are the shared data's points (../shared/data/points); `--big NAME:COUNT` samples COUNT
 points from the shared ground-truth mesh gt/NAME.ply (cached in ~/.cache/spsr-bench-inputs, as
@@ -20,6 +27,8 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
+import time
 
 import numpy as np
 
@@ -31,13 +40,55 @@ CACHE = os.path.expanduser("~/.cache/spsr-bench-inputs")
 sys.path.insert(0, os.path.join(ROOT, "bench"))
 
 
+def tree_rss_kib(pid):
+    """Resident memory of a process and all its descendants, in KiB (0 for those gone)."""
+    total, todo = 0, [pid]
+    while todo:
+        p = todo.pop()
+        try:
+            with open(f"/proc/{p}/status") as f:
+                total += next((int(l.split()[1]) for l in f if l.startswith("VmRSS:")), 0)
+            for t in os.listdir(f"/proc/{p}/task"):
+                with open(f"/proc/{p}/task/{t}/children") as f:
+                    todo.extend(int(x) for x in f.read().split())
+        except (OSError, ValueError):
+            pass
+    return total
+
+
 def timed(args):
-    """Runs a command under /usr/bin/time: (wall seconds, peak RSS in MiB)."""
-    with tempfile.NamedTemporaryFile("r", suffix=".time") as t:
-        subprocess.run(["/usr/bin/time", "-f", "%e %M", "-o", t.name] + args, check=True,
-                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        wall, kb = t.read().split()[-2:]
-    return float(wall), int(kb) / 1024
+    """Runs a command: (wall seconds, peak resident memory of its process tree in MiB)."""
+    start = time.perf_counter()
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    peak, done = [0], threading.Event()
+
+    def watch():
+        while not done.wait(0.1):
+            peak[0] = max(peak[0], tree_rss_kib(proc.pid))
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    _, err = proc.communicate()
+    wall = time.perf_counter() - start
+    done.set()
+    watcher.join()
+    if proc.returncode:
+        raise RuntimeError(f"{' '.join(args)} failed ({proc.returncode}): {err.decode()[-2000:]}")
+    return wall, peak[0] / 1024
+
+
+def runner_name(workers):
+    return "spsr --slabs" if workers == 0 else f"Dask, {workers} worker{'s' if workers > 1 else ''}"
+
+
+def slab_command(workers, path, out, depth, k, work, extra):
+    """The command of one slab run: the command line's sequential slabs, or a LocalCluster."""
+    if workers == 0:
+        return [SPSR, "reconstruct", path, "-o", out, "--depth", str(depth), "--slabs", str(k),
+                "--work-dir", work] + extra
+    threads = max(1, (os.cpu_count() or 2) // workers)
+    return [sys.executable, "-m", "spsr.distributed", "--workers", str(workers), path, "-o", out,
+            "--depth", str(depth), "--slabs", str(k), "--work-dir", work, "--threads", str(threads)] + extra
 
 
 def evaluate(mesh, reference):
@@ -69,6 +120,8 @@ def main():
     ap.add_argument("--slabs", nargs="*", type=int, default=[1, 2, 4, 8, 16])
     ap.add_argument("--name", default="issue15-slabs")
     ap.add_argument("--extra", default="", help="flags for every run, e.g. '--cycles 1 --iters 8'")
+    ap.add_argument("--workers", nargs="*", type=int, default=[0],
+                    help="0: spsr --slabs (one process); W: a Dask LocalCluster of W workers")
     a = ap.parse_args()
 
     cases = [(n,) + resolve(n) for n in a.inputs]
@@ -86,16 +139,16 @@ def main():
             one = os.path.join(tmp, f"{name}-one.ply")
             base = [SPSR, "reconstruct", path, "--depth", str(a.depth)] + a.extra.split()
             runs = {}
-            # Alternate: one piece, a slab count, one piece again, ...
-            for k in a.slabs:
-                out = os.path.join(tmp, f"{name}-{k}.ply")
-                if "one" not in runs or len(runs) % 2 == 0:
+            # Alternate: one piece, then five slab runs, one piece again, ...
+            plan = [(k, workers) for k in a.slabs for workers in a.workers]
+            for i, (k, workers) in enumerate(plan):
+                out = os.path.join(tmp, f"{name}-{k}-{workers}.ply")
+                if i % 5 == 0:
                     runs.setdefault("one", []).append(timed(base + ["-o", one, "--slabs", "auto"]))
-                runs[k] = [timed(base + ["-o", out, "--slabs", str(k), "--work-dir", tmp])]
+                w, m = timed(slab_command(workers, path, out, a.depth, k, tmp, a.extra.split()))
                 d = evaluate(out, one)
                 c = evaluate(out, gt)
-                w, m = runs[k][0]
-                rows.append(dict(input=name, depth=a.depth, slabs=k, time_s=w, peak_mib=m,
+                rows.append(dict(input=name, depth=a.depth, slabs=k, runner=runner_name(workers), time_s=w, peak_mib=m,
                                  hausdorff_cells=d["hausdorff"] / cell,
                                  mean_cells=max(d["mesh_to_reference_mean"], d["reference_to_mesh_mean"]) / cell,
                                  chamfer_rel=c["chamfer_rel"], pieces=c["components"], closed=c["closed"]))
@@ -103,7 +156,7 @@ def main():
             c1 = evaluate(one, gt)
             w1 = sorted(r[0] for r in runs["one"])[len(runs["one"]) // 2]
             m1 = max(r[1] for r in runs["one"])
-            rows.append(dict(input=name, depth=a.depth, slabs=0, time_s=w1, peak_mib=m1,
+            rows.append(dict(input=name, depth=a.depth, slabs=0, runner="spsr, one piece", time_s=w1, peak_mib=m1,
                              hausdorff_cells=0.0, mean_cells=0.0, chamfer_rel=c1["chamfer_rel"],
                              pieces=c1["components"], closed=c1["closed"]))
             print(rows[-1], flush=True)
@@ -114,19 +167,52 @@ def main():
     load = os.getloadavg()
     lines = [f"# Slab runs against one piece (depth {a.depth})", "",
              f"`python3 bench/slabs/run.py {' '.join(sys.argv[1:])}`; load average at the end "
-             f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; 2 threads. Slabs 0 is the run in one piece; "
-             "distances are to it, in finest cells; Chamfer is to the ground truth, relative to its diagonal.", "",
-             "| input | slabs | time (s) | × one piece | peak (MiB) | × one piece | Hausdorff (cells) | mean (cells) | Chamfer | × one piece | pieces | closed |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; 2 cores. Distances are to the run in one piece, "
+             "in finest cells; Chamfer is to the ground truth, relative to its diagonal; peak is the "
+             "resident memory of the whole process tree.", "",
+             "| input | runner | slabs | time (s) | × one piece | peak (MiB) | × one piece | Hausdorff (cells) | mean (cells) | Chamfer | × one piece | pieces | closed |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         one = next(x for x in rows if x["input"] == r["input"] and x["slabs"] == 0)
-        lines.append(f"| {r['input']} | {r['slabs'] or 'one piece'} | {r['time_s']:.1f} | {r['time_s'] / one['time_s']:.2f} "
+        lines.append(f"| {r['input']} | {r['runner']} | {r['slabs'] or '–'} | {r['time_s']:.1f} | {r['time_s'] / one['time_s']:.2f} "
                      f"| {r['peak_mib']:.0f} | {r['peak_mib'] / one['peak_mib']:.2f} | {r['hausdorff_cells']:.2g} "
                      f"| {r['mean_cells']:.2g} | {r['chamfer_rel']:.4g} | {r['chamfer_rel'] / one['chamfer_rel']:.4f} "
                      f"| {r['pieces']} | {'yes' if r['closed'] else 'no'} |")
     with open(os.path.join(ROOT, "bench", "results", a.name + ".md"), "w") as f:
         f.write("\n".join(lines) + "\n")
     print("\n".join(lines))
+    if len(a.workers) > 1:
+        plot(rows, os.path.join(ROOT, "bench", "results", a.name + ".png"))
+
+
+def plot(rows, path):
+    """Time and peak memory against slabs, one line per runner, the run in one piece dashed."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+
+    inputs = sorted({r["input"] for r in rows})
+    fig, axes = plt.subplots(len(inputs), 2, figsize=(10, 4 * len(inputs)), squeeze=False)
+    for row_axes, name in zip(axes, inputs):
+        mine = [r for r in rows if r["input"] == name]
+        one = next(r for r in mine if r["slabs"] == 0)
+        for ax, key, label in zip(row_axes, ("time_s", "peak_mib"), ("time (s)", "peak resident memory (MiB)")):
+            for runner in sorted({r["runner"] for r in mine if r["slabs"]}):
+                pts = sorted((r["slabs"], r[key]) for r in mine if r["runner"] == runner)
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=runner)
+            ax.axhline(one[key], color="k", ls="--", lw=1, label="one piece")
+            ax.set_xscale("log", base=2)
+            ax.set_xticks(sorted({r["slabs"] for r in mine if r["slabs"]}))
+            ax.xaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+            ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+            ax.set_xlabel("slabs")
+            ax.set_ylabel(label)
+            ax.set_title(f"{name}, depth {one['depth']}")
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 if __name__ == "__main__":

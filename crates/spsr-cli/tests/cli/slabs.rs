@@ -90,7 +90,62 @@ fn slabs_give_the_mesh_of_one_piece() {
         assert_eq!(json_number(&json, "components"), 1.0, "{json}");
         assert!(json.contains("\"closed\": true"), "{json}");
         assert_eq!(fs::read_dir(&work).unwrap().count(), 0, "spill files left");
+        // The same header as in one piece: `float` coordinates near the origin.
+        assert_eq!(ply_header(&sl), ply_header(&one));
     }
+}
+
+/// The header of a PLY file, less its counts (the lines up to `end_header`, `element` lines
+/// cut after the name).
+fn ply_header(path: &Path) -> Vec<String> {
+    let bytes = fs::read(path).unwrap();
+    let end = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .expect("a PLY header");
+    String::from_utf8_lossy(&bytes[..end])
+        .lines()
+        .map(|l| {
+            l.split(' ')
+                .take(if l.starts_with("element") { 2 } else { 9 })
+                .collect::<Vec<_>>()
+                .join(" ")
+        })
+        .collect()
+}
+
+#[test]
+fn slabs_far_from_the_origin_keep_double_coordinates_as_one_piece_does() {
+    let dir = tempfile::tempdir().unwrap();
+    // A sphere of radius 1.6 moved 1e6 away, as georeferenced lidar is: f32 would lose more
+    // than a millionth of its size.
+    let pts: Vec<_> = sphere(8_000)
+        .into_iter()
+        .map(|(p, n)| ([p[0] + 1.0e6, p[1] - 2.0e6, p[2]], n))
+        .collect();
+    let input = dir.path().join("far.xyz");
+    write_xyz(&input, &pts);
+    let one = dir.path().join("one.ply");
+    let sl = dir.path().join("slabs.ply");
+    let run = spsr(&["reconstruct", s(&input), "-o", s(&one), "--depth", "6"]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let run = spsr(&[
+        "reconstruct",
+        s(&input),
+        "-o",
+        s(&sl),
+        "--depth",
+        "6",
+        "--slabs",
+        "3",
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let header = ply_header(&sl);
+    assert!(
+        header.contains(&"property double x".to_string()),
+        "{header:?}"
+    );
+    assert_eq!(header, ply_header(&one));
 }
 
 /// The vertex and face counts of the summary line (`spsr: wrote F: V vertices, F faces, ...`).

@@ -507,7 +507,7 @@ pub fn write_mesh(path: &Path, mesh: &Mesh, opts: &WriteOptions) -> Result<()> {
     write::write_mesh(path, mesh, opts)
 }
 
-pub(crate) use write::write_with;
+pub(crate) use write::{write_with, Extent};
 
 /// Writes a point cloud in the format its extension names ([`CloudFormat::for_output`]),
 /// the same points in the same order. Written atomically, like [`write_mesh`].

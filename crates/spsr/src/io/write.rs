@@ -48,23 +48,55 @@ impl<'a, W: Write> Encoder<'a, W> {
 /// mesh's size in `f32` (the largest coordinate exceeds 16 times the bounding-box diagonal,
 /// as `f32` keeps 24 bits): then formats that can write `f64` do.
 pub(crate) fn needs_f64(vertices: &[[f64; 3]]) -> bool {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    let mut max_abs = 0.0f64;
+    let mut extent = Extent::default();
     for v in vertices {
+        extent.add(*v);
+    }
+    extent.needs_f64()
+}
+
+/// The bounding box and largest coordinate of vertices seen one by one, for [`needs_f64`]'s
+/// rule on a mesh written as it is produced (slab mode).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Extent {
+    lo: [f64; 3],
+    hi: [f64; 3],
+    max_abs: f64,
+}
+
+impl Default for Extent {
+    fn default() -> Self {
+        Extent {
+            lo: [f64::INFINITY; 3],
+            hi: [f64::NEG_INFINITY; 3],
+            max_abs: 0.0,
+        }
+    }
+}
+
+impl Extent {
+    /// Takes in one vertex (ignored unless finite).
+    pub(crate) fn add(&mut self, v: [f64; 3]) {
         if v.iter().all(|c| c.is_finite()) {
             for k in 0..3 {
-                lo[k] = lo[k].min(v[k]);
-                hi[k] = hi[k].max(v[k]);
-                max_abs = max_abs.max(v[k].abs());
+                self.lo[k] = self.lo[k].min(v[k]);
+                self.hi[k] = self.hi[k].max(v[k]);
+                self.max_abs = self.max_abs.max(v[k].abs());
             }
         }
     }
-    if max_abs == 0.0 {
-        return false;
+
+    /// [`needs_f64`] for the vertices taken in so far.
+    pub(crate) fn needs_f64(&self) -> bool {
+        if self.max_abs == 0.0 {
+            return false;
+        }
+        let diag = (0..3)
+            .map(|k| (self.hi[k] - self.lo[k]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        self.max_abs > 16.0 * diag
     }
-    let diag = ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2)).sqrt();
-    max_abs > 16.0 * diag
 }
 
 fn output_err(path: &Path, message: String) -> Error {

@@ -341,7 +341,7 @@ fn run(
     })?;
     let iso = iso_value(&solved);
     let mut sink = match output {
-        Some(_) => Sink::Files(MeshFiles::new(dir, face_planes(&plan, params))?),
+        Some(_) => Sink::Files(Box::new(MeshFiles::new(dir, face_planes(&plan, params))?)),
         None => Sink::Memory(Vec::with_capacity(k), Vec::new()),
     };
     run.stage("extraction", || -> Result<()> {
@@ -607,7 +607,7 @@ enum Sink {
     /// for) in the order the blocks number them.
     Memory(Vec<crate::extract::Blocks>, Vec<f32>),
     /// Written to the work folder as they come.
-    Files(MeshFiles),
+    Files(Box<MeshFiles>),
 }
 
 /// A tile's normals must match its positions; its attributes cannot be carried yet.

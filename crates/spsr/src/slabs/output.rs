@@ -14,6 +14,7 @@ use rustc_hash::FxHashMap;
 
 use super::spill::io_err;
 use crate::extract::{Part, FOREIGN};
+use crate::io::Extent;
 use crate::pipeline::prepare::Frame;
 use crate::{Error, Result};
 
@@ -40,8 +41,9 @@ pub(crate) struct MeshFiles {
     density: Option<bool>,
     vertex_count: u64,
     triangle_count: u64,
-    /// Whether every coordinate survives a round trip through `f32`.
-    fits_f32: bool,
+    /// The vertices' extent, which decides between `float` and `double` coordinates as for
+    /// a mesh written in one piece (`io::write::needs_f64`).
+    extent: Extent,
     /// The vertices on the shared faces: edge key → global index.
     face_vertices: FxHashMap<u64, u32>,
     /// Triangle counts of the edges that lie in a shared face, by their ends' edge keys.
@@ -77,7 +79,7 @@ impl MeshFiles {
             density: None,
             vertex_count: 0,
             triangle_count: 0,
-            fits_f32: true,
+            extent: Extent::default(),
             face_vertices: FxHashMap::default(),
             face_edges: FxHashMap::default(),
             planes,
@@ -117,7 +119,7 @@ impl MeshFiles {
         let vpath = self.dir.join("mesh.vertices");
         for (i, p) in part.vertices.iter().enumerate() {
             let w = frame.to_world(*p);
-            self.fits_f32 &= w.iter().all(|&c| f64::from(c as f32) == c);
+            self.extent.add(w);
             let mut rec = [0u8; 40];
             for a in 0..3 {
                 rec[a * 8..a * 8 + 8].copy_from_slice(&w[a].to_le_bytes());
@@ -201,7 +203,7 @@ impl MeshFiles {
         let nt = self.triangle_count;
         let faces = &self.face_vertices;
         let mut parent: Vec<u32> = (0..nv as u32).collect();
-        let fits_f32 = self.fits_f32;
+        let fits_f32 = !self.extent.needs_f64();
         crate::io::write_with(path, |out| {
             let ty = if fits_f32 { "float" } else { "double" };
             let mut h = format!(
