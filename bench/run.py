@@ -317,11 +317,15 @@ def rss_kib(pid):
 
 
 def children(pid):
+    """The processes started by any thread of `pid` (none once it is gone)."""
+    out = []
     try:
-        with open(f"/proc/{pid}/task/{pid}/children") as f:
-            return [int(x) for x in f.read().split()]
-    except OSError:
-        return []
+        for t in os.listdir(f"/proc/{pid}/task"):
+            with open(f"/proc/{pid}/task/{t}/children") as f:
+                out.extend(int(x) for x in f.read().split())
+    except (OSError, ValueError):
+        pass
+    return out
 
 
 def measured(cmd, env, timeout, max_rss_mib, log_prefix):

@@ -42,17 +42,12 @@ sys.path.insert(0, os.path.join(ROOT, "bench"))
 
 def tree_rss_kib(pid):
     """Resident memory of a process and all its descendants, in KiB (0 for those gone)."""
+    from run import children, rss_kib  # bench/run.py
     total, todo = 0, [pid]
     while todo:
         p = todo.pop()
-        try:
-            with open(f"/proc/{p}/status") as f:
-                total += next((int(l.split()[1]) for l in f if l.startswith("VmRSS:")), 0)
-            for t in os.listdir(f"/proc/{p}/task"):
-                with open(f"/proc/{p}/task/{t}/children") as f:
-                    todo.extend(int(x) for x in f.read().split())
-        except (OSError, ValueError):
-            pass
+        total += rss_kib(p)
+        todo.extend(children(p))
     return total
 
 
