@@ -116,7 +116,7 @@ pub fn slab_args<'py>(py: Python<'py>, argv: Vec<String>) -> PyResult<Bound<'py,
 
 /// Reads the inputs into a new job folder inside `work_dir`, cut into at most `slabs` slabs,
 /// the mesh to be trimmed with `trim` (from `slab_trim`); returns (the job folder, the slab
-/// count, whether the noise phase runs).
+/// count, whether the noise phase runs, the solver cycles).
 #[pyfunction]
 #[pyo3(signature = (inputs, work_dir, slabs, params, threads=None, trim=None))]
 pub fn slab_prepare(
@@ -127,7 +127,7 @@ pub fn slab_prepare(
     params: &str,
     threads: Option<i64>,
     trim: Option<&str>,
-) -> PyResult<(PathBuf, usize, bool)> {
+) -> PyResult<(PathBuf, usize, bool, u32)> {
     let params = params_from(params)?;
     let trim = trim.map(trim_from).transpose()?;
     if slabs < 1 {
@@ -148,11 +148,11 @@ pub fn slab_prepare(
         )
     })?
     .map_err(py_err(py, Call::Reconstruct))?;
-    Ok((made.dir, made.slabs, made.noise))
+    Ok((made.dir, made.slabs, made.noise, made.cycles))
 }
 
 /// Runs one step of the job in `dir`: a slab task (`noise`, `coarse`, `solve`, `extract`,
-/// with `slab`) or a coordinator step (`smoothing`, `solve_coarse`, `iso`, without).
+/// with `slab`) or a coordinator step (`smoothing`, `solve_coarse`, `cycle`, `iso`, without).
 #[pyfunction]
 #[pyo3(signature = (step, dir, slab=None, threads=None))]
 pub fn slab_step(
@@ -174,6 +174,7 @@ pub fn slab_step(
     let coordinator: Option<Step> = match step {
         "smoothing" => Some(job::smoothing),
         "solve_coarse" => Some(job::solve_coarse),
+        "cycle" => Some(job::cycle),
         "iso" => Some(job::iso),
         _ => None,
     };

@@ -205,15 +205,6 @@ pub enum Warning {
     ContradictoryNormals(Diagnosis),
     /// The mesh falls into many pieces: noise reconstructed as small bubbles.
     ManyPieces(Diagnosis),
-    /// A slab run solved its cascadic cycles as one cascade with as many sweeps per depth
-    /// ([`crate::slabs::cascade_sweeps`]): the later cycles pass between the depths of the
-    /// whole cloud, which the slabs do not share.
-    SlabCascade {
-        /// The cycles asked for.
-        cycles: u32,
-        /// The sweeps per depth of the one cascade.
-        sweeps: u32,
-    },
     /// The GPU asked for ([`crate::Gpu::Auto`], or a level it could not take) was not used;
     /// the CPU did the work, with the same result.
     GpuNotUsed {
@@ -271,13 +262,6 @@ impl std::fmt::Display for Warning {
                     "the GPU was not used ({reason}); the CPU did the work instead"
                 )
             }
-            Warning::SlabCascade { cycles, sweeps } => write!(
-                f,
-                "slab mode solved one cascade of {sweeps} sweeps per depth instead of \
-                 {cycles} solver cycles (the cycles pass between the whole cloud's depths, \
-                 which the slabs do not share); the mesh matches an in-core run of one cycle \
-                 of {sweeps} sweeps, slightly less accurate than the in-core default"
-            ),
             Warning::FragmentsRemoved { pieces } => write!(
                 f,
                 "removed {pieces} small piece(s) of the mesh (each under 0.1 % of its area), \

@@ -23,7 +23,8 @@ use crate::Solver;
 mod cycles;
 #[cfg(feature = "gpu")]
 mod device;
-pub use cycles::{DepthResidual, SolveReport};
+pub(crate) use cycles::finer_couplings;
+pub use cycles::{cascade_for_cycles, cycle_below, CycleState, DepthResidual, SolveReport};
 
 /// The screening target τ at the samples (PR18 convention: χ ≈ 1 inside, 0 outside).
 pub const TAU: f64 = 0.5;
@@ -892,7 +893,7 @@ pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
     v[nlev - 1] = Vec::new();
     laps.lap("divergence constraints".into());
     if p.solver == Solver::Cascadic && p.cycles <= 1 && !p.report {
-        cascade(p, tcons, v, None, false, laps).0
+        cascade(p, tcons, v, None, false, None, laps).0
     } else {
         cycles::solve(p, tcons, v, laps)
     }
@@ -915,17 +916,32 @@ pub struct Carry {
 /// the level after `start`'s up to the tree's deepest level. `tcons` are the divergence
 /// constraints per level (from [`constraints`]), `v` the V per level. With `keep_last`, the
 /// deepest level's cumulative solution and V are returned too, for a finer tree to go on from.
+///
+/// With `previous` (the coefficients of an earlier cycle, per level; with a `start`), the
+/// pass is a cascadic cycle after the first instead ([`cycles`]' up pass): each level is
+/// relaxed from its previous coefficients, against the new coarser solution and the gradient
+/// coupling `U` of the finer levels' previous coefficients. A slab's finer levels take the
+/// cycles this way between the whole cloud's coarse cycles ([`crate::slabs`]).
 pub fn cascade(
     p: &Problem,
     mut tcons: Vec<Vec<f32>>,
     mut v: Vec<Vec<[f32; 3]>>,
     start: Option<Carry>,
     keep_last: bool,
+    previous: Option<Vec<Vec<f32>>>,
     mut laps: Laps,
 ) -> (Solution, Option<Carry>) {
     let nlev = p.tree.levels.len();
     let max_level = nlev - 1;
     v.resize_with(nlev, Vec::new);
+    let (mut previous, mut u) = match (previous, &start) {
+        (Some(x), Some(c)) => {
+            let u = cycles::finer_couplings(p, &x, c.level as usize + 1, |_, _| true);
+            (x, u)
+        }
+        _ => (vec![Vec::new(); nlev], vec![Vec::new(); nlev]),
+    };
+    previous.resize_with(nlev, Vec::new);
     let mut sol = Solution {
         x: vec![Vec::new(); nlev],
         p: vec![Vec::new(); nlev],
@@ -959,7 +975,9 @@ pub fn cascade(
         let dd = t as u32 - DEPTH_OFFSET;
         (p.progress)(&format!("solving depth {dd}"));
         let op = Op::new(p, t as u32);
-        let r = right_hand_side(&op, p.fem, &tcons[t], &p_prev, &vc);
+        let u_t = u.get_mut(t).map(std::mem::take).unwrap_or_default();
+        let r = right_hand_side(&op, p.fem, &tcons[t], &p_prev, &vc, &u_t);
+        drop(u_t);
         tcons[t] = Vec::new();
         let carry_on = t < max_level || keep_last;
         if !carry_on {
@@ -967,7 +985,10 @@ pub fn cascade(
             vc = Vec::new();
         }
         laps.lap(format!("depth {dd}: right-hand side"));
-        let mut x = vec![0.0f32; op.level.len()];
+        let mut x = std::mem::take(&mut previous[t]);
+        if x.len() != op.level.len() {
+            x = vec![0.0f32; op.level.len()];
+        }
         op.gauss_seidel(&r, &mut x, p.iters);
         drop(r);
         laps.lap(format!("depth {dd}: Gauss-Seidel"));
@@ -1128,12 +1149,22 @@ fn remove_mean(b: &mut [f64], valid: &[bool]) {
 /// The right-hand side of a level above the base, stored in single precision: its own
 /// constraints `tcons`, plus the coarser V (`vc`, cumulative, on the parent level), minus
 /// what the coarser solution (`pc`, cumulative, on the parent level) already meets, plus the
-/// screening targets `Σ_c ω_c B_i(p_c) (τ − χ_{<d}(p_c))`.
-fn right_hand_side(op: &Op, fem: Basis, tcons: &[f32], pc: &[f64], vc: &[[f32; 3]]) -> Vec<f32> {
+/// screening targets `Σ_c ω_c B_i(p_c) (τ − χ_{<d}(p_c))`, minus the finer levels' gradient
+/// coupling `u` (empty for none: the cascade's first pass).
+fn right_hand_side(
+    op: &Op,
+    fem: Basis,
+    tcons: &[f32],
+    pc: &[f64],
+    vc: &[[f32; 3]],
+    u: &[f64],
+) -> Vec<f32> {
     let coarse_chi = coarse_cluster_values(op, fem, pc);
     #[cfg(feature = "gpu")]
-    if let Some((r, _)) = op.first_right_hand_sides_gpu(tcons, pc, vc, &coarse_chi, false) {
-        return r;
+    if u.is_empty() {
+        if let Some((r, _)) = op.first_right_hand_sides_gpu(tcons, pc, vc, &coarse_chi, false) {
+            return r;
+        }
     }
     (0..op.level.len() as u32)
         .into_par_iter()
@@ -1147,6 +1178,9 @@ fn right_hand_side(op: &Op, fem: Basis, tcons: &[f32], pc: &[f64], vc: &[[f32; 3
             op.for_each_cluster(n, i, |c, bv| {
                 s += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
             });
+            if !u.is_empty() {
+                s -= u[n as usize];
+            }
             s as f32
         })
         .collect()

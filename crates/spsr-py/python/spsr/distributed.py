@@ -78,15 +78,22 @@ _NOT_PARAMS = {"points", "normals", "threads"}
 _TRIM = ("trim", "min_island_area", "hole_area")
 
 # The steps of one run, in order: (step, whether it is per slab); the noise phase runs only
-# when the noise is adaptive.
+# when the noise is adaptive, and each solver cycle after the first is the coordinator's
+# "cycle" step, then the slabs' "solve" again.
 _NOISE_STEPS = (("noise", True), ("smoothing", False))
-_STEPS = (
-    ("coarse", True),
-    ("solve_coarse", False),
-    ("solve", True),
-    ("iso", False),
-    ("extract", True),
-)
+_SOLVE_STEPS = (("coarse", True), ("solve_coarse", False), ("solve", True))
+_CYCLE_STEPS = (("cycle", False), ("solve", True))
+_LAST_STEPS = (("iso", False), ("extract", True))
+
+
+def _steps(noise: bool, cycles: int) -> List[Tuple[str, bool]]:
+    """The steps of a job with adaptive noise or not and `cycles` solver cycles."""
+    return (
+        list(_NOISE_STEPS if noise else ())
+        + list(_SOLVE_STEPS)
+        + list(_CYCLE_STEPS) * max(cycles - 1, 0)
+        + list(_LAST_STEPS)
+    )
 
 
 def _parameter_defaults() -> Dict[str, Any]:
@@ -144,9 +151,9 @@ def _prepare_task(
     params: str,
     threads: Optional[int],
     trim: Optional[str] = None,
-) -> Tuple[str, int, bool]:
-    folder, k, noise = _spsr.slab_prepare(inputs, work_dir, slabs, params, threads, trim)
-    return os.fspath(folder), k, noise
+) -> Tuple[str, int, bool, int]:
+    folder, k, noise, cycles = _spsr.slab_prepare(inputs, work_dir, slabs, params, threads, trim)
+    return os.fspath(folder), k, noise, cycles
 
 
 def _step_task(
@@ -208,12 +215,14 @@ def _run_steps(
     folder: str,
     slabs: int,
     noise: bool,
+    cycles: int,
     token: str,
     threads: Optional[int],
     fault: Optional[Tuple[str, int, str]],
 ) -> None:
-    steps = (_NOISE_STEPS if noise else ()) + _STEPS
-    for step, per_slab in steps:
+    for i, (step, per_slab) in enumerate(_steps(noise, cycles)):
+        # Dask keeps a result by its key: a step run once per cycle needs one key per run.
+        name = f"{step}{i}"
         if per_slab:
             futures = client.map(
                 _step_task,
@@ -222,12 +231,12 @@ def _run_steps(
                 list(range(slabs)),
                 [threads] * slabs,
                 [fault] * slabs,
-                key=[f"spsr-{step}-{token}-{s}" for s in range(slabs)],
+                key=[f"spsr-{name}-{token}-{s}" for s in range(slabs)],
             )
         else:
             futures = [
                 client.submit(
-                    _step_task, step, folder, None, threads, None, key=f"spsr-{step}-{token}"
+                    _step_task, step, folder, None, threads, None, key=f"spsr-{name}-{token}"
                 )
             ]
         _settle(client, futures)
@@ -348,9 +357,9 @@ def _run(
         trim,
         key=f"spsr-prepare-{token}",
     )
-    folder, k, noise = _settle(client, [prepared])[0]
+    folder, k, noise, cycles = _settle(client, [prepared])[0]
     try:
-        _run_steps(client, folder, k, noise, token, threads, fault)
+        _run_steps(client, folder, k, noise, cycles, token, threads, fault)
         finish = client.submit(_finish_task, folder, output, key=f"spsr-finish-{token}")
         return dict(_settle(client, [finish])[0])
     finally:

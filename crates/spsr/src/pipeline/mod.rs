@@ -563,7 +563,7 @@ impl<'a> Run<'a> {
     }
 
     /// Runs one stage: reports its name, then records its wall time and the peak memory.
-    pub(crate) fn stage<T>(&mut self, name: &'static str, f: impl FnOnce() -> T) -> T {
+    pub(crate) fn stage<T>(&mut self, name: &str, f: impl FnOnce() -> T) -> T {
         (self.progress)(name);
         let start = Instant::now();
         let out = f();

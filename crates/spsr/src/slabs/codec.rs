@@ -9,7 +9,8 @@ use std::path::{Path, PathBuf};
 use super::phases::{CoarsePart, SlabSamples, Solved};
 use crate::density::{DepthAndArea, Sample};
 use crate::extract::Part;
-use crate::solver::Carry;
+use crate::solver::{Carry, CycleState};
+use crate::system::ClusterSum;
 use crate::{Error, Result};
 
 /// Writes little-endian values.
@@ -424,5 +425,77 @@ impl Record for SlabSamples {
             depths,
             measured,
         })
+    }
+}
+
+/// The whole cloud's coarse levels between their cycles (`phases::cycle_coarse`): what
+/// rebuilds their system (the tree's refined nodes, the screening clusters' merged sums) and
+/// the cycles' state.
+pub(crate) struct CoarseState {
+    pub refined: Vec<Vec<u64>>,
+    /// Per tree depth: the clusters' merged sums `(node, W, W·p)`.
+    pub clusters: Vec<Vec<ClusterSum>>,
+    pub mean_area: f64,
+    pub mean_depth: f64,
+    /// Samples of all slabs (for the statistics).
+    pub samples: u64,
+    pub cycles: CycleState,
+}
+
+impl Record for CoarseState {
+    const TAG: &'static [u8; 8] = b"spsrCST1";
+    fn put(&self, o: &mut Out) -> std::io::Result<()> {
+        put_levels_u64(o, &self.refined)?;
+        o.list(&self.clusters, |o, l| {
+            o.list(l, |o, &(n, w, wp)| {
+                o.u32(n)?;
+                o.f64(w)?;
+                put3_f64(o, wp)
+            })
+        })?;
+        o.f64(self.mean_area)?;
+        o.f64(self.mean_depth)?;
+        o.u64(self.samples)?;
+        let c = &self.cycles;
+        put_levels_f32(o, &c.b)?;
+        o.list(&c.b_base, |o, &x| o.f64(x))?;
+        put_levels_f32(o, &c.x)?;
+        o.list(&c.x_base, |o, &x| o.f64(x))?;
+        o.list(&c.vc, |o, &v| put3_f32(o, v))
+    }
+    fn get(i: &mut In) -> Result<Self> {
+        Ok(CoarseState {
+            refined: get_levels_u64(i)?,
+            clusters: i.list(8, |i| {
+                i.list(36, |i| Ok((i.u32()?, i.f64()?, get3_f64(i)?)))
+            })?,
+            mean_area: i.f64()?,
+            mean_depth: i.f64()?,
+            samples: i.u64()?,
+            cycles: CycleState {
+                b: get_levels_f32(i)?,
+                b_base: i.list(8, In::f64)?,
+                x: get_levels_f32(i)?,
+                x_base: i.list(8, In::f64)?,
+                vc: i.list(12, get3_f32)?,
+            },
+        })
+    }
+}
+
+/// What a slab's own finer nodes add to the gradient coupling `U` on the coarse level: the
+/// node's key and the sum (`phases::solve`).
+pub(crate) struct Coupling(pub Vec<([u32; 3], f64)>);
+
+impl Record for Coupling {
+    const TAG: &'static [u8; 8] = b"spsrCPL1";
+    fn put(&self, o: &mut Out) -> std::io::Result<()> {
+        o.list(&self.0, |o, &(k, u)| {
+            o.key(k)?;
+            o.f64(u)
+        })
+    }
+    fn get(i: &mut In) -> Result<Self> {
+        i.list(20, |i| Ok((i.key()?, i.f64()?))).map(Coupling)
     }
 }

@@ -12,10 +12,11 @@
 //! | [`noise`] (adaptive noise only) | slab task | columns | `slab-s.noise`, `slab-s.measured` |
 //! | [`smoothing`] | coordinator | every `slab-s.noise` | the smoothing depth in `job.json` |
 //! | [`coarse`] | slab task | columns (or `slab-s.measured`) | `slab-s.samples`, `slab-s.coarse` (with the density, its density cells), `slab-s.constraints` |
-//! | [`solve_coarse`] | coordinator | every `slab-s.coarse` | `slab-s.coarse-solution`, `density.coarse` (with the density); deletes the columns and `.measured` |
-//! | [`solve`] | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.constraints` | `slab-s.solution`, `slab-s.solved` |
+//! | [`solve_coarse`] | coordinator | every `slab-s.coarse` | `slab-s.coarse-solution`, `density.coarse` (with the density), `coarse-1.state` (with more than one solver cycle); deletes the columns and `.measured` |
+//! | [`solve`] (cycle k) | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.constraints`, `slab-s.solution-(k−1)` | `slab-s.solution-k`, `slab-s.solved`; before the last cycle `slab-s.coupling-k` |
+//! | [`cycle`] (with more than one solver cycle; then [`solve`] again) | coordinator | `coarse-k.state`, every `slab-s.coupling-k` | `coarse-(k+1).state`, `slab-s.coarse-solution`; deletes the files of the cycles before |
 //! | [`iso`] | coordinator | every `slab-s.solved` | the iso-value in `job.json` |
-//! | [`extract`] | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.solution`, the neighbours' `.solved`, `density.coarse` | `slab-s.part` |
+//! | [`extract`] | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.solution-k` (the last cycle's), the neighbours' `.solved`, `density.coarse` | `slab-s.part` |
 //! | [`finish`] | coordinator | every `slab-s.part` | the output mesh (trimmed in memory when the job trims) |
 //!
 //! The tasks are pure functions of their inputs and write every file atomically (to a
@@ -46,6 +47,9 @@ pub struct Job {
     pub slabs: usize,
     /// Whether the noise phase runs ([`noise`], then [`smoothing`]).
     pub noise: bool,
+    /// The solver cycles: after [`solve`], each cycle after the first is the coordinator's
+    /// [`cycle`], then [`solve`] again.
+    pub cycles: u32,
 }
 
 /// The job's description, shared by every task.
@@ -62,6 +66,9 @@ struct JobFile {
     dropped: usize,
     /// The depth at which the noise is smoothed, once [`smoothing`] has run.
     smooth: Option<u32>,
+    /// The solver cycle whose coarse solution the slabs' parts of it hold: 1 once
+    /// [`solve_coarse`] has run, one more after each [`cycle`] (0 before).
+    cycle: u32,
     /// The iso-value, once [`iso`] has run.
     iso: Option<f64>,
     /// The trimming of the mesh, when asked for ([`finish`] trims).
@@ -100,7 +107,7 @@ impl From<TrimSpec> for TrimParams {
     }
 }
 
-const VERSION: u32 = 2;
+const VERSION: u32 = 3;
 
 impl JobFile {
     fn read(dir: &Path) -> Result<JobFile> {
@@ -207,6 +214,7 @@ pub fn prepare(
         points: found.points,
         dropped: found.dropped,
         smooth: None,
+        cycle: 0,
         iso: None,
         trim: trim.map(TrimSpec::from),
     };
@@ -216,6 +224,7 @@ pub fn prepare(
         dir: work.keep(),
         slabs: k,
         noise: params.noise == Noise::Adaptive,
+        cycles: params.cycles(),
     })
 }
 
@@ -267,8 +276,44 @@ pub fn solve_coarse(dir: &Path) -> Result<()> {
             .collect();
         phases::save_coarse_density(dir, &plan, &params, cells)?;
     }
-    let c = phases::solve_coarse(parts, &plan, &params)?;
-    save_crops(dir, &plan, &params, &c, samples)
+    let c = phases::solve_coarse(dir, parts, &plan, &params)?;
+    save_crops(dir, &plan, &params, &c, samples)?;
+    drop(c);
+    let mut job = job;
+    job.cycle = 1;
+    job.write(dir)
+}
+
+/// Coordinator, with more than one solver cycle: the next cycle of the whole cloud's coarse
+/// levels, from the slabs' couplings of the cycle before ([`phases::cycle_coarse`]).
+pub fn cycle(dir: &Path) -> Result<()> {
+    crate::resources::return_large_blocks_when_freed();
+    let mut job = JobFile::read(dir)?;
+    let params = job.solving();
+    if job.cycle == 0 {
+        return Err(out_of_order("solve_coarse"));
+    }
+    if job.cycle >= params.cycles() {
+        return Err(Error::invalid(
+            "job step",
+            "cycle",
+            format!("at most {} solver cycles in all", params.cycles()),
+        ));
+    }
+    let next = job.cycle + 1;
+    cycle_coarse_in(dir, &job.plan(), &params, next)?;
+    job.cycle = next;
+    job.write(dir)
+}
+
+/// Cycle `cycle` (from 2) of the whole cloud's coarse levels ([`phases::cycle_coarse`]), each
+/// slab's part of it written as [`save_crops`] writes the first, and the files the cycles
+/// before no longer need deleted.
+pub(super) fn cycle_coarse_in(dir: &Path, plan: &Plan, params: &Params, cycle: u32) -> Result<()> {
+    let (coarse, samples) = phases::cycle_coarse(dir, plan, params, cycle)?;
+    save_crops(dir, plan, params, &coarse, samples)?;
+    drop(coarse);
+    phases::remove_spent_cycle(dir, plan.slabs.len(), cycle)
 }
 
 /// Writes each slab's part of the coarse solve ([`phases::crop`]) to `slab-s.coarse-solution`,
@@ -346,14 +391,20 @@ pub fn solve(dir: &Path, s: usize) -> Result<()> {
     let job = JobFile::read(dir)?;
     let plan = job.slab(s)?;
     let params = job.solving();
+    if job.cycle == 0 {
+        return Err(out_of_order("solve_coarse"));
+    }
     let (coarse, _) = read_crop(dir, &plan, s, &params)?;
-    let solved = phases::solve(dir, &plan, s, &params, &coarse)?;
+    let solved = phases::solve(dir, &plan, s, &params, &coarse, job.cycle)?;
     save(&slab_file(dir, s, "solved"), &solved)
 }
 
 /// Coordinator: the iso-value from all slabs' shares.
 pub fn iso(dir: &Path) -> Result<()> {
     let mut job = JobFile::read(dir)?;
+    if job.cycle < job.params.cycles() {
+        return Err(out_of_order("cycle"));
+    }
     let k = job.plan().slabs.len();
     let solved = (0..k)
         .map(|s| load::<Solved>(&slab_file(dir, s, "solved")))
@@ -417,7 +468,6 @@ pub fn finish(dir: &Path, output: &Path) -> Result<(Stats, Written)> {
         };
         let stats = super::slab_stats(
             found,
-            &job.params,
             samples as usize,
             iso,
             coarse.mean_depth,
@@ -435,7 +485,6 @@ pub fn finish(dir: &Path, output: &Path) -> Result<(Stats, Written)> {
     let written = files.finish(output)?;
     let stats = super::slab_stats(
         found,
-        &job.params,
         samples as usize,
         iso,
         coarse.mean_depth,

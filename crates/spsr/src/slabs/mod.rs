@@ -100,22 +100,33 @@ pub fn stage_plan(params: &Params, streamed: bool, trimming: bool) -> Vec<String
     let adaptive = params.noise == Noise::Adaptive;
     let in_memory = !streamed;
     let trimming = in_memory && trimming;
-    ["reading points", "spilling points"]
+    let first = ["reading points", "spilling points"]
         .into_iter()
         .chain(adaptive.then_some("noise"))
         .chain([
             "coarse constraints",
             "solving coarse depths",
             "solving slabs",
-            "extraction",
         ])
+        .map(String::from);
+    let cycles = (2..=params.cycles()).flat_map(|k| cycle_stages(k).map(String::from));
+    let last = ["extraction"]
+        .into_iter()
         .chain(streamed.then_some("writing"))
         .chain(in_memory.then_some("numbering vertices"))
         .chain((in_memory && adaptive).then_some("fragments"))
         .chain(trimming.then_some("trimming"))
         .chain(in_memory.then_some("checking the mesh"))
-        .map(String::from)
-        .collect()
+        .map(String::from);
+    first.chain(cycles).chain(last).collect()
+}
+
+/// The stages of solver cycle `k` (from 2): the whole cloud's coarse depths, then the slabs.
+fn cycle_stages(k: u32) -> [String; 2] {
+    [
+        format!("cycle {k}: coarse depths"),
+        format!("cycle {k}: slabs"),
+    ]
 }
 
 /// A work folder removed when dropped (also after an error), and by the front ends'
@@ -165,9 +176,9 @@ fn check_supported(params: &Params) -> Result<()> {
     if let PointWeights::Property(name) = &params.weights {
         return refuse("weights", name);
     }
-    // The slabs solve the coarse depths once for the whole cloud and the finer ones slab by
-    // slab: there is no pass from the finer depths back down to the coarse ones. Cascadic
-    // cycles are solved as one cascade of the same sweeps ([`cascade_sweeps`]).
+    // The cascadic cycles run across the slabs (the coarse depths once for the whole cloud,
+    // the finer ones slab by slab, `phases::cycle_coarse`); V- and W-cycles would relax the
+    // finer depths going down as well, between the coarse depths' visits (not done yet).
     if params.solver != crate::Solver::Cascadic {
         return refuse("solver", params.solver.name());
     }
@@ -191,22 +202,6 @@ fn check_supported(params: &Params) -> Result<()> {
         crate::Resolution::Width(w) => Err(Error::invalid("width", w, whole)),
         crate::Resolution::Auto => Err(Error::invalid("depth", "auto", whole)),
     }
-}
-
-/// The Gauss–Seidel sweeps per depth of the slabs' solve: one cascade with as many sweeps per
-/// depth as the cascadic cycles asked for make in all (`cycles × iters`; 8 at the defaults,
-/// PoissonRecon 18's solve). The cycles after the first pass the finer depths' solution down
-/// to the coarser depths of the whole cloud, which the slabs do not share (yet).
-pub fn cascade_sweeps(params: &Params) -> u32 {
-    params.iters().saturating_mul(params.cycles())
-}
-
-/// The note of a slab run whose solver cycles were solved as one cascade.
-fn cascade_note(params: &Params) -> Option<Warning> {
-    (params.cycles() > 1).then(|| Warning::SlabCascade {
-        cycles: params.cycles(),
-        sweeps: cascade_sweeps(params),
-    })
 }
 
 /// Reconstructs the cloud of `source` in slabs: one pass for the bounding cube, one that
@@ -329,16 +324,24 @@ fn run(
         if params.density {
             phases::save_coarse_density(dir, &plan, params, density_cells)?;
         }
-        let coarse = phases::solve_coarse(parts, &plan, params)?;
+        let coarse = phases::solve_coarse(dir, parts, &plan, params)?;
         job::save_crops(dir, &plan, params, &coarse, samples as u64)?;
         Ok(coarse.mean_depth)
     })?;
     let coarse_of = |s| job::read_crop(dir, &plan, s, params).map(|c| c.0);
-    let solved = run.stage("solving slabs", || {
+    let solve_slabs = |cycle| {
         (0..k)
-            .map(|s| phases::solve(dir, &plan, s, params, &coarse_of(s)?))
+            .map(|s| phases::solve(dir, &plan, s, params, &coarse_of(s)?, cycle))
             .collect::<Result<Vec<_>>>()
-    })?;
+    };
+    let mut solved = run.stage("solving slabs", || solve_slabs(1))?;
+    for cycle in 2..=params.cycles() {
+        let [coarse_stage, slabs_stage] = cycle_stages(cycle);
+        run.stage(&coarse_stage, || {
+            job::cycle_coarse_in(dir, &plan, params, cycle)
+        })?;
+        solved = run.stage(&slabs_stage, || solve_slabs(cycle))?;
+    }
     let iso = iso_value(&solved);
     let mut sink = match output {
         Some(_) => Sink::Files(Box::new(MeshFiles::new(dir, face_planes(&plan, params))?)),
@@ -394,9 +397,7 @@ fn run(
     let stats = Stats {
         stages,
         peak_memory,
-        ..slab_stats(
-            found, params, samples, iso, mean_depth, k, diagnosis, warnings,
-        )
+        ..slab_stats(found, samples, iso, mean_depth, k, diagnosis, warnings)
     };
     Ok(Outcome {
         mesh,
@@ -570,7 +571,6 @@ fn written_diagnosis(w: &Written) -> Diagnosis {
 #[allow(clippy::too_many_arguments)]
 fn slab_stats(
     found: Found,
-    params: &Params,
     samples: usize,
     iso: f64,
     mean_depth: f64,
@@ -584,7 +584,6 @@ fn slab_stats(
     });
     let warnings = dropped
         .into_iter()
-        .chain(cascade_note(params))
         .chain(warnings)
         .chain(diagnosis.warning())
         .collect();

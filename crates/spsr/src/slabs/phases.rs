@@ -25,7 +25,7 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
-use super::codec::{load as load_record, save, CoarseDensity};
+use super::codec::{load as load_record, save, CoarseDensity, CoarseState, Coupling};
 use super::plan::Plan;
 use super::spill::{io_err, read_columns};
 use crate::bspline::{Basis, Degree};
@@ -268,10 +268,10 @@ fn problem<'a>(
         tables,
         clusters,
         base_level: base_level(params),
-        iters: super::cascade_sweeps(params),
+        iters: params.iters(),
         singular: params.alpha() == 0.0 && params.boundary != crate::Boundary::Dirichlet,
-        // Refused in slab mode but the cascade (`check_supported`); cascadic cycles are
-        // solved as one cascade of the same sweeps (`cascade_sweeps`).
+        // Refused in slab mode but cascadic cycles (`check_supported`), which the phases
+        // run one after another across the slabs ([`cycle_coarse`], [`solve`]).
         solver: crate::Solver::Cascadic,
         cycles: 1,
         report: false,
@@ -547,8 +547,17 @@ pub(crate) fn coarse_tree(
 /// Phase 3 (coordinator): the coarse levels solved for the whole cloud from the slabs' parts.
 /// The parts are consumed as they are added up, so that they and the sums are not all held
 /// at once.
-pub fn solve_coarse(mut parts: Vec<CoarsePart>, plan: &Plan, params: &Params) -> Result<Coarse> {
+///
+/// With more than one cycle ([`Params::cycles`]), the coarse levels' system and the cycles'
+/// state are kept in the work folder `dir` for the cycles after the first ([`cycle_coarse`]).
+pub fn solve_coarse(
+    dir: &Path,
+    mut parts: Vec<CoarsePart>,
+    plan: &Plan,
+    params: &Params,
+) -> Result<Coarse> {
     crate::resources::release_free_memory();
+    let samples: u64 = parts.iter().map(|p| p.samples as u64).sum();
     let tb = base_level(params);
     let tc = plan.coarse_level();
     let refined: Vec<&[Vec<u64>]> = parts.iter().map(|p| p.refined.as_slice()).collect();
@@ -610,18 +619,18 @@ pub fn solve_coarse(mut parts: Vec<CoarsePart>, plan: &Plan, params: &Params) ->
             }
         }
     }
-    let (fem, tabs) = tables(&tree, params);
     let alpha = params.alpha();
-    let clusters: Vec<Clusters> = (0..nlev as u32)
-        .map(|t| {
-            let entries = std::mem::take(&mut cluster_sums[t as usize]);
+    let merged: Vec<Vec<ClusterSum>> = cluster_sums
+        .into_iter()
+        .map(|entries| {
             if alpha <= 0.0 || entries.is_empty() {
-                return Clusters::default();
+                return Vec::new();
             }
-            let merged = merge_cluster_sums(entries);
-            level_clusters(&tree, fem, t, &merged, alpha * mean_area)
+            merge_cluster_sums(entries)
         })
         .collect();
+    let (fem, tabs) = tables(&tree, params);
+    let clusters = coarse_clusters(&tree, fem, &merged, params, mean_area);
     let p = problem(&tree, fem, &tabs, &clusters, params);
     // The sums in single precision, each level's double-precision sums freed as it goes.
     let tcons32 = tcons
@@ -632,15 +641,138 @@ pub fn solve_coarse(mut parts: Vec<CoarsePart>, plan: &Plan, params: &Params) ->
         .into_iter()
         .map(|l| l.into_iter().map(|x| x.map(|c| c as f32)).collect())
         .collect();
-    let (solution, carry) = solver::cascade(&p, tcons32, v32, None, true, Laps::new());
+    let mean_depth = sums[2] / sums[1];
+    if params.cycles() <= 1 {
+        let (solution, carry) = solver::cascade(&p, tcons32, v32, None, true, None, Laps::new());
+        return Ok(Coarse {
+            carry: carry.expect("kept"),
+            solution,
+            mean_area,
+            mean_depth,
+            tree,
+            refined: refined_keys,
+        });
+    }
+    let (solution, carry, cycles) = solver::cascade_for_cycles(&p, tcons32, v32);
+    drop(clusters);
+    let state = CoarseState {
+        refined: refined_keys,
+        clusters: merged,
+        mean_area,
+        mean_depth,
+        samples,
+        cycles,
+    };
+    save(&coarse_state_path(dir, 1), &state)?;
     Ok(Coarse {
-        carry: carry.expect("kept"),
+        carry,
         solution,
         mean_area,
-        mean_depth: sums[2] / sums[1],
+        mean_depth,
         tree,
-        refined: refined_keys,
+        refined: state.refined,
     })
+}
+
+/// The coarse levels' screening clusters from their merged sums (per tree depth).
+fn coarse_clusters(
+    tree: &Octree,
+    fem: Basis,
+    merged: &[Vec<ClusterSum>],
+    params: &Params,
+    mean_area: f64,
+) -> Vec<Clusters> {
+    let alpha = params.alpha();
+    (0..tree.levels.len())
+        .map(|t| match merged.get(t) {
+            Some(m) if alpha > 0.0 && !m.is_empty() => {
+                level_clusters(tree, fem, t as u32, m, alpha * mean_area)
+            }
+            _ => Clusters::default(),
+        })
+        .collect()
+}
+
+/// The coarse levels' state after cycle `cycle` (with more than one cycle).
+fn coarse_state_path(dir: &Path, cycle: u32) -> PathBuf {
+    dir.join(format!("coarse-{cycle}.state"))
+}
+
+/// What slab `s`'s own finer nodes add to the coarse level's `U` after cycle `cycle`.
+fn coupling_path(dir: &Path, s: usize, cycle: u32) -> PathBuf {
+    dir.join(format!("slab-{s:04}.coupling-{cycle}"))
+}
+
+/// Phase 4b (coordinator, with more than one cycle): cycle `cycle` (from 2) of the whole
+/// cloud's coarse levels, under the slabs' finer levels as cycle `cycle − 1` left them: the
+/// gradient coupling `U` that the finer levels' coefficients put on the coarse level is the
+/// sum of what each slab's own nodes put there (`slab-s.coupling-(cycle − 1)`, written by
+/// [`solve`]), since every finer node is some slab's own. From it the cycle goes down the
+/// coarse levels, solves the base level and relaxes the levels going up, as the cycles in
+/// one piece do ([`crate::solver::cycle_below`]); the slabs then relax their finer levels
+/// against the new coarse solution ([`solve`] with `cycle`). Returns the coarse solution and
+/// the samples of all slabs.
+pub fn cycle_coarse(dir: &Path, plan: &Plan, params: &Params, cycle: u32) -> Result<(Coarse, u64)> {
+    crate::resources::release_free_memory();
+    let CoarseState {
+        refined,
+        clusters: merged,
+        mean_area,
+        mean_depth,
+        samples,
+        cycles: mut state,
+    } = load_record(&coarse_state_path(dir, cycle - 1))?;
+    let (tree, _) = coarse_tree(&refined, plan, params);
+    let tc = plan.coarse_level();
+    let top = tree.levels.len() as u32 - 1;
+    let mut u_top = vec![0.0f64; tree.levels[top as usize].len()];
+    for s in 0..plan.slabs.len() {
+        let Coupling(entries) = load_record(&coupling_path(dir, s, cycle - 1))?;
+        for (key, u) in entries {
+            // A node the coarse tree lacks has no function in the coarse system.
+            if let Some(n) = find(&tree, tc.min(top), key) {
+                u_top[n as usize] += u;
+            }
+        }
+    }
+    let (fem, tabs) = tables(&tree, params);
+    let clusters = coarse_clusters(&tree, fem, &merged, params, mean_area);
+    let p = problem(&tree, fem, &tabs, &clusters, params);
+    let (solution, carry) = solver::cycle_below(&p, &mut state, u_top);
+    drop(clusters);
+    let record = CoarseState {
+        refined,
+        clusters: merged,
+        mean_area,
+        mean_depth,
+        samples,
+        cycles: state,
+    };
+    save(&coarse_state_path(dir, cycle), &record)?;
+    let coarse = Coarse {
+        tree,
+        refined: record.refined,
+        solution,
+        carry,
+        mean_area,
+        mean_depth,
+    };
+    Ok((coarse, samples))
+}
+
+/// Deletes what the cycles before `cycle` left that no step reads any more, once every slab's
+/// part of cycle `cycle`'s coarse solution is written: the coarse state and the slabs'
+/// couplings of cycle `cycle − 1`, and the slabs' coefficients of cycle `cycle − 2`.
+pub(crate) fn remove_spent_cycle(dir: &Path, slabs: usize, cycle: u32) -> Result<()> {
+    let spent = cycle - 1;
+    super::spill::remove_file(&coarse_state_path(dir, spent))?;
+    for s in 0..slabs {
+        super::spill::remove_file(&coupling_path(dir, s, spent))?;
+        if spent > 1 {
+            super::spill::remove_file(&solution_path(dir, s, spent - 1))?;
+        }
+    }
+    Ok(())
 }
 
 /// How far beyond its padding a slab reads the coarse solve, in cells of the coarse depth, and
@@ -776,18 +908,25 @@ fn constraints_path(dir: &Path, s: usize) -> PathBuf {
     dir.join(format!("slab-{s:04}.constraints"))
 }
 
-fn solution_path(dir: &Path, s: usize) -> PathBuf {
-    dir.join(format!("slab-{s:04}.solution"))
+/// Slab `s`'s coefficients of its finer levels after cycle `cycle`.
+fn solution_path(dir: &Path, s: usize, cycle: u32) -> PathBuf {
+    dir.join(format!("slab-{s:04}.solution-{cycle}"))
 }
 
-/// Phase 4: the slab's finer levels solved from the coarse solution, its share of γ, and its
-/// coefficients near its faces for the neighbours.
+/// Phase 4: cycle `cycle` (from 1) of the slab's finer levels, from the coarse solution of
+/// that cycle. The first cycle is the cascade from the coarse solution; a later one relaxes
+/// each level from the slab's coefficients of the cycle before, against the new coarse
+/// solution and the coupling of those coefficients ([`solver::cascade`] with `previous`).
+/// Before the last cycle, the slab's own nodes' share of the coarse level's coupling `U` goes
+/// to the coordinator ([`cycle_coarse`]); after it, the slab's share of γ and its
+/// coefficients near its faces for the neighbours (empty before).
 pub fn solve(
     dir: &Path,
     plan: &Plan,
     s: usize,
     params: &Params,
     coarse: &Coarse,
+    cycle: u32,
 ) -> Result<Solved> {
     crate::resources::release_free_memory();
     let Loaded { sampled, owned } = load_slab(dir, plan, s)?;
@@ -811,11 +950,32 @@ pub fn solve(
         // cloud's coarse levels add no finer node).
         let mut tcons = vec![Vec::new(); tree.levels.len()];
         read_levels(&constraints_path(dir, s), &mut tcons, tc + 1, &tree)?;
-        let (mut fine, _) = solver::cascade(&p, tcons, field.v, Some(carry), false, Laps::new());
+        let previous = (cycle > 1)
+            .then(|| -> Result<Vec<Vec<f32>>> {
+                let mut x = vec![Vec::new(); tree.levels.len()];
+                read_levels(&solution_path(dir, s, cycle - 1), &mut x, tc + 1, &tree)?;
+                Ok(x)
+            })
+            .transpose()?;
+        let (mut fine, _) = solver::cascade(
+            &p,
+            tcons,
+            field.v,
+            Some(carry),
+            false,
+            previous,
+            Laps::new(),
+        );
         for t in tc as usize + 1..=max_level as usize {
             sol.x[t] = std::mem::take(&mut fine.x[t]);
             sol.p[t] = std::mem::take(&mut fine.p[t]);
         }
+    }
+    write_levels(&solution_path(dir, s, cycle), &sol.x, tc + 1)?;
+    if cycle < params.cycles() {
+        let u = own_coupling(&p, &sol.x, plan, s);
+        save(&coupling_path(dir, s, cycle), &u)?;
+        return Ok(Solved::default());
     }
     let eval = Evaluator::new(&tree, fem, &sol);
     let mut iso_sums = [0.0; 2];
@@ -825,9 +985,28 @@ pub fn solve(
             iso_sums[1] += w;
         }
     }
-    write_levels(&solution_path(dir, s), &sol.x, tc + 1)?;
     let faces = face_bands(&tree, &sol, plan, s);
     Ok(Solved { iso_sums, faces })
+}
+
+/// The gradient coupling `U` that the slab's own nodes of the finer levels (coefficients `x`)
+/// put on the coarse level's nodes, keyed by node.
+fn own_coupling(p: &Problem, x: &[Vec<f32>], plan: &Plan, s: usize) -> Coupling {
+    let tc = plan.coarse_level();
+    let tree = p.tree;
+    if tree.levels.len() as u32 <= tc + 1 {
+        return Coupling(Vec::new());
+    }
+    let range = &plan.slabs[s];
+    let own =
+        |t: usize, n: u32| range.contains(&plan.column_of_node(t as u32, tree.levels[t].key(n)));
+    let u = solver::finer_couplings(p, x, tc as usize, own);
+    let level = &tree.levels[tc as usize];
+    let entries = (u[tc as usize].iter().enumerate())
+        .filter(|(_, &v)| v != 0.0)
+        .map(|(n, &v)| (level.key(n as u32), v))
+        .collect();
+    Coupling(entries)
 }
 
 /// The slab's own coefficients within [`FACE_BAND`] cells of its low and high faces, at the
@@ -882,7 +1061,12 @@ pub fn extract(
     let tree = refined.tree;
     let (fem, tabs) = tables(&tree, params);
     let (mut sol, carry) = coarse_onto(&tree, coarse, params, tc);
-    read_levels(&solution_path(dir, s), &mut sol.x, tc + 1, &tree)?;
+    read_levels(
+        &solution_path(dir, s, params.cycles()),
+        &mut sol.x,
+        tc + 1,
+        &tree,
+    )?;
     let mut missing = 0;
     for band in neighbours {
         for &(t, key, x) in band {

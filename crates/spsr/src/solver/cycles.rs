@@ -30,8 +30,8 @@
 use rayon::prelude::*;
 
 use super::{
-    coarse_cluster_values, prolong_field, prolong_solution, remove_mean, to_f32, BaseSystem, Laps,
-    Op, Problem, Solution, TAU,
+    coarse_cluster_values, prolong_field, prolong_solution, remove_mean, to_f32, BaseSystem, Carry,
+    Laps, Op, Problem, Solution, TAU,
 };
 use crate::octree::{neighbor_in, DEPTH_OFFSET, NONE};
 use crate::shared_slice::SharedSlice;
@@ -164,7 +164,7 @@ pub(super) fn solve(
         started: std::time::Instant::now(),
     };
     // The first cycle is timed by parts, with the cascade's names (issue 20's profile).
-    c.first_pass(tcons, v, &mut laps);
+    c.first_pass(tcons, v, &mut laps, false);
     c.end_cycle();
     for k in 2..=p.cycles.max(1) {
         if max == tb {
@@ -215,7 +215,16 @@ impl<'a> Cycles<'a> {
     /// The cascade, keeping each level's fixed right-hand side for the cycles to come; each
     /// depth's parts are laps of `laps`, as in [`super::cascade`], with the fixed right-hand
     /// side and the residual's measurement as parts of their own.
-    fn first_pass(&mut self, mut tcons: Vec<Vec<f32>>, mut v: Vec<Vec<[f32; 3]>>, laps: &mut Laps) {
+    ///
+    /// With `keep_top`, the cumulative V of the deepest level is made and returned (empty
+    /// otherwise), for finer levels to go on from ([`cascade_for_cycles`]).
+    fn first_pass(
+        &mut self,
+        mut tcons: Vec<Vec<f32>>,
+        mut v: Vec<Vec<[f32; 3]>>,
+        laps: &mut Laps,
+        keep_top: bool,
+    ) -> Vec<[f32; 3]> {
         let p = self.p;
         let (tb, max) = (self.tb, self.max);
         self.x_base = self.base.solve(&self.b_base);
@@ -238,7 +247,7 @@ impl<'a> Cycles<'a> {
             let op = self.ops[t].as_ref().expect("operators above the base");
             let (r, b) = right_hand_sides(op, p.fem, &tcons[t], &self.pcum[t - 1], &vc);
             tcons[t] = Vec::new();
-            if t == max {
+            if t == max && !keep_top {
                 vc = Vec::new();
             }
             laps.lap(format!("depth {dd}: right-hand sides"));
@@ -255,11 +264,18 @@ impl<'a> Cycles<'a> {
             }
             if t < max {
                 self.pcum[t] = prolong_solution(op, &self.pcum[t - 1], &x);
+            }
+            if t < max || keep_top {
                 vc = prolong_field(op, &vc, std::mem::take(&mut v[t]));
             }
             laps.lap(format!("depth {dd}: prolongation"));
             self.b[t] = b;
             self.x[t] = x;
+        }
+        if keep_top {
+            vc
+        } else {
+            Vec::new()
         }
     }
 
@@ -289,24 +305,9 @@ impl<'a> Cycles<'a> {
         self.parts[PROLONG] += clock.elapsed();
     }
 
-    /// `U_{t−1}`: level `t`'s solution pushed through the parent stencils, plus `u_t` (the
-    /// coupling of the levels finer than `t`; empty for none) restricted.
+    /// `U_{t−1}` from level `t`'s solution and `u_t` ([`coupling_below`]).
     fn coupling_below(&self, t: usize, u_t: &[f64]) -> Vec<f64> {
-        let op = self.op(t);
-        let mut g = push_to_parents(op, &self.x[t]);
-        if !u_t.is_empty() {
-            let tree = self.p.tree;
-            let coarse = &tree.levels[t - 1];
-            let d = (t - 1) as u32 - DEPTH_OFFSET;
-            let range = self.p.tables[t - 1].as_ref().expect("tables").range;
-            g.par_iter_mut().enumerate().for_each(|(n, gn)| {
-                let i = crate::octree::func_index(coarse.key(n as u32), d);
-                if range.contains(i) {
-                    *gn += restrict_one(tree, coarse, op.level, self.p.fem, d, n as u32, i, u_t);
-                }
-            });
-        }
-        g
+        coupling_below(self.p, self.op(t), &self.x[t], u_t)
     }
 
     /// The right-hand side level `t` is relaxed against ([`cycle_right_hand_side`]).
@@ -453,6 +454,187 @@ impl<'a> Cycles<'a> {
         b2 += norm2(&self.b_base);
         (r2 / b2).sqrt()
     }
+}
+
+/// `U_{t−1}`, the gradient coupling of the levels from `op`'s level `t` on with the functions
+/// of level `t − 1`: level `t`'s coefficients `x_t` pushed through the parent stencils, plus
+/// `u_t` (the coupling of the levels finer than `t`; empty for none) restricted.
+fn coupling_below(p: &Problem, op: &Op, x_t: &[f32], u_t: &[f64]) -> Vec<f64> {
+    let mut g = push_to_parents(op, x_t);
+    if !u_t.is_empty() {
+        let tree = p.tree;
+        let t = op.t as usize;
+        let coarse = &tree.levels[t - 1];
+        let d = (t - 1) as u32 - DEPTH_OFFSET;
+        let range = p.tables[t - 1].as_ref().expect("tables").range;
+        g.par_iter_mut().enumerate().for_each(|(n, gn)| {
+            let i = crate::octree::func_index(coarse.key(n as u32), d);
+            if range.contains(i) {
+                *gn += restrict_one(tree, coarse, op.level, p.fem, d, n as u32, i, u_t);
+            }
+        });
+    }
+    g
+}
+
+/// `U_t` of every level `t` from `lowest` up (empty above the deepest level's parent and below
+/// `lowest`): the gradient coupling with the finer levels' coefficients `x` (per level),
+/// counting only the nodes `keep(t, node)` accepts. A slab counts its own nodes, so that the
+/// slabs' couplings add up to the whole cloud's ([`crate::slabs`]).
+pub(crate) fn finer_couplings(
+    p: &Problem,
+    x: &[Vec<f32>],
+    lowest: usize,
+    keep: impl Fn(usize, u32) -> bool + Sync,
+) -> Vec<Vec<f64>> {
+    let nlev = p.tree.levels.len();
+    let mut u = vec![Vec::new(); nlev];
+    for t in (lowest.max(1) + 1..nlev).rev() {
+        let Some(x_t) = x.get(t).filter(|x| x.len() == p.tree.levels[t].len()) else {
+            continue;
+        };
+        let kept: Vec<f32> = (x_t.par_iter().enumerate())
+            .map(|(n, &v)| if keep(t, n as u32) { v } else { 0.0 })
+            .collect();
+        let op = Op::new(p, t as u32);
+        let below = coupling_below(p, &op, &kept, &u[t]);
+        u[t - 1] = below;
+    }
+    u
+}
+
+/// What a cascadic cycle after the first needs of a hierarchy whose deepest level is coupled
+/// to finer levels solved elsewhere (the whole cloud's coarse levels under the slabs'
+/// finer ones, [`crate::slabs`]): per level the fixed right-hand side and the coefficients,
+/// and the cumulative V on the deepest level for the finer levels.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CycleState {
+    /// `b_d` of the levels above the base (empty at and below it).
+    pub b: Vec<Vec<f32>>,
+    /// The base level's right-hand side without the finer coupling.
+    pub b_base: Vec<f64>,
+    /// The coefficients of the levels above the base (empty at and below it).
+    pub x: Vec<Vec<f32>>,
+    /// The base level's coefficients.
+    pub x_base: Vec<f64>,
+    /// The cumulative V on the deepest level.
+    pub vc: Vec<[f32; 3]>,
+}
+
+impl<'a> Cycles<'a> {
+    /// The cycles' state for `p` with no solution yet, the base system built.
+    fn empty(p: &'a Problem<'a>, b_base: Vec<f64>, base: BaseSystem<'a>) -> Cycles<'a> {
+        let nlev = p.tree.levels.len();
+        let tb = p.base_level as usize;
+        Cycles {
+            p,
+            ops: (0..nlev)
+                .map(|t| (t > tb).then(|| Op::new(p, t as u32)))
+                .collect(),
+            base,
+            tb,
+            max: nlev - 1,
+            b: vec![Vec::new(); nlev],
+            b_base,
+            x: vec![Vec::new(); nlev],
+            x_base: Vec::new(),
+            pcum: vec![Vec::new(); nlev],
+            u: vec![Vec::new(); nlev],
+            report: None,
+            parts: [std::time::Duration::ZERO; PARTS.len()],
+            cycle: 1,
+            work: 0.0,
+            measuring: std::time::Duration::ZERO,
+            started: std::time::Instant::now(),
+        }
+    }
+
+    /// The solution of the levels, with the cumulative solution of every level (the deepest's
+    /// too) and the carry on the deepest level.
+    fn parts(&mut self, vc: Vec<[f32; 3]>) -> (Solution, Carry) {
+        let (tb, max) = (self.tb, self.max);
+        if max > tb {
+            self.pcum[max] = prolong_solution(self.op(max), &self.pcum[max - 1], &self.x[max]);
+        }
+        let nlev = max + 1;
+        let mut sol = Solution {
+            x: vec![Vec::new(); nlev],
+            p: vec![Vec::new(); nlev],
+            base_level: self.p.base_level,
+            timings: Vec::new(),
+            report: None,
+        };
+        sol.x[tb] = to_f32(&self.x_base);
+        for t in tb..=max {
+            sol.p[t] = to_f32(&self.pcum[t]);
+            if t > tb {
+                sol.x[t] = self.x[t].clone();
+            }
+        }
+        let carry = Carry {
+            level: max as u32,
+            p: self.pcum[max].clone(),
+            vc,
+        };
+        (sol, carry)
+    }
+
+    fn state(self, vc: Vec<[f32; 3]>) -> CycleState {
+        CycleState {
+            b: self.b,
+            b_base: self.b_base,
+            x: self.x,
+            x_base: self.x_base,
+            vc,
+        }
+    }
+}
+
+/// The cascade of `p` kept for the cycles after it ([`cycle_below`]): the same solution as
+/// [`super::cascade`] with `keep_last` (bit for bit), the carry on the deepest level, and the
+/// state the cycles need. `v` is the V per level, its deepest level's included (it is
+/// prolonged into the carry).
+pub fn cascade_for_cycles(
+    p: &Problem,
+    mut tcons: Vec<Vec<f32>>,
+    mut v: Vec<Vec<[f32; 3]>>,
+) -> (Solution, Carry, CycleState) {
+    let nlev = p.tree.levels.len();
+    let tb = p.base_level as usize;
+    v.resize_with(nlev, Vec::new);
+    let base = BaseSystem::new(p);
+    let b_base = base.right_hand_side(std::mem::take(&mut tcons[tb]));
+    let mut c = Cycles::empty(p, b_base, base);
+    let vc = c.first_pass(tcons, v, &mut Laps::new(), true);
+    let (sol, carry) = c.parts(vc.clone());
+    (sol, carry, c.state(vc))
+}
+
+/// A cascadic cycle after the first over the levels of `p`, whose deepest level is coupled to
+/// finer levels solved elsewhere: `u_top` is their gradient coupling `U` on the deepest level
+/// (the sum of the parts' [`finer_couplings`]). The coarser levels' `U` is gathered from it
+/// and their coefficients going down, the base level solved by conjugate gradients, each level
+/// relaxed going up; `state` is updated. Returns the solution and the carry on the deepest
+/// level, as [`cascade_for_cycles`].
+pub fn cycle_below(p: &Problem, state: &mut CycleState, u_top: Vec<f64>) -> (Solution, Carry) {
+    let st = std::mem::take(state);
+    let base = BaseSystem::new(p);
+    let mut c = Cycles::empty(p, st.b_base, base);
+    c.b = st.b;
+    c.x = st.x;
+    c.x_base = st.x_base;
+    c.pcum[c.tb] = c.x_base.clone();
+    let max = c.max;
+    if max == c.tb {
+        c.u[max] = u_top;
+        c.solve_base();
+    } else {
+        c.u[max] = u_top;
+        c.cycle_from(max);
+    }
+    let (sol, carry) = c.parts(st.vc.clone());
+    *state = c.state(st.vc);
+    (sol, carry)
 }
 
 fn record(

@@ -479,7 +479,7 @@ fn the_gpu_kernels_run_on_the_cpu_give_the_solvers_bits() {
             let (er, eb) = first_right_hand_sides(&kernels, &sys, &tcons, &pc, &vc, &cchi);
             same_bits(&r, &er, &format!("{what}, level {t}: r"));
             same_bits(&b, &eb, &format!("{what}, level {t}: b"));
-            let single = right_hand_side(&op, f.fem, &tcons, &pc, &vc);
+            let single = right_hand_side(&op, f.fem, &tcons, &pc, &vc, &[]);
             same_bits(&single, &er, &format!("{what}, level {t}: the cascade's r"));
             let u = pseudo_random(op.level.len(), 19 + seed);
             for u in [Vec::new(), u] {

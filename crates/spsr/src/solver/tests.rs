@@ -352,6 +352,7 @@ fn finest_right_hand_side(f: &Fixture, op: &Op) -> Vec<f32> {
         &tcons[op.t as usize],
         &vec![0.0; parent_len],
         &vec![[0.0; 3]; parent_len],
+        &[],
     )
 }
 
@@ -607,7 +608,7 @@ fn the_gpu_gives_the_cpus_bits() {
             let (r_gpu, b_gpu) = super::cycles::right_hand_sides(&gpu_op, f.fem, &tcons, &pc, &vc);
             assert_eq!(bits(&r_cpu), bits(&r_gpu), "{what}, level {t}: r");
             assert_eq!(bits(&b_cpu), bits(&b_gpu), "{what}, level {t}: b");
-            let single = super::right_hand_side(&gpu_op, f.fem, &tcons, &pc, &vc);
+            let single = super::right_hand_side(&gpu_op, f.fem, &tcons, &pc, &vc, &[]);
             assert_eq!(
                 bits(&r_cpu),
                 bits(&single),
