@@ -1012,6 +1012,50 @@ pub fn cascade(
     (sol, carry)
 }
 
+/// The down pass of a V-cycle on the levels after `from.level` (a slab's finer levels,
+/// [`crate::slabs`]), as [`cycles`] makes it: from the deepest level down, each level relaxed
+/// from its coefficients `x` against the coarser cumulative solution before the pass (`from`
+/// and `x` prolonged), and the gradient coupling of the finer levels' relaxed coefficients.
+/// `tcons` are the levels' divergence constraints and `v` their V (both as [`cascade`] takes
+/// them; only the levels between `from.level` and the deepest level's parent are read of `v`).
+pub fn relax_down(
+    p: &Problem,
+    tcons: &[Vec<f32>],
+    v: &[Vec<[f32; 3]>],
+    from: &Carry,
+    x: &mut [Vec<f32>],
+) {
+    let nlev = p.tree.levels.len();
+    let first = from.level as usize + 1;
+    if first >= nlev {
+        return;
+    }
+    let max = nlev - 1;
+    let ops: Vec<Option<Op>> = (0..nlev)
+        .map(|t| (t >= first).then(|| Op::new(p, t as u32)))
+        .collect();
+    let op = |t: usize| ops[t].as_ref().expect("levels after the carry");
+    // The cumulative solution and V of every level from the carry's up to the deepest's
+    // parent, before the pass.
+    let mut pcum = vec![Vec::new(); nlev];
+    let mut vcum = vec![Vec::new(); nlev];
+    pcum[first - 1] = from.p.clone();
+    vcum[first - 1] = from.vc.clone();
+    for t in first..max {
+        pcum[t] = prolong_solution(op(t), &pcum[t - 1], &x[t]);
+        let vt = v.get(t).cloned().unwrap_or_default();
+        vcum[t] = prolong_field(op(t), &vcum[t - 1], vt);
+    }
+    let mut u: Vec<f64> = Vec::new();
+    for t in (first..=max).rev() {
+        let r = right_hand_side(op(t), p.fem, &tcons[t], &pcum[t - 1], &vcum[t - 1], &u);
+        op(t).gauss_seidel(&r, &mut x[t], p.iters);
+        if t > first {
+            u = cycles::coupling_below_of(p, op(t), &x[t], &u);
+        }
+    }
+}
+
 /// The cumulative solutions `P_t` of the levels after `from.level` (but the deepest), from
 /// `from.p` and the levels' own coefficients `x`: what evaluation reads besides `x`.
 pub fn cumulate(p: &Problem, from: &Carry, x: &[Vec<f32>]) -> Vec<Vec<f32>> {

@@ -176,10 +176,11 @@ fn check_supported(params: &Params) -> Result<()> {
     if let PointWeights::Property(name) = &params.weights {
         return refuse("weights", name);
     }
-    // The cascadic cycles run across the slabs (the coarse depths once for the whole cloud,
-    // the finer ones slab by slab, `phases::cycle_coarse`); V- and W-cycles would relax the
-    // finer depths going down as well, between the coarse depths' visits (not done yet).
-    if params.solver != crate::Solver::Cascadic {
+    // Cascadic and V-cycles run across the slabs (the coarse depths once for the whole
+    // cloud, the finer ones slab by slab, `phases::cycle_coarse`). A W-cycle visits the
+    // coarser depths twice from each finer one: one exchange between the slabs and the
+    // coordinator per visit (not done).
+    if params.solver == crate::Solver::WCycle {
         return refuse("solver", params.solver.name());
     }
     // The slabs relax on the CPU; `Gpu::Auto` falls back to it as it does without a GPU.

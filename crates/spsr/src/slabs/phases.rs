@@ -270,9 +270,9 @@ fn problem<'a>(
         base_level: base_level(params),
         iters: params.iters(),
         singular: params.alpha() == 0.0 && params.boundary != crate::Boundary::Dirichlet,
-        // Refused in slab mode but cascadic cycles (`check_supported`), which the phases
-        // run one after another across the slabs ([`cycle_coarse`], [`solve`]).
-        solver: crate::Solver::Cascadic,
+        // Cascadic cycles and V-cycles, which the phases run across the slabs
+        // ([`cycle_coarse`], [`solve`]); W-cycles are refused (`check_supported`).
+        solver: params.solver,
         cycles: 1,
         report: false,
         progress: &|_| {},
@@ -917,7 +917,8 @@ fn solution_path(dir: &Path, s: usize, cycle: u32) -> PathBuf {
 /// that cycle. The first cycle is the cascade from the coarse solution; a later one relaxes
 /// each level from the slab's coefficients of the cycle before, against the new coarse
 /// solution and the coupling of those coefficients ([`solver::cascade`] with `previous`).
-/// Before the last cycle, the slab's own nodes' share of the coarse level's coupling `U` goes
+/// Before the last cycle (after a V-cycle's down pass of the finer levels,
+/// [`solver::relax_down`]), the slab's own nodes' share of the coarse level's coupling `U` goes
 /// to the coordinator ([`cycle_coarse`]); after it, the slab's share of γ and its
 /// coefficients near its faces for the neighbours (empty before).
 pub fn solve(
@@ -957,6 +958,20 @@ pub fn solve(
                 Ok(x)
             })
             .transpose()?;
+        // A V-cycle goes down the finer levels again before the next cycle's coarse levels:
+        // it reads the constraints and V the cascade consumes (V but the deepest level's).
+        let down = (params.solver == crate::Solver::VCycle && cycle < params.cycles()).then(|| {
+            let v: Vec<Vec<[f32; 3]>> = (field.v.iter().enumerate())
+                .map(|(t, v)| {
+                    if t < max_level as usize {
+                        v.clone()
+                    } else {
+                        Vec::new()
+                    }
+                })
+                .collect();
+            (tcons.clone(), v, carry.clone())
+        });
         let (mut fine, _) = solver::cascade(
             &p,
             tcons,
@@ -969,6 +984,9 @@ pub fn solve(
         for t in tc as usize + 1..=max_level as usize {
             sol.x[t] = std::mem::take(&mut fine.x[t]);
             sol.p[t] = std::mem::take(&mut fine.p[t]);
+        }
+        if let Some((tcons, v, carry)) = down {
+            solver::relax_down(&p, &tcons, &v, &carry, &mut sol.x);
         }
     }
     write_levels(&solution_path(dir, s, cycle), &sol.x, tc + 1)?;

@@ -305,9 +305,9 @@ impl<'a> Cycles<'a> {
         self.parts[PROLONG] += clock.elapsed();
     }
 
-    /// `U_{t−1}` from level `t`'s solution and `u_t` ([`coupling_below`]).
+    /// `U_{t−1}` from level `t`'s solution and `u_t` ([`coupling_below_of`]).
     fn coupling_below(&self, t: usize, u_t: &[f64]) -> Vec<f64> {
-        coupling_below(self.p, self.op(t), &self.x[t], u_t)
+        coupling_below_of(self.p, self.op(t), &self.x[t], u_t)
     }
 
     /// The right-hand side level `t` is relaxed against ([`cycle_right_hand_side`]).
@@ -459,7 +459,7 @@ impl<'a> Cycles<'a> {
 /// `U_{t−1}`, the gradient coupling of the levels from `op`'s level `t` on with the functions
 /// of level `t − 1`: level `t`'s coefficients `x_t` pushed through the parent stencils, plus
 /// `u_t` (the coupling of the levels finer than `t`; empty for none) restricted.
-fn coupling_below(p: &Problem, op: &Op, x_t: &[f32], u_t: &[f64]) -> Vec<f64> {
+pub(super) fn coupling_below_of(p: &Problem, op: &Op, x_t: &[f32], u_t: &[f64]) -> Vec<f64> {
     let mut g = push_to_parents(op, x_t);
     if !u_t.is_empty() {
         let tree = p.tree;
@@ -497,7 +497,7 @@ pub(crate) fn finer_couplings(
             .map(|(n, &v)| if keep(t, n as u32) { v } else { 0.0 })
             .collect();
         let op = Op::new(p, t as u32);
-        let below = coupling_below(p, &op, &kept, &u[t]);
+        let below = coupling_below_of(p, &op, &kept, &u[t]);
         u[t - 1] = below;
     }
     u
@@ -610,8 +610,8 @@ pub fn cascade_for_cycles(
     (sol, carry, c.state(vc))
 }
 
-/// A cascadic cycle after the first over the levels of `p`, whose deepest level is coupled to
-/// finer levels solved elsewhere: `u_top` is their gradient coupling `U` on the deepest level
+/// A cycle after the first over the levels of `p` (cascadic, or a V-cycle that relaxes each
+/// level going down too), whose deepest level is coupled to finer levels solved elsewhere: `u_top` is their gradient coupling `U` on the deepest level
 /// (the sum of the parts' [`finer_couplings`]). The coarser levels' `U` is gathered from it
 /// and their coefficients going down, the base level solved by conjugate gradients, each level
 /// relaxed going up; `state` is updated. Returns the solution and the carry on the deepest
@@ -625,6 +625,13 @@ pub fn cycle_below(p: &Problem, state: &mut CycleState, u_top: Vec<f64>) -> (Sol
     c.x_base = st.x_base;
     c.pcum[c.tb] = c.x_base.clone();
     let max = c.max;
+    if p.solver != Solver::Cascadic {
+        // V-cycles relax each level going down, against the coarser cumulative solution of
+        // the cycle before.
+        for t in c.tb + 1..max {
+            c.pcum[t] = prolong_solution(c.op(t), &c.pcum[t - 1], &c.x[t]);
+        }
+    }
     if max == c.tb {
         c.u[max] = u_top;
         c.solve_base();

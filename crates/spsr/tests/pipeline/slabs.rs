@@ -199,6 +199,11 @@ fn slab_tasks_give_the_bytes_of_the_one_process_run() {
             attributes: false,
             ..Params::default()
         },
+        Params {
+            solver: spsr::Solver::VCycle,
+            cycles: Some(3),
+            ..plain(7)
+        },
     ] {
         let options = SlabOptions {
             slabs: 3,
@@ -246,29 +251,70 @@ fn slab_tasks_refuse_steps_out_of_order_and_foreign_folders() {
 }
 
 #[test]
-fn slabs_refuse_v_and_w_cycles_with_the_field_named() {
+fn slabs_refuse_w_cycles_with_the_field_named() {
     let dir = tempfile::tempdir().unwrap();
     let cloud = torus(2_000, 0.3, 0.1, 7);
-    for solver in [spsr::Solver::VCycle, spsr::Solver::WCycle] {
-        let params = Params {
-            solver,
-            ..Params::default()
-        };
-        let err = slabs::reconstruct(
-            Source::Cloud(&cloud),
-            &params,
-            &SlabOptions {
-                slabs: 2,
-                work_dir: dir.path().to_path_buf(),
-            },
-            &|_| {},
-        )
-        .expect_err("refused");
-        match err {
-            spsr::Error::InvalidParameter { field, .. } => assert_eq!(field, "solver"),
-            other => panic!("{solver:?}: {other:?}"),
-        }
+    let params = Params {
+        solver: spsr::Solver::WCycle,
+        ..Params::default()
+    };
+    let err = slabs::reconstruct(
+        Source::Cloud(&cloud),
+        &params,
+        &SlabOptions {
+            slabs: 2,
+            work_dir: dir.path().to_path_buf(),
+        },
+        &|_| {},
+    )
+    .expect_err("refused");
+    match err {
+        spsr::Error::InvalidParameter { field, .. } => assert_eq!(field, "solver"),
+        other => panic!("{other:?}"),
     }
+}
+
+#[test]
+fn slabs_run_v_cycles_across_the_slabs() {
+    // Three V-cycles: the slabs' finer depths are relaxed going down too, before the whole
+    // cloud's coarse depths; the mesh is the in-core V-cycles' mesh, not the cascadic one.
+    let dir = tempfile::tempdir().unwrap();
+    let cloud = bunny();
+    let params = Params {
+        solver: spsr::Solver::VCycle,
+        cycles: Some(3),
+        ..plain(8)
+    };
+    let slab = slabs::reconstruct(
+        Source::Cloud(&cloud),
+        &params,
+        &slab_options(3, dir.path()),
+        &|_| {},
+    )
+    .unwrap()
+    .mesh;
+    let v = spsr::reconstruct(&cloud, &params).unwrap().mesh;
+    let cascadic = spsr::reconstruct(
+        &cloud,
+        &Params {
+            solver: spsr::Solver::Cascadic,
+            ..params.clone()
+        },
+    )
+    .unwrap()
+    .mesh;
+    let h = cell(&cloud, &params);
+    let (to_v, _) = distances(&slab, &v);
+    let (apart, _) = distances(&cascadic, &v);
+    eprintln!(
+        "V-cycle slabs to in-core: {:.2e} cells; cascadic to V in-core: {:.2e} cells",
+        to_v / h,
+        apart / h
+    );
+    assert!(to_v < 0.01 * h, "{} cells", to_v / h);
+    assert!(to_v < 0.1 * apart, "{to_v} against {apart}");
+    let topo = assert_closed_manifold(&slab, "V-cycle slabs");
+    assert_eq!(topo.components, 1);
 }
 
 #[test]
