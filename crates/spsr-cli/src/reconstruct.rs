@@ -391,6 +391,17 @@ impl ReconstructArgs {
             .unwrap_or(Path::new("-"))
     }
 
+    /// How the warnings name the input: its path, or with tiles (several files read as one
+    /// cloud) the first one's and how many more, since a warning is about the whole cloud.
+    pub fn inputs_label(&self) -> String {
+        let first = input_name(self.input()).display();
+        match self.input.len() {
+            0 | 1 => first.to_string(),
+            2 => format!("{first} and 1 more file"),
+            n => format!("{first} and {} more files", n - 1),
+        }
+    }
+
     /// Every input file, in order.
     pub fn inputs(&self) -> Vec<PathBuf> {
         if self.input.is_empty() {
@@ -725,7 +736,11 @@ fn finish(
     drop(progress);
 
     for w in &result.stats.warnings {
-        eprintln!("spsr: warning: {}: {}", input.display(), words::warning(w));
+        eprintln!(
+            "spsr: warning: {}: {}",
+            args.inputs_label(),
+            words::warning(w)
+        );
     }
     if args.common.verbose {
         print_details(args, &result, reading, writing, start.elapsed());

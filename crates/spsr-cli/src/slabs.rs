@@ -58,7 +58,11 @@ pub(crate) fn run_streamed(
         crate::render::write_preview(&mesh, p, input)?;
     }
     for w in &stats.warnings {
-        eprintln!("spsr: warning: {}: {}", input.display(), words::warning(w));
+        eprintln!(
+            "spsr: warning: {}: {}",
+            args.inputs_label(),
+            words::warning(w)
+        );
     }
     if args.common.verbose {
         eprintln!(

@@ -54,6 +54,41 @@ fn tiles_are_one_cloud() {
 }
 
 #[test]
+fn a_warning_about_tiles_names_them_all() {
+    // A point with no usable position in the second tile: the warning about the dropped
+    // point is about the whole cloud, so it names the first tile and how many more.
+    let dir = tempfile::tempdir().unwrap();
+    let (_, a, b) = sphere_files(dir.path());
+    let mut text = fs::read_to_string(&b).unwrap();
+    text.push_str("nan 0 0 0 0 1\n");
+    fs::write(&b, text).unwrap();
+    let out = dir.path().join("out.ply");
+    for slabs in ["auto", "1", "2"] {
+        let run = spsr(&[
+            "reconstruct",
+            &a,
+            &b,
+            "-o",
+            s(&out),
+            "--depth",
+            "6",
+            "--slabs",
+            slabs,
+        ]);
+        assert!(run.status.success(), "{}", stderr(&run));
+        let said = stderr(&run);
+        let line = said
+            .lines()
+            .find(|l| l.starts_with("spsr: warning:") && l.contains("1 of"))
+            .unwrap_or_else(|| panic!("no warning of the dropped point: {said}"));
+        assert!(
+            line.starts_with(&format!("spsr: warning: {a} and 1 more file: ")),
+            "{line}"
+        );
+    }
+}
+
+#[test]
 fn slabs_give_the_mesh_of_one_piece() {
     let dir = tempfile::tempdir().unwrap();
     let (whole, a, b) = sphere_files(dir.path());
