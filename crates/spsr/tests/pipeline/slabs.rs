@@ -591,3 +591,52 @@ fn slab_trim_is_the_in_core_trim() {
     // Only the meshes are left.
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
 }
+
+#[test]
+fn the_slab_stage_plan_is_what_the_progress_callback_hears() {
+    // The progress bar's length: the stages of every solver cycle, streamed or in memory,
+    // trimmed or not.
+    let cloud = torus(5_000, 1.0, 0.35, 3);
+    let dir = tempfile::tempdir().unwrap();
+    let options = slab_options(2, dir.path());
+    let v_cycles = Params {
+        solver: spsr::Solver::VCycle,
+        cycles: Some(3),
+        ..plain(6)
+    };
+    let one_cycle = Params {
+        cycles: Some(1),
+        ..plain(6)
+    };
+    let adaptive = Params {
+        depth: 6,
+        attributes: false,
+        ..Params::default()
+    };
+    for (params, streamed, trimming) in [
+        (plain(6), false, false),
+        (v_cycles, true, false),
+        (one_cycle, false, true),
+        (adaptive, false, false),
+    ] {
+        let heard = std::sync::Mutex::new(Vec::new());
+        let progress = |s: &str| heard.lock().unwrap().push(s.to_string());
+        let source = Source::Cloud(&cloud);
+        if streamed {
+            let out = dir.path().join("out.ply");
+            slabs::reconstruct_into(source, &params, &options, &out, &progress).unwrap();
+        } else if trimming {
+            let trim = TrimParams::default();
+            slabs::reconstruct_and_trim(source, &params, &options, &trim, &progress).unwrap();
+        } else {
+            slabs::reconstruct(source, &params, &options, &progress).unwrap();
+        }
+        assert_eq!(
+            heard.into_inner().unwrap(),
+            slabs::stage_plan(&params, streamed, trimming),
+            "{:?} with {} cycles",
+            params.solver,
+            params.cycles()
+        );
+    }
+}
