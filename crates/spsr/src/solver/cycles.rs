@@ -134,35 +134,15 @@ pub(super) fn solve(
     let tb = p.base_level as usize;
     let max = nlev - 1;
     v.resize_with(nlev, Vec::new);
-    let ops: Vec<Option<Op>> = (0..nlev)
-        .map(|t| (t > tb).then(|| Op::new(p, t as u32)))
-        .collect();
     (p.progress)("solving base depth");
     let base = BaseSystem::new(p);
     let b_base = base.right_hand_side(std::mem::take(&mut tcons[tb]));
-    let mut c = Cycles {
-        p,
-        ops,
-        base,
-        tb,
-        max,
-        b: vec![Vec::new(); nlev],
-        b_base,
-        x: vec![Vec::new(); nlev],
-        x_base: Vec::new(),
-        pcum: vec![Vec::new(); nlev],
-        u: vec![Vec::new(); nlev],
-        report: p.report.then(|| SolveReport {
-            solver: p.solver,
-            iters: p.iters,
-            ..SolveReport::default()
-        }),
-        parts: [std::time::Duration::ZERO; PARTS.len()],
-        cycle: 1,
-        work: 0.0,
-        measuring: std::time::Duration::ZERO,
-        started: std::time::Instant::now(),
-    };
+    let mut c = Cycles::empty(p, b_base, base);
+    c.report = p.report.then(|| SolveReport {
+        solver: p.solver,
+        iters: p.iters,
+        ..SolveReport::default()
+    });
     // The first cycle is timed by parts, with the cascade's names (issue 20's profile).
     c.first_pass(tcons, v, &mut laps, false);
     c.end_cycle();
