@@ -115,6 +115,28 @@ def test_a_killed_worker_changes_nothing(client, tiles, tmp_path):
     assert job_folders(tmp_path) == []
 
 
+def test_a_lone_worker_killed_runs_nothing_twice(tiles, tmp_path):
+    # With one worker, the worker killed mid-task also held the results of the steps before:
+    # the run must not want them back (Dask would run the preparation again, into a second
+    # job folder that nothing removes).
+    cluster = distributed.LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None
+    )
+    try:
+        with distributed.Client(cluster) as lone:
+            expected = command_line(tiles, tmp_path / "cli.ply", "--slabs", "2")
+            marker = tmp_path / "died"
+            out = tmp_path / "dask.ply"
+            spsr.distributed.reconstruct(
+                tiles, out, client=lone, slabs=2, depth=int(DEPTH), _fault=("solve", 0, str(marker))
+            )
+            assert marker.exists(), "the worker was not killed"
+            assert out.read_bytes() == expected
+            assert job_folders(tmp_path) == []
+    finally:
+        cluster.close()
+
+
 def test_a_malformed_tile_is_an_error_and_leaves_nothing(client, tiles, tmp_path):
     bad = tmp_path / "bad.ply"
     bad.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty float x\n")

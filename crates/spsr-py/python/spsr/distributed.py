@@ -200,14 +200,23 @@ def _distributed() -> Any:
 def _settle(client: Any, futures: List[Any]) -> List[Any]:
     """The results of `futures`, once all of them have ended; the first failure (in slab
     order) is raised after the others have stopped, so that nothing writes into the job
-    folder afterwards."""
+    folder afterwards.
+
+    The futures are released once their results are here: while a future is held, Dask keeps
+    its result on a worker and, if that worker dies, runs the task again to get it back. A
+    step run again after its phase would write into the job folder out of order, and the
+    preparation run again would make a second job folder that nothing removes."""
     _distributed().wait(futures)
-    for f in futures:
-        if f.status != "finished":
-            error = f.exception()
-            client.cancel([g for g in futures if g is not f])
-            raise error
-    return [f.result() for f in futures]
+    try:
+        for f in futures:
+            if f.status != "finished":
+                error = f.exception()
+                client.cancel([g for g in futures if g is not f])
+                raise error
+        return [f.result() for f in futures]
+    finally:
+        for f in futures:
+            f.release()
 
 
 def _run_steps(
