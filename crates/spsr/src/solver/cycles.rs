@@ -483,7 +483,7 @@ pub(crate) fn finer_couplings(
     u
 }
 
-/// What a cascadic cycle after the first needs of a hierarchy whose deepest level is coupled
+/// What a cycle after the first (cascadic or V) needs of a hierarchy whose deepest level is coupled
 /// to finer levels solved elsewhere (the whole cloud's coarse levels under the slabs'
 /// finer ones, [`crate::slabs`]): per level the fixed right-hand side and the coefficients,
 /// and the cumulative V on the deepest level for the finer levels.
@@ -612,11 +612,10 @@ pub fn cycle_below(p: &Problem, state: &mut CycleState, u_top: Vec<f64>) -> (Sol
             c.pcum[t] = prolong_solution(c.op(t), &c.pcum[t - 1], &c.x[t]);
         }
     }
+    c.u[max] = u_top;
     if max == c.tb {
-        c.u[max] = u_top;
         c.solve_base();
     } else {
-        c.u[max] = u_top;
         c.cycle_from(max);
     }
     let (sol, carry) = c.parts(st.vc.clone());
