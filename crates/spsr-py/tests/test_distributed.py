@@ -67,6 +67,11 @@ def test_the_cluster_writes_the_command_lines_bytes(client, tiles, tmp_path):
     mesh = spsr.read_mesh(out)
     assert len(mesh.vertices) == stats["vertices"] and len(mesh.faces) == stats["faces"]
     assert job_folders(tmp_path) == []
+    # Each step's time, in the order the steps ran: the default's noise and two solver cycles.
+    steps = [step for step, _ in stats["timings"]]
+    assert steps == ["prepare", "noise", "smoothing", "coarse", "solve_coarse", "solve", "cycle",
+                     "solve", "iso", "extract", "finish"]
+    assert all(seconds >= 0 for _, seconds in stats["timings"])
 
 
 def test_parameters_reach_the_tasks(client, tiles, tmp_path):
@@ -222,7 +227,7 @@ def test_the_module_runs_reconstructs_flags_on_a_local_cluster(tiles, tmp_path):
     assert r.returncode == 0, r.stderr
     assert out.read_bytes() == expected
     assert "in 3 slabs on 2 workers" in r.stdout
-    assert "samples" in r.stderr
+    assert "samples" in r.stderr and "solve_coarse" in r.stderr
     # The command line's trimming too.
     expected = command_line(tiles, tmp_path / "cli.ply", "--slabs", "3", "--trim", "auto")
     r = module("--workers", "2", *tiles, "-o", str(out), "--depth", DEPTH, "--slabs", "3",

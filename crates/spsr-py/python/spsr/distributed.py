@@ -228,8 +228,11 @@ def _run_steps(
     token: str,
     threads: Optional[int],
     fault: Optional[Tuple[str, int, str]],
-) -> None:
+) -> List[Tuple[str, float]]:
+    """Runs the job's steps in order; returns each run's name and wall time in seconds."""
+    timings = []
     for i, (step, per_slab) in enumerate(_steps(noise, cycles)):
+        start = time.perf_counter()
         # Dask keeps a result by its key: a step run once per cycle needs one key per run.
         name = f"{step}{i}"
         if per_slab:
@@ -249,6 +252,8 @@ def _run_steps(
                 )
             ]
         _settle(client, futures)
+        timings.append((step, time.perf_counter() - start))
+    return timings
 
 
 def reconstruct(
@@ -299,7 +304,9 @@ def reconstruct(
     dict
         ``vertices``, ``faces``, ``pieces``, ``closed``, ``open_edges``, ``slabs``,
         ``points``, ``dropped``, ``samples``, ``iso_value``, ``mean_sample_depth``,
-        ``warnings`` (also raised as ``RuntimeWarning``) and ``seconds``.
+        ``warnings`` (also raised as ``RuntimeWarning``), ``timings`` (each step's name and
+        wall time in seconds, in the order they ran: ``prepare``, the per-slab and coordinator
+        steps, ``finish``) and ``seconds``.
 
     Raises
     ------
@@ -356,6 +363,7 @@ def _run(
     trim: Optional[str] = None,
 ) -> Dict[str, Any]:
     token = uuid.uuid4().hex[:12]
+    start = time.perf_counter()
     prepared = client.submit(
         _prepare_task,
         inputs,
@@ -367,10 +375,14 @@ def _run(
         key=f"spsr-prepare-{token}",
     )
     folder, k, noise, cycles = _settle(client, [prepared])[0]
+    timings = [("prepare", time.perf_counter() - start)]
     try:
-        _run_steps(client, folder, k, noise, cycles, token, threads, fault)
+        timings += _run_steps(client, folder, k, noise, cycles, token, threads, fault)
+        start = time.perf_counter()
         finish = client.submit(_finish_task, folder, output, key=f"spsr-finish-{token}")
-        return dict(_settle(client, [finish])[0])
+        stats = dict(_settle(client, [finish])[0])
+        stats["timings"] = timings + [("finish", time.perf_counter() - start)]
+        return stats
     finally:
         _remove(client, folder, token)
 
@@ -539,9 +551,11 @@ def main(argv: Optional[List[str]] = None) -> int:
         print(
             f"slabs       {stats['slabs']}\nworkers     {n_workers}\n"
             f"points      {stats['points']} read, {stats['dropped']} dropped\n"
-            f"samples     {stats['samples']}\niso-value   {stats['iso_value']}",
+            f"samples     {stats['samples']}\niso-value   {stats['iso_value']}\ntimings:",
             file=sys.stderr,
         )
+        for step, seconds in stats["timings"]:
+            print(f"  {step:<32} {seconds:10.3f} s", file=sys.stderr)
     closed = "closed" if stats["closed"] else f"open ({stats['open_edges']} edges without a partner)"
     pieces = stats["pieces"]
     print(
