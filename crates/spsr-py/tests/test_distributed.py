@@ -74,6 +74,38 @@ def test_the_cluster_writes_the_command_lines_bytes(client, tiles, tmp_path):
     assert all(seconds >= 0 for _, seconds in stats["timings"])
 
 
+def test_colours_in_the_tiles_reach_the_mesh(client, tmp_path):
+    """Colours and other properties stored in the tiles are carried in slabs, as in one
+    piece: the cluster writes the command line's bytes, with the in-core mesh's properties."""
+    p1, n1 = fibonacci_sphere(10_000, center=np.array([0.0, 0.0, 0.0]), radius=1.0)
+    p2, n2 = fibonacci_sphere(6_000, center=np.array([2.5, 0.0, 0.0]), radius=0.8)
+    tiles = []
+    for name, p, n in (("a.ply", p1, n1), ("b.ply", p2, n2)):
+        colors = np.clip((p - p.min()) / np.ptp(p) * 255, 0, 255).astype(np.uint8)
+        path = str(tmp_path / name)
+        spsr.write_points(path, p, normals=n, colors=colors,
+                          attributes={"height": p[:, 2].astype(np.float32)})
+        tiles.append(path)
+    expected = command_line(tiles, tmp_path / "cli.ply", "--slabs", "3")
+    out = tmp_path / "dask.ply"
+    stats = spsr.distributed.reconstruct(tiles, out, client=client, slabs=3, depth=int(DEPTH))
+    assert out.read_bytes() == expected
+    assert stats["closed"] and stats["pieces"] == 2
+    slabs_mesh = spsr.read_mesh(out)
+    one = tmp_path / "one.ply"
+    command_line(tiles, one)
+    in_core = spsr.read_mesh(str(one))
+    assert slabs_mesh.colors is not None and slabs_mesh.colors.dtype == np.uint8
+    assert set(slabs_mesh.attributes) == set(in_core.attributes)
+    assert slabs_mesh.attributes["height"].dtype == np.float32
+    # Each vertex's colour is the in-core one at its place (the same vertices, to 1e-4 cells).
+    order_s = np.lexsort(np.round(slabs_mesh.vertices, 4).T)
+    order_c = np.lexsort(np.round(in_core.vertices, 4).T)
+    assert len(order_s) == len(order_c)
+    diff = np.abs(slabs_mesh.colors[order_s].astype(int) - in_core.colors[order_c].astype(int))
+    assert np.mean(diff <= 1) > 0.99, diff.max()
+
+
 def test_parameters_reach_the_tasks(client, tiles, tmp_path):
     flags = ["--slabs", "2", "--degree", "2", "--noise", "off", "--samples-per-node", "3"]
     expected = command_line(tiles, tmp_path / "cli.ply", *flags)

@@ -13,7 +13,7 @@
 //! are in `[0, 1]`.
 
 /// The numeric type of an attribute column; the eight scalar types of PLY.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub enum ScalarType {
     /// Unsigned 8-bit integer.
     U8,
@@ -147,6 +147,23 @@ macro_rules! to_int {
             v.round().clamp(<$t>::MIN as f64, <$t>::MAX as f64) as $t
         }
     }};
+}
+
+impl ScalarType {
+    /// Appends `v` to `out` in this type, little endian, converted as by
+    /// [`AttributeData::push_f64`] (the bytes a binary PLY holds for it).
+    pub fn put_le(self, v: f64, out: &mut Vec<u8>) {
+        match self {
+            ScalarType::U8 => out.extend_from_slice(&to_int!(v, u8).to_le_bytes()),
+            ScalarType::I8 => out.extend_from_slice(&to_int!(v, i8).to_le_bytes()),
+            ScalarType::U16 => out.extend_from_slice(&to_int!(v, u16).to_le_bytes()),
+            ScalarType::I16 => out.extend_from_slice(&to_int!(v, i16).to_le_bytes()),
+            ScalarType::U32 => out.extend_from_slice(&to_int!(v, u32).to_le_bytes()),
+            ScalarType::I32 => out.extend_from_slice(&to_int!(v, i32).to_le_bytes()),
+            ScalarType::F32 => out.extend_from_slice(&(v as f32).to_le_bytes()),
+            ScalarType::F64 => out.extend_from_slice(&v.to_le_bytes()),
+        }
+    }
 }
 
 impl AttributeData {

@@ -31,6 +31,45 @@ pub(crate) struct DataField {
     channels: usize,
     pull: f64,
     levels: Vec<LevelData>,
+    /// The tree level whose cells locate a point in [`DataField::eval`]: the tree's deepest.
+    finest: u32,
+}
+
+/// The sums of one tree level's nodes that hold samples, keyed by node: a slab's share of the
+/// whole cloud's coarse levels (`crate::slabs`), which do not depend on a tree's numbering.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct KeyedSums {
+    /// The nodes' keys, in increasing order.
+    pub keys: Vec<[u32; 3]>,
+    /// Per node `K + 1` numbers (`ΣW`, then `Σ W·a_k`).
+    pub sums: Vec<f64>,
+}
+
+impl KeyedSums {
+    /// The slabs' sums of one level added up (equal keys summed in the order of `parts`, so
+    /// that the result does not depend on anything but that order). `width` is `K + 1`.
+    pub(crate) fn merge(parts: Vec<KeyedSums>, width: usize) -> KeyedSums {
+        let mut rows: Vec<([u32; 3], usize, usize)> = Vec::new();
+        for (p, part) in parts.iter().enumerate() {
+            rows.extend(part.keys.iter().enumerate().map(|(i, &k)| (k, p, i)));
+        }
+        // Key, then part, then row: the sums of a key are added in slab order.
+        rows.sort_unstable();
+        let mut out = KeyedSums::default();
+        for (k, p, i) in rows {
+            let row = &parts[p].sums[i * width..(i + 1) * width];
+            if out.keys.last() == Some(&k) {
+                let at = out.sums.len() - width;
+                for (m, v) in out.sums[at..].iter_mut().zip(row) {
+                    *m += v;
+                }
+            } else {
+                out.keys.push(k);
+                out.sums.extend_from_slice(row);
+            }
+        }
+        out
+    }
 }
 
 impl DataField {
@@ -102,6 +141,7 @@ impl DataField {
             channels,
             pull,
             levels,
+            finest: tree.depth_count() - 1,
         }
     }
 
@@ -110,12 +150,78 @@ impl DataField {
         self.channels
     }
 
+    /// The sums of tree levels `DEPTH_OFFSET..=last` (index 0 is the unit cube), keyed.
+    pub(crate) fn keyed_levels(&self, tree: &Octree, last: u32) -> Vec<KeyedSums> {
+        let width = self.channels + 1;
+        (DEPTH_OFFSET..=last.min(self.levels.len() as u32 - 1))
+            .map(|t| {
+                let level = &self.levels[t as usize];
+                let nodes = &tree.levels[t as usize];
+                let mut rows: Vec<([u32; 3], usize)> = (0..nodes.len() as u32)
+                    .filter_map(|n| {
+                        let r = level.members.get(n);
+                        (r != NONE).then(|| (nodes.key(n), r as usize))
+                    })
+                    .collect();
+                rows.sort_unstable();
+                KeyedSums {
+                    keys: rows.iter().map(|r| r.0).collect(),
+                    sums: rows
+                        .iter()
+                        .flat_map(|&(_, r)| level.sums[r * width..(r + 1) * width].iter().copied())
+                        .collect(),
+                }
+            })
+            .collect()
+    }
+
+    /// Replaces the sums of tree levels `DEPTH_OFFSET..DEPTH_OFFSET + coarse.len()` with
+    /// `coarse` (from [`DataField::keyed_levels`], e.g. the whole cloud's, merged from the
+    /// slabs'); keys that `tree` lacks are left out. Returns how many were.
+    pub(crate) fn replace_coarse(&mut self, tree: &Octree, coarse: &[KeyedSums]) -> usize {
+        let width = self.channels + 1;
+        let mut missing = 0;
+        for (d, level) in coarse.iter().enumerate() {
+            let t = DEPTH_OFFSET + d as u32;
+            if t as usize >= self.levels.len() {
+                missing += level.keys.len();
+                continue;
+            }
+            let mut rows: Vec<(u32, usize)> = Vec::with_capacity(level.keys.len());
+            for (i, &key) in level.keys.iter().enumerate() {
+                let (reached, n) = tree.descend(key.map(u64::from), t, t);
+                if reached == t {
+                    rows.push((n, i));
+                } else {
+                    missing += 1;
+                }
+            }
+            rows.sort_unstable();
+            self.levels[t as usize] = LevelData {
+                members: NodeRank::new(tree.levels[t as usize].len(), rows.iter().map(|r| r.0)),
+                sums: rows
+                    .iter()
+                    .flat_map(|&(_, i)| level.sums[i * width..(i + 1) * width].iter().copied())
+                    .collect(),
+            };
+        }
+        missing
+    }
+
+    /// Locates points in cells of tree level `finest` (at least the tree's deepest) in
+    /// [`DataField::eval`]. A slab's tree may stop short of the whole cloud's depth; locating
+    /// in finer cells than the tree has pools the same nodes, so every slab can locate at the
+    /// run's depth and agree with the tree in one piece.
+    pub(crate) fn locate_at(&mut self, finest: u32) {
+        self.finest = self.finest.max(finest);
+    }
+
     /// The attribute values at unit-cube point `p` into `out` (`channels` long). At every
     /// depth, the sums of all the cells whose closure contains `p` are pooled (one cell for a
     /// point inside a cell, two or four for a mesh vertex on a cell face or edge), so a
     /// vertex sees the samples on both sides of the edge it lies on.
     pub(crate) fn eval(&self, tree: &Octree, p: [f64; 3], out: &mut [f64]) {
-        let t_max = tree.depth_count() - 1;
+        let t_max = self.finest.max(tree.depth_count() - 1);
         let cells = 1i64 << (t_max - DEPTH_OFFSET);
         // Finest cells (tree coordinates) whose closure contains p: per axis the cell below,
         // and the cell above when p lies exactly on their common face.

@@ -56,7 +56,8 @@ PathLike = Union[str, "os.PathLike[str]"]
 
 # Keywords of spsr.reconstruct that a slab run cannot take yet, and why.
 _REFUSED = {
-    "colors": "colours are carried only by in-core runs; reconstruct without them, or in-core",
+    "colors": "colours given as arrays are carried only by in-core runs "
+    "(colours stored in the input files are carried)",
     "weights": "per-point weights are carried only by in-core runs",
     "point_attributes": "attributes given as arrays are carried only by in-core runs "
     "(attributes stored in the input files are carried)",

@@ -316,6 +316,9 @@ pub struct Part {
     pub triangles: Vec<[u64; 3]>,
     /// Per-vertex density, when asked for (set by the caller: `crate::slabs`).
     pub density: Option<Vec<f32>>,
+    /// Per-vertex attribute values, one per carried attribute, vertex after vertex (set by
+    /// the caller: `crate::slabs`).
+    pub attributes: Option<Vec<f64>>,
 }
 
 /// Marks a triangle corner of a [`Part`] that refers to another part's vertex by edge key.
@@ -343,6 +346,7 @@ impl Blocks {
             keys: Vec::with_capacity(total),
             triangles: Vec::with_capacity(chunks.iter().map(|c| c.tris.len()).sum()),
             density: None,
+            attributes: None,
         };
         let mut base = 0u64;
         let mut bases = Vec::with_capacity(chunks.len());

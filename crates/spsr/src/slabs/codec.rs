@@ -7,6 +7,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use super::phases::{CoarsePart, SlabSamples, Solved};
+use crate::data::KeyedSums;
 use crate::density::{DepthAndArea, Sample};
 use crate::extract::Part;
 use crate::solver::{Carry, CycleState};
@@ -173,7 +174,7 @@ fn get3_f64(i: &mut In) -> Result<[f64; 3]> {
 }
 
 impl Record for CoarsePart {
-    const TAG: &'static [u8; 8] = b"spsrCPT2";
+    const TAG: &'static [u8; 8] = b"spsrCPT3";
     fn put(&self, o: &mut Out) -> std::io::Result<()> {
         put_levels_u64(o, &self.refined)?;
         o.list(&self.nodes, |o, l| {
@@ -196,7 +197,8 @@ impl Record for CoarsePart {
             c.iter().try_for_each(|&x| o.u64(x as u64))?;
             o.f64(w)?;
             put3_f64(o, wp)
-        })
+        })?;
+        put_keyed_sums(o, &self.data)
     }
     fn get(i: &mut In) -> Result<Self> {
         Ok(CoarsePart {
@@ -213,7 +215,42 @@ impl Record for CoarsePart {
                 let c = [i.u64()? as i64, i.u64()? as i64, i.u64()? as i64];
                 Ok((c, i.f64()?, get3_f64(i)?))
             })?,
+            data: get_keyed_sums(i)?,
         })
+    }
+}
+
+/// Attribute sums per tree depth, keyed by node (`phases::CoarsePart::data`).
+fn put_keyed_sums(o: &mut Out, levels: &[KeyedSums]) -> std::io::Result<()> {
+    o.list(levels, |o, l| {
+        o.list(&l.keys, |o, &k| o.key(k))?;
+        o.list(&l.sums, |o, &x| o.f64(x))
+    })
+}
+
+fn get_keyed_sums(i: &mut In) -> Result<Vec<KeyedSums>> {
+    i.list(16, |i| {
+        let keys = i.list(12, In::key)?;
+        let sums = i.list(8, In::f64)?;
+        if (keys.is_empty() && !sums.is_empty())
+            || (!keys.is_empty() && sums.len() % keys.len() != 0)
+        {
+            return Err(i.bad("does not give every node its sums"));
+        }
+        Ok(KeyedSums { keys, sums })
+    })
+}
+
+/// The whole cloud's attribute sums at the coarse depths (`phases::save_coarse_data`).
+pub(crate) struct CoarseData(pub Vec<KeyedSums>);
+
+impl Record for CoarseData {
+    const TAG: &'static [u8; 8] = b"spsrDAT1";
+    fn put(&self, o: &mut Out) -> std::io::Result<()> {
+        put_keyed_sums(o, &self.0)
+    }
+    fn get(i: &mut In) -> Result<Self> {
+        get_keyed_sums(i).map(CoarseData)
     }
 }
 
@@ -240,7 +277,7 @@ impl Record for Solved {
 }
 
 impl Record for Part {
-    const TAG: &'static [u8; 8] = b"spsrPRT2";
+    const TAG: &'static [u8; 8] = b"spsrPRT3";
     fn put(&self, o: &mut Out) -> std::io::Result<()> {
         o.list(&self.vertices, |o, &v| put3_f64(o, v))?;
         match &self.normals {
@@ -253,12 +290,13 @@ impl Record for Part {
         o.list(&self.keys, |o, &k| o.u64(k))?;
         o.list(&self.triangles, |o, t| t.iter().try_for_each(|&c| o.u64(c)))?;
         match &self.density {
-            None => o.u32(0),
+            None => o.u32(0)?,
             Some(d) => {
                 o.u32(1)?;
-                o.list(d, |o, &x| o.f32(x))
+                o.list(d, |o, &x| o.f32(x))?;
             }
         }
+        o.list(self.attributes.as_deref().unwrap_or(&[]), |o, &x| o.f64(x))
     }
     fn get(i: &mut In) -> Result<Self> {
         let vertices = i.list(24, get3_f64)?;
@@ -272,10 +310,14 @@ impl Record for Part {
             0 => None,
             _ => Some(i.list(4, In::f32)?),
         };
+        let attributes = i.list(8, In::f64)?;
         let n = vertices.len();
+        // The attributes' count is the job's (checked where the parts are put together).
         if normals.as_ref().is_some_and(|x| x.len() != n)
             || keys.len() != n
             || density.as_ref().is_some_and(|x| x.len() != n)
+            || (n == 0 && !attributes.is_empty())
+            || (n > 0 && attributes.len() % n != 0)
         {
             return Err(i.bad("does not give every vertex its values"));
         }
@@ -285,6 +327,7 @@ impl Record for Part {
             keys,
             triangles,
             density,
+            attributes: (!attributes.is_empty()).then_some(attributes),
         })
     }
 }
@@ -374,7 +417,7 @@ impl Record for Histogram {
 
 /// A slab's samples (its own and its padding's), kept between its phases.
 impl Record for SlabSamples {
-    const TAG: &'static [u8; 8] = b"spsrSMP1";
+    const TAG: &'static [u8; 8] = b"spsrSMP2";
     fn put(&self, o: &mut Out) -> std::io::Result<()> {
         o.list(&self.samples, |o, x| {
             x.pos.iter().try_for_each(|&c| o.f64(c))?;
@@ -391,7 +434,8 @@ impl Record for SlabSamples {
                 o.f64(*sigma)
             }
             None => o.u32(u32::MAX),
-        })
+        })?;
+        o.list(&self.values, |o, &v| o.f64(v))
     }
     fn get(i: &mut In) -> Result<Self> {
         let samples = i.list(56, |i| {
@@ -415,6 +459,7 @@ impl Record for SlabSamples {
                 Ok(Some((i.f64()?, d)))
             }
         })?;
+        let values = i.list(8, In::f64)?;
         if depths.len() != samples.len()
             || !(measured.is_empty() || measured.len() == samples.len())
         {
@@ -424,6 +469,7 @@ impl Record for SlabSamples {
             samples,
             depths,
             measured,
+            values,
         })
     }
 }

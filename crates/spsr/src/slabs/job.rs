@@ -12,11 +12,11 @@
 //! | [`noise`] (adaptive noise only) | slab task | columns | `slab-s.noise`, `slab-s.measured` |
 //! | [`smoothing`] | coordinator | every `slab-s.noise` | the smoothing depth in `job.json` |
 //! | [`coarse`] | slab task | columns (or `slab-s.measured`) | `slab-s.samples`, `slab-s.coarse` (with the density, its density cells), `slab-s.constraints` |
-//! | [`solve_coarse`] | coordinator | every `slab-s.coarse` | `slab-s.coarse-solution`, `density.coarse` (with the density), `coarse-1.state` (with more than one solver cycle); deletes the columns and `.measured` |
+//! | [`solve_coarse`] | coordinator | every `slab-s.coarse` | `slab-s.coarse-solution`, `density.coarse` (with the density), `data.coarse` (with attributes), `coarse-1.state` (with more than one solver cycle); deletes the columns and `.measured` |
 //! | [`solve`] (cycle k) | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.constraints`, `slab-s.solution-(k−1)` | `slab-s.solution-k`, `slab-s.solved`; before the last cycle `slab-s.coupling-k` |
 //! | [`cycle`] (with more than one solver cycle; then [`solve`] again) | coordinator | `coarse-k.state`, every `slab-s.coupling-k` | `coarse-(k+1).state`, `slab-s.coarse-solution`; deletes the files of the cycles before |
 //! | [`iso`] | coordinator | every `slab-s.solved` | the iso-value in `job.json` |
-//! | [`extract`] | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.solution-k` (the last cycle's), the neighbours' `.solved`, `density.coarse` | `slab-s.part` |
+//! | [`extract`] | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.solution-k` (the last cycle's), the neighbours' `.solved`, `density.coarse`, `data.coarse` | `slab-s.part` |
 //! | [`finish`] | coordinator | every `slab-s.part` | the output mesh (trimmed in memory when the job trims) |
 //!
 //! The tasks are pure functions of their inputs and write every file atomically (to a
@@ -32,7 +32,7 @@ use serde::{Deserialize, Serialize};
 use super::codec::{load, save, CoarseRecord, Histogram};
 use super::output::MeshFiles;
 use super::phases::{self, Coarse, CoarsePart, Solved};
-use super::{spill_points, Found, Plan, Source, Spilled, WorkDir, Written};
+use super::{spill_points, AttributeSchema, Found, Plan, Source, Spilled, WorkDir, Written};
 use crate::extract::Part;
 use crate::pipeline::{prepare::Frame, Stats};
 use crate::trim::{Threshold, TrimParams};
@@ -73,6 +73,8 @@ struct JobFile {
     iso: Option<f64>,
     /// The trimming of the mesh, when asked for ([`finish`] trims).
     trim: Option<TrimSpec>,
+    /// The attributes the points carry onto the mesh (name and type).
+    attributes: AttributeSchema,
 }
 
 /// [`TrimParams`] as the job's description stores them.
@@ -107,7 +109,7 @@ impl From<TrimSpec> for TrimParams {
     }
 }
 
-const VERSION: u32 = 3;
+const VERSION: u32 = 4;
 
 impl JobFile {
     fn read(dir: &Path) -> Result<JobFile> {
@@ -145,6 +147,7 @@ impl JobFile {
             width: self.width,
         };
         Plan::new(frame, &self.params, self.counts.clone(), self.slabs_wanted)
+            .with_attributes(self.attributes.clone())
     }
 
     /// The smoothing depth, required once the noise phase is due.
@@ -203,6 +206,7 @@ pub fn prepare(
         frame,
         counts,
         found,
+        attributes,
     } = spill_points(source, params, &work.0)?;
     let job = JobFile {
         version: VERSION,
@@ -217,6 +221,7 @@ pub fn prepare(
         cycle: 0,
         iso: None,
         trim: trim.map(TrimSpec::from),
+        attributes,
     };
     let k = job.plan().slabs.len();
     job.write(&work.0)?;
@@ -275,6 +280,13 @@ pub fn solve_coarse(dir: &Path) -> Result<()> {
             .map(|p| std::mem::take(&mut p.density))
             .collect();
         phases::save_coarse_density(dir, &plan, &params, cells)?;
+    }
+    if plan.channels() > 0 {
+        let sums = parts
+            .iter_mut()
+            .map(|p| std::mem::take(&mut p.data))
+            .collect();
+        phases::save_coarse_data(dir, &plan, sums)?;
     }
     let c = phases::solve_coarse(dir, parts, &plan, &params)?;
     save_crops(dir, &plan, &params, &c, samples)?;
@@ -454,7 +466,7 @@ pub fn finish(dir: &Path, output: &Path) -> Result<(Stats, Written)> {
         let parts = (0..plan.slabs.len())
             .map(|s| load::<Part>(&slab_file(dir, s, "part")))
             .collect::<Result<Vec<_>>>()?;
-        let mesh = super::output::assemble(parts, plan.frame)?;
+        let mesh = super::output::assemble(parts, plan.frame, &plan.attributes)?;
         let mut run = crate::pipeline::Run::new(&|_| {});
         let trim = TrimParams::from(trim);
         let (mesh, warnings, diagnosis, _) =
@@ -477,7 +489,11 @@ pub fn finish(dir: &Path, output: &Path) -> Result<(Stats, Written)> {
         );
         return Ok((stats, written));
     }
-    let mut files = MeshFiles::new(dir, super::face_planes(&plan, &job.params))?;
+    let mut files = MeshFiles::new(
+        dir,
+        super::face_planes(&plan, &job.params),
+        plan.attributes.clone(),
+    )?;
     for s in 0..plan.slabs.len() {
         let part: Part = load(&slab_file(dir, s, "part"))?;
         files.add(part, plan.frame)?;

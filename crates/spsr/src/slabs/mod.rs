@@ -26,7 +26,14 @@
 //! and trims it as in one piece ([`reconstruct_and_trim`]): its threshold is a quantile of the
 //! whole mesh's densities and its islands and holes cross slabs.
 //!
-//! Not yet in slab mode (refused with a message): attributes, weights from a property. The
+//! Attributes (colours and any other numeric property) are carried as in one piece
+//! (`crate::data`): every point's values follow it into its column's spill file, the samples
+//! average them, and a vertex's value pools the sums of the cells around it at every depth. A
+//! slab holds every sample of the cells around its own vertices down to where its padding
+//! reaches; the coarser depths' sums are the whole cloud's, added up by the coordinator from
+//! each slab's own samples ([`phases::data_depth`]).
+//!
+//! Not yet in slab mode (refused with a message): weights from a property. The
 //! orientation repair (stage 2a) and the far-outlier check are whole-cloud steps and are
 //! skipped.
 
@@ -46,7 +53,7 @@ use crate::trim::{TrimParams, TrimStats};
 use crate::{io, Error, Noise, Params, PointCloud, PointWeights, Result};
 use output::MeshFiles;
 pub use output::Written;
-pub use plan::Plan;
+pub use plan::{AttributeSchema, Plan};
 use spill::ColumnWriter;
 
 /// Where the points come from: files read one after another as one cloud (tiles), or a cloud
@@ -60,16 +67,16 @@ pub enum Source<'a> {
 }
 
 impl Source<'_> {
-    /// Calls `f` with each tile in turn.
-    fn for_each(&self, mut f: impl FnMut(&PointCloud) -> Result<()>) -> Result<()> {
+    /// Calls `f` with each tile in turn (in chunks), and the file it comes from.
+    fn for_each(&self, mut f: impl FnMut(&PointCloud, &Path) -> Result<()>) -> Result<()> {
         match self {
             Source::Files(paths) => {
                 for p in *paths {
-                    io::read_points_chunks(p, READ_CHUNK, &mut |chunk| f(&chunk))?;
+                    io::read_points_chunks(p, READ_CHUNK, &mut |chunk| f(&chunk, p))?;
                 }
                 Ok(())
             }
-            Source::Cloud(c) => f(c),
+            Source::Cloud(c) => f(c, Path::new("<points in memory>")),
         }
     }
 }
@@ -293,9 +300,11 @@ fn run(
     let work = WorkDir::new(&options.work_dir)?;
     let dir = work.0.as_path();
 
-    let (found, frame) = run.stage("reading points", || bounds_pass(source, params))?;
-    let counts = run.stage("spilling points", || spill_pass(source, params, frame, dir))?;
-    let plan = Plan::new(frame, params, counts, options.slabs);
+    let (found, frame, attributes) = run.stage("reading points", || bounds_pass(source, params))?;
+    let counts = run.stage("spilling points", || {
+        spill_pass(source, params, frame, &attributes, dir)
+    })?;
+    let plan = Plan::new(frame, params, counts, options.slabs).with_attributes(attributes);
     let k = plan.slabs.len();
 
     let smooth = if params.noise == Noise::Adaptive {
@@ -318,12 +327,19 @@ fn run(
         .iter_mut()
         .map(|p| std::mem::take(&mut p.density))
         .collect();
+    let data_sums: Vec<_> = parts
+        .iter_mut()
+        .map(|p| std::mem::take(&mut p.data))
+        .collect();
     // The later phases read the slabs' samples as the coarse phase kept them.
     remove_spent_files(dir, &plan)?;
     // Each slab reads only its part of the coarse solve: the whole of it is not kept.
     let mean_depth = run.stage("solving coarse depths", || -> Result<f64> {
         if params.density {
             phases::save_coarse_density(dir, &plan, params, density_cells)?;
+        }
+        if plan.channels() > 0 {
+            phases::save_coarse_data(dir, &plan, data_sums)?;
         }
         let coarse = phases::solve_coarse(dir, parts, &plan, params)?;
         job::save_crops(dir, &plan, params, &coarse, samples as u64)?;
@@ -345,8 +361,12 @@ fn run(
     }
     let iso = iso_value(&solved);
     let mut sink = match output {
-        Some(_) => Sink::Files(Box::new(MeshFiles::new(dir, face_planes(&plan, params))?)),
-        None => Sink::Memory(Vec::with_capacity(k), Vec::new()),
+        Some(_) => Sink::Files(Box::new(MeshFiles::new(
+            dir,
+            face_planes(&plan, params),
+            plan.attributes.clone(),
+        )?)),
+        None => Sink::Memory(Vec::with_capacity(k), Vec::new(), Vec::new()),
     };
     run.stage("extraction", || -> Result<()> {
         for s in 0..k {
@@ -359,8 +379,9 @@ fn run(
             let coarse = coarse_of(s)?;
             let extracted = phases::extract(dir, &plan, s, params, &coarse, iso, [before, after])?;
             match &mut sink {
-                Sink::Memory(all, density) => {
+                Sink::Memory(all, density, values) => {
                     density.extend(extracted.density.iter().flatten());
+                    values.extend(extracted.attributes.iter().flatten());
                     all.push(extracted.blocks);
                 }
                 Sink::Files(files) => files.add(extracted.into_part(), frame)?,
@@ -375,7 +396,7 @@ fn run(
             let written = run.stage("writing", || files.finish(path))?;
             (None, Some(written), written_diagnosis(&written))
         }
-        (Sink::Memory(blocks, density), _) => {
+        (Sink::Memory(blocks, density, values), _) => {
             drop(work);
             let mut mesh = run.stage("numbering vertices", || {
                 crate::extract::Blocks::concat(blocks).assemble()
@@ -383,6 +404,7 @@ fn run(
             if params.density {
                 mesh.density = Some(density);
             }
+            mesh.attributes = output::attribute_columns(&plan.attributes, &values);
             for p in &mut mesh.vertices {
                 *p = frame.to_world(*p);
             }
@@ -457,12 +479,57 @@ pub(crate) struct Found {
     pub dropped: usize,
 }
 
-/// Pass 1: the points' count and the bounding cube of the usable ones.
-fn bounds_pass(source: Source, params: &Params) -> Result<(Found, Frame)> {
+/// The attributes a tile carries onto the mesh (name and type, in order): all of its
+/// properties with one value per point, as in one piece (`prepare::carried`); none when
+/// `params.attributes` is off.
+fn carried_attributes(cloud: &PointCloud, params: &Params) -> AttributeSchema {
+    if !params.attributes {
+        return Vec::new();
+    }
+    cloud
+        .attributes
+        .iter()
+        .filter(|a| a.data.len() == cloud.len())
+        .map(|a| (a.name.clone(), a.data.scalar_type()))
+        .collect()
+}
+
+/// Checks that a tile carries the attributes the first one did (as `PointCloud::append` does
+/// for tiles read into memory).
+fn check_attributes(first: &AttributeSchema, tile: &AttributeSchema, path: &Path) -> Result<()> {
+    if first == tile {
+        return Ok(());
+    }
+    let names = |a: &AttributeSchema| -> String {
+        a.iter()
+            .map(|(n, t)| format!("{n} ({})", t.ply_name()))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    Err(Error::Parse {
+        path: path.to_path_buf(),
+        message: format!(
+            "the tiles' properties differ: [{}] here, [{}] before",
+            names(tile),
+            names(first)
+        ),
+    })
+}
+
+/// Pass 1: the points' count, the bounding cube of the usable ones and the attributes they
+/// carry onto the mesh.
+fn bounds_pass(source: Source, params: &Params) -> Result<(Found, Frame, AttributeSchema)> {
     let mut bounds = Bounds::default();
     let (mut points, mut usable_points) = (0usize, 0usize);
-    source.for_each(|cloud| {
-        check_cloud(cloud, params)?;
+    let mut attributes: Option<AttributeSchema> = None;
+    source.for_each(|cloud, path| {
+        check_cloud(cloud)?;
+        let carried = carried_attributes(cloud, params);
+        check_attributes(
+            attributes.get_or_insert_with(|| carried.clone()),
+            &carried,
+            path,
+        )?;
         let weight_of = prepare::weights(cloud, &params.weights)?;
         let usable = prepare::usable(cloud, &weight_of);
         points += cloud.len();
@@ -481,21 +548,43 @@ fn bounds_pass(source: Source, params: &Params) -> Result<(Found, Frame)> {
         });
     }
     let (frame, _) = bounds.cube(params.scale)?;
-    Ok((Found { points, dropped }, frame))
+    Ok((
+        Found { points, dropped },
+        frame,
+        attributes.unwrap_or_default(),
+    ))
 }
 
-/// Pass 2: the usable points in the unit cube, spilled per column into `dir`; the points per
-/// column.
-fn spill_pass(source: Source, params: &Params, frame: Frame, dir: &Path) -> Result<Vec<u64>> {
+/// Pass 2: the usable points in the unit cube, with the values of `attributes`, spilled per
+/// column into `dir`; the points per column.
+fn spill_pass(
+    source: Source,
+    params: &Params,
+    frame: Frame,
+    attributes: &AttributeSchema,
+    dir: &Path,
+) -> Result<Vec<u64>> {
     let columns = 1usize << Plan::block_depth(params);
-    let mut writer = ColumnWriter::new(dir, columns);
+    let mut writer = ColumnWriter::new(dir, columns, attributes.len());
     let n = columns as f64;
-    source.for_each(|cloud| {
+    let mut values = vec![0.0; attributes.len()];
+    source.for_each(|cloud, path| {
+        // Pass 1 checked the tiles; a file changed since is caught here.
+        check_attributes(attributes, &carried_attributes(cloud, params), path)?;
+        let carried: Vec<_> = cloud
+            .attributes
+            .iter()
+            .filter(|a| a.data.len() == cloud.len())
+            .take(attributes.len())
+            .collect();
         let weight_of = prepare::weights(cloud, &params.weights)?;
         for i in prepare::usable(cloud, &weight_of) {
             let p = prepare::unit_point(frame, cloud.positions[i], cloud.normals[i], weight_of(i));
             let c = ((p.0[0] * n).floor() as i64).clamp(0, columns as i64 - 1);
-            writer.push(c as usize, &p)?;
+            for (v, a) in values.iter_mut().zip(&carried) {
+                *v = a.data.get(i).unwrap_or(0.0);
+            }
+            writer.push(c as usize, &p, &values)?;
         }
         Ok(())
     })?;
@@ -507,15 +596,17 @@ pub(crate) struct Spilled {
     pub frame: Frame,
     pub counts: Vec<u64>,
     pub found: Found,
+    pub attributes: AttributeSchema,
 }
 
 fn spill_points(source: Source, params: &Params, dir: &Path) -> Result<Spilled> {
-    let (found, frame) = bounds_pass(source, params)?;
-    let counts = spill_pass(source, params, frame, dir)?;
+    let (found, frame, attributes) = bounds_pass(source, params)?;
+    let counts = spill_pass(source, params, frame, &attributes, dir)?;
     Ok(Spilled {
         frame,
         counts,
         found,
+        attributes,
     })
 }
 
@@ -604,29 +695,15 @@ fn slab_stats(
 /// Where the slabs' meshes go.
 enum Sink {
     /// Kept, to be numbered as one mesh in memory, with the vertices' density (when asked
-    /// for) in the order the blocks number them.
-    Memory(Vec<crate::extract::Blocks>, Vec<f32>),
+    /// for) and attribute values (each vertex's, one per attribute) in the order the blocks
+    /// number them.
+    Memory(Vec<crate::extract::Blocks>, Vec<f32>, Vec<f64>),
     /// Written to the work folder as they come.
     Files(Box<MeshFiles>),
 }
 
-/// A tile's normals must match its positions; its attributes cannot be carried yet.
-fn check_cloud(cloud: &PointCloud, params: &Params) -> Result<()> {
-    if params.attributes && !cloud.attributes.is_empty() {
-        return Err(Error::invalid(
-            "attributes",
-            format!(
-                "on (the points have {})",
-                cloud
-                    .attributes
-                    .iter()
-                    .map(|a| a.name.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ),
-            "off in slab mode, which does not carry attributes onto the mesh yet",
-        ));
-    }
+/// A tile's normals must match its positions.
+fn check_cloud(cloud: &PointCloud) -> Result<()> {
     if cloud.positions.len() != cloud.normals.len() {
         return Err(Error::LengthMismatch {
             positions: cloud.positions.len(),

@@ -13,6 +13,8 @@ use std::path::{Path, PathBuf};
 use rustc_hash::FxHashMap;
 
 use super::spill::io_err;
+use super::AttributeSchema;
+use crate::attributes::{Attribute, AttributeData};
 use crate::extract::{Part, FOREIGN};
 use crate::io::Extent;
 use crate::pipeline::prepare::Frame;
@@ -39,6 +41,10 @@ pub(crate) struct MeshFiles {
     normals: Option<bool>,
     /// Whether the vertices carry their density (the parts must agree).
     density: Option<bool>,
+    /// The attributes each vertex carries (name and type), written after the normals.
+    attributes: AttributeSchema,
+    /// One vertex's record, reused.
+    record: Vec<u8>,
     vertex_count: u64,
     triangle_count: u64,
     /// The vertices' extent, which decides between `float` and `double` coordinates as for
@@ -62,8 +68,9 @@ fn edge_axis(key: u64) -> u64 {
 }
 
 impl MeshFiles {
-    /// `planes`: x of the faces between slabs, in cells of the finest depth.
-    pub fn new(dir: &Path, planes: Vec<u32>) -> Result<MeshFiles> {
+    /// `planes`: x of the faces between slabs, in cells of the finest depth; `attributes`:
+    /// what every vertex carries (each part gives one value per attribute and vertex).
+    pub fn new(dir: &Path, planes: Vec<u32>, attributes: AttributeSchema) -> Result<MeshFiles> {
         let open = |name: &str| -> Result<BufWriter<File>> {
             let path = dir.join(name);
             Ok(BufWriter::with_capacity(
@@ -77,6 +84,8 @@ impl MeshFiles {
             triangles: open("mesh.triangles")?,
             normals: None,
             density: None,
+            attributes,
+            record: Vec::new(),
             vertex_count: 0,
             triangle_count: 0,
             extent: Extent::default(),
@@ -115,25 +124,35 @@ impl MeshFiles {
                 "a slab's mesh has a density for some of its vertices only".into(),
             ));
         }
-        let len = vertex_record(has_normals, has_density);
+        let k = self.attributes.len();
+        let values = part.attributes.as_deref().unwrap_or(&[]);
+        if values.len() != part.vertices.len() * k {
+            return Err(Error::InvalidMesh(
+                "a slab's mesh does not give every vertex its attributes".into(),
+            ));
+        }
         let vpath = self.dir.join("mesh.vertices");
         for (i, p) in part.vertices.iter().enumerate() {
             let w = frame.to_world(*p);
             self.extent.add(w);
-            let mut rec = [0u8; 40];
-            for a in 0..3 {
-                rec[a * 8..a * 8 + 8].copy_from_slice(&w[a].to_le_bytes());
+            let rec = &mut self.record;
+            rec.clear();
+            for c in w {
+                rec.extend_from_slice(&c.to_le_bytes());
             }
             if let Some(n) = &part.normals {
-                for a in 0..3 {
-                    rec[24 + a * 4..28 + a * 4].copy_from_slice(&n[i][a].to_le_bytes());
+                for c in n[i] {
+                    rec.extend_from_slice(&c.to_le_bytes());
                 }
             }
+            for ((_, ty), &v) in self.attributes.iter().zip(&values[i * k..(i + 1) * k]) {
+                ty.put_le(v, rec);
+            }
             if let Some(d) = &part.density {
-                rec[len - 4..len].copy_from_slice(&d[i].to_le_bytes());
+                rec.extend_from_slice(&d[i].to_le_bytes());
             }
             self.vertices
-                .write_all(&rec[..len])
+                .write_all(rec)
                 .map_err(|e| io_err(&vpath, e))?;
         }
         for (i, &k) in part.keys.iter().enumerate() {
@@ -213,6 +232,10 @@ impl MeshFiles {
             if normals {
                 h.push_str("property float nx\nproperty float ny\nproperty float nz\n");
             }
+            // The columns of a mesh written in one piece, in its order (`io::write_ply`).
+            for (name, t) in &self.attributes {
+                h.push_str(&format!("property {} {name}\n", t.ply_name()));
+            }
             if density {
                 h.push_str("property float density\n");
             }
@@ -221,8 +244,8 @@ impl MeshFiles {
             ));
             out.write_all(h.as_bytes())?;
             let mut r = BufReader::with_capacity(1 << 16, File::open(&vpath)?);
-            let len = vertex_record(normals, density);
-            let mut rec = [0u8; 40];
+            let len = vertex_record(normals, density, &self.attributes);
+            let mut rec = vec![0u8; len];
             for _ in 0..nv {
                 r.read_exact(&mut rec[..len])?;
                 for a in 0..3 {
@@ -233,7 +256,7 @@ impl MeshFiles {
                         out.write_all(&c.to_le_bytes())?;
                     }
                 }
-                // Normals and density, as they were written.
+                // Normals, attributes and density, as they were written.
                 out.write_all(&rec[24..len])?;
             }
             let mut r = BufReader::with_capacity(1 << 16, File::open(&tpath)?);
@@ -295,8 +318,12 @@ impl MeshFiles {
 
 /// The slabs' parts (in slab order) numbered as one mesh in memory, in the input's frame:
 /// the vertices and triangles [`MeshFiles`] writes, in the same order (and so the mesh
-/// [`crate::extract::Blocks::assemble`] gives for the slabs' blocks).
-pub(crate) fn assemble(parts: Vec<Part>, frame: Frame) -> Result<crate::Mesh> {
+/// [`crate::extract::Blocks::assemble`] gives for the slabs' blocks), with `attributes`.
+pub(crate) fn assemble(
+    parts: Vec<Part>,
+    frame: Frame,
+    attributes: &AttributeSchema,
+) -> Result<crate::Mesh> {
     let nv: usize = parts.iter().map(|p| p.vertices.len()).sum();
     if nv >= u32::MAX as usize {
         return Err(Error::InvalidMesh(
@@ -315,12 +342,13 @@ pub(crate) fn assemble(parts: Vec<Part>, frame: Frame) -> Result<crate::Mesh> {
     }
     let with_normals = parts.first().is_some_and(|p| p.normals.is_some());
     let with_density = parts.first().is_some_and(|p| p.density.is_some());
-    if parts
-        .iter()
-        .any(|p| p.normals.is_some() != with_normals || p.density.is_some() != with_density)
-    {
+    let k = attributes.len();
+    let values_fit = |p: &Part| p.attributes.as_ref().map_or(0, Vec::len) == p.vertices.len() * k;
+    if parts.iter().any(|p| {
+        p.normals.is_some() != with_normals || p.density.is_some() != with_density || !values_fit(p)
+    }) {
         return Err(Error::InvalidMesh(
-            "the slabs disagree on vertex normals or density".into(),
+            "the slabs disagree on vertex normals, density or attributes".into(),
         ));
     }
     let mut mesh = crate::Mesh {
@@ -329,6 +357,7 @@ pub(crate) fn assemble(parts: Vec<Part>, frame: Frame) -> Result<crate::Mesh> {
         density: with_density.then(|| Vec::with_capacity(nv)),
         ..crate::Mesh::default()
     };
+    let mut values = Vec::with_capacity(nv * k);
     let mut base = 0u64;
     for p in parts {
         for t in &p.triangles {
@@ -356,14 +385,33 @@ pub(crate) fn assemble(parts: Vec<Part>, frame: Frame) -> Result<crate::Mesh> {
         if let (Some(all), Some(d)) = (&mut mesh.density, p.density) {
             all.extend(d);
         }
+        values.extend(p.attributes.into_iter().flatten());
     }
+    mesh.attributes = attribute_columns(attributes, &values);
     Ok(mesh)
 }
 
-/// Bytes of a vertex in the work file: x y z (f64), then nx ny nz (f32) and density (f32)
-/// when present.
-fn vertex_record(normals: bool, density: bool) -> usize {
-    24 + if normals { 12 } else { 0 } + if density { 4 } else { 0 }
+/// Bytes of a vertex in the work file: x y z (f64), then nx ny nz (f32), the attributes (each
+/// in its type) and density (f32) when present.
+fn vertex_record(normals: bool, density: bool, attributes: &AttributeSchema) -> usize {
+    let attributes: usize = attributes.iter().map(|(_, t)| t.size()).sum();
+    24 + if normals { 12 } else { 0 } + attributes + if density { 4 } else { 0 }
+}
+
+/// The mesh's attribute columns from its vertices' values (one per attribute and vertex,
+/// vertex after vertex), each converted to its type as in one piece.
+pub(crate) fn attribute_columns(types: &AttributeSchema, values: &[f64]) -> Vec<Attribute> {
+    let k = types.len();
+    types
+        .iter()
+        .enumerate()
+        .map(|(c, (name, ty))| {
+            Attribute::new(
+                name.clone(),
+                AttributeData::from_f64(*ty, values.iter().skip(c).step_by(k).copied()),
+            )
+        })
+        .collect()
 }
 
 fn find(parent: &mut [u32], mut v: u32) -> u32 {

@@ -25,10 +25,11 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
-use super::codec::{load as load_record, save, CoarseDensity, CoarseState, Coupling};
+use super::codec::{load as load_record, save, CoarseData, CoarseDensity, CoarseState, Coupling};
 use super::plan::Plan;
 use super::spill::{io_err, read_columns};
 use crate::bspline::{Basis, Degree};
+use crate::data::{DataField, KeyedSums};
 use crate::density::{Density, DepthAndArea, Sample};
 use crate::evaluate::Evaluator;
 use crate::extract::Blocks;
@@ -67,6 +68,10 @@ pub struct CoarsePart {
     /// columns at `density_depth` (`cell, Σw, Σw·p`), for the whole cloud's coarse depths
     /// of the estimator (`save_coarse_density`); empty otherwise.
     pub density: Vec<DensityCell>,
+    /// With attributes: the slab's own samples' attribute sums at the unit depths up to
+    /// [`data_depth`] (index 0 is the unit cube), for the whole cloud's
+    /// (`save_coarse_data`); empty otherwise.
+    pub data: Vec<KeyedSums>,
 }
 
 /// An occupied cell of the density estimator: the cell, `Σ w`, `Σ w·p`.
@@ -118,6 +123,8 @@ pub(crate) struct SlabSamples {
     pub depths: Vec<DepthAndArea>,
     /// Each sample's measured noise (the noise phase's file only; empty otherwise).
     pub measured: noise::Measured,
+    /// Each sample's attribute values (the plan's channels per sample; empty without).
+    pub values: Vec<f64>,
 }
 
 impl SlabSamples {
@@ -126,19 +133,26 @@ impl SlabSamples {
             samples: sampled.samples,
             depths: sampled.depths,
             measured,
+            values: sampled.values,
         }
     }
 
-    /// As the stages take them: no attributes (refused in slab mode), no density estimator
-    /// (per-vertex density is refused in slab mode; the depths are kept).
-    fn sampled(self) -> Sampled {
-        Sampled {
+    /// As the stages take them, with the plan's attributes; no density estimator (the
+    /// extraction builds the slab's own, [`slab_density`]; the depths are kept).
+    fn sampled(self, plan: &Plan, path: &Path) -> Result<Sampled> {
+        if self.values.len() != self.samples.len() * plan.channels() {
+            return Err(crate::Error::Parse {
+                path: path.to_path_buf(),
+                message: "the slab's samples lack their attribute values".into(),
+            });
+        }
+        Ok(Sampled {
             samples: self.samples,
-            values: Vec::new(),
-            attribute_types: Vec::new(),
+            values: self.values,
+            attribute_types: plan.attribute_types(),
             density: Default::default(),
             depths: self.depths,
-        }
+        })
     }
 }
 
@@ -182,8 +196,13 @@ fn sample_points(dir: &Path, plan: &Plan, s: usize, params: &Params) -> Result<S
     let (lo, hi) = (lo - plan.pad, hi + plan.pad);
     let first = plan.column_of(lo) as usize;
     let last = plan.column_of(hi) as usize;
-    let points = read_columns(dir, first..last + 1, &plan.counts, lo, hi)?;
-    Ok(density::sample(points, Carried::default(), params))
+    let channels = plan.channels();
+    let (points, values) = read_columns(dir, first..last + 1, &plan.counts, channels, (lo, hi))?;
+    let carried = Carried {
+        types: plan.attribute_types(),
+        values,
+    };
+    Ok(density::sample(points, carried, params))
 }
 
 /// The slab's samples at their final splat depths, as the coarse phase makes them: with
@@ -206,7 +225,7 @@ fn final_samples(
                 });
             }
             let measured = std::mem::take(&mut kept.measured);
-            let mut sampled = kept.sampled();
+            let mut sampled = kept.sampled(plan, &measured_path(dir, s))?;
             noise::adapt_measured(
                 &sampled.samples,
                 &mut sampled.depths,
@@ -223,7 +242,11 @@ fn final_samples(
 /// The slab's samples as the coarse phase kept them.
 fn load_slab(dir: &Path, plan: &Plan, s: usize) -> Result<Loaded> {
     let kept: SlabSamples = load_record(&samples_path(dir, s))?;
-    Ok(Loaded::new(kept.sampled(), plan, s))
+    Ok(Loaded::new(
+        kept.sampled(plan, &samples_path(dir, s))?,
+        plan,
+        s,
+    ))
 }
 
 /// Phase 1: the histogram of the depths at which the slab's own samples' noise is measured;
@@ -293,7 +316,8 @@ pub fn coarse(
     let sampled = final_samples(dir, plan, s, params, smooth)?;
     let kept = SlabSamples::of(sampled, Vec::new());
     save(&samples_path(dir, s), &kept)?;
-    let Loaded { sampled, owned } = Loaded::new(kept.sampled(), plan, s);
+    let Loaded { sampled, owned } =
+        Loaded::new(kept.sampled(plan, &samples_path(dir, s))?, plan, s);
     let tb = base_level(params);
     let tc = plan.coarse_level();
     let mut refined = tree::build(&sampled, params, sampled.samples.len())?;
@@ -398,6 +422,7 @@ pub fn coarse(
         .map(|(x, _)| x.weight)
         .collect();
     let leaf_of = system::deepest_nodes(&tree, &positions);
+    let data = own_data(&tree, &sampled, &owned, &leaf_of, &weights, plan, params);
     let mut clusters = vec![Vec::new(); (tc.min(tree.depth_count() - 1) + 1 - tb) as usize];
     for_each_cluster_sum(&tree, tb, &leaf_of, &positions, &weights, |t, merged| {
         if t <= tc {
@@ -419,7 +444,109 @@ pub fn coarse(
         ],
         samples,
         density,
+        data,
     })
+}
+
+/// The deepest unit depth at which a vertex's attribute sums are the whole cloud's (summed by
+/// the coordinator from the slabs' own samples); `None` when the slabs' own sums serve at
+/// every depth. A vertex pools the cells of each depth whose closure holds it
+/// ([`DataField::eval`]): at the depths finer than this one, those of a vertex in a slab's
+/// own columns lie within four cells of the coarse depth of the columns, inside the slab's
+/// padding (six such cells), so the slab holds all their samples.
+pub(crate) fn data_depth(plan: &Plan) -> Option<u32> {
+    plan.coarse_depth.checked_sub(3)
+}
+
+/// The slab's own samples' attribute sums at the depths up to [`data_depth`] (a slab with
+/// attributes only).
+fn own_data(
+    tree: &Octree,
+    sampled: &Sampled,
+    owned: &[bool],
+    leaf_of: &[(u32, u32)],
+    weights: &[f64],
+    plan: &Plan,
+    params: &Params,
+) -> Vec<KeyedSums> {
+    let k = plan.channels();
+    let Some(depth) = data_depth(plan).filter(|_| k > 0) else {
+        return Vec::new();
+    };
+    let values: Vec<f64> = sampled
+        .values
+        .chunks_exact(k)
+        .zip(owned)
+        .filter(|(_, &o)| o)
+        .flat_map(|(v, _)| v.iter().copied())
+        .collect();
+    DataField::build(tree, leaf_of, weights, &values, k, params.data_pull)
+        .keyed_levels(tree, depth + DEPTH_OFFSET)
+}
+
+fn coarse_data_path(dir: &Path) -> PathBuf {
+    dir.join("data.coarse")
+}
+
+/// Coordinator: the whole cloud's attribute sums at the depths up to [`data_depth`], from
+/// every slab's own ([`CoarsePart::data`], in slab order), written for the extraction phase.
+pub(crate) fn save_coarse_data(dir: &Path, plan: &Plan, parts: Vec<Vec<KeyedSums>>) -> Result<()> {
+    let width = plan.channels() + 1;
+    let depths = data_depth(plan).map_or(0, |d| d as usize + 1);
+    let mut by_depth: Vec<Vec<KeyedSums>> = (0..depths).map(|_| Vec::new()).collect();
+    for part in parts {
+        for (d, level) in part.into_iter().enumerate().take(depths) {
+            by_depth[d].push(level);
+        }
+    }
+    let merged = by_depth
+        .into_iter()
+        .map(|levels| KeyedSums::merge(levels, width))
+        .collect();
+    save(&coarse_data_path(dir), &CoarseData(merged))
+}
+
+/// The attribute field of a slab's vertices: its own and its padding's samples' sums at the
+/// finer depths, the whole cloud's at the coarser ones ([`data_depth`]), locating vertices at
+/// the run's depth, so that every vertex of the slab's own columns reads the sums it reads
+/// in one piece.
+fn slab_data(
+    dir: &Path,
+    tree: &Octree,
+    sampled: &Sampled,
+    plan: &Plan,
+    params: &Params,
+) -> Result<DataField> {
+    let positions: Vec<[f64; 3]> = sampled.samples.iter().map(|x| x.pos).collect();
+    let weights: Vec<f64> = sampled.samples.iter().map(|x| x.weight).collect();
+    let leaf_of = system::deepest_nodes(tree, &positions);
+    let k = plan.channels();
+    let mut data = DataField::build(
+        tree,
+        &leaf_of,
+        &weights,
+        &sampled.values,
+        k,
+        params.data_pull,
+    );
+    if data_depth(plan).is_some() {
+        let coarse: CoarseData = load_record(&coarse_data_path(dir))?;
+        let width = k + 1;
+        if coarse
+            .0
+            .iter()
+            .any(|l| l.sums.len() != l.keys.len() * width)
+        {
+            return Err(crate::Error::Parse {
+                path: coarse_data_path(dir),
+                message: "the coarse attribute sums do not fit the run's attributes".into(),
+            });
+        }
+        // Every key is a node of the whole cloud's coarse tree, which each slab's tree holds.
+        data.replace_coarse(tree, &coarse.0);
+    }
+    data.locate_at(params.depth + DEPTH_OFFSET);
+    Ok(data)
 }
 
 /// The unit depth whose occupied cells the slabs hand in for the whole cloud's density
@@ -1075,8 +1202,11 @@ pub fn extract(
         .density
         .then(|| slab_density(dir, &sampled, params))
         .transpose()?;
-    drop(sampled);
     let tree = refined.tree;
+    let data = (plan.channels() > 0)
+        .then(|| slab_data(dir, &tree, &sampled, plan, params))
+        .transpose()?;
+    drop(sampled);
     let (fem, tabs) = tables(&tree, params);
     let (mut sol, carry) = coarse_onto(&tree, coarse, params, tc);
     read_levels(
@@ -1107,6 +1237,18 @@ pub fn extract(
     let range = plan.slabs[s].clone();
     let blocks = extract::slab_blocks(&tree, fem, &sol, iso, params, plan.block_depth, range)?;
     drop(sol);
+    // Each vertex's attributes, as the in-core extraction interpolates them (unit-cube
+    // position).
+    let attributes = data.map(|data| {
+        let k = data.channels();
+        let positions: Vec<[f64; 3]> = blocks.vertices().copied().collect();
+        let mut values = vec![0.0f64; positions.len() * k];
+        values
+            .par_chunks_mut(k)
+            .zip(&positions)
+            .for_each(|(out, p)| data.eval(&tree, *p, out));
+        values
+    });
     drop(tree);
     // Each vertex's density, as the in-core extraction computes it (unit-cube position).
     let density = density.map(|d| {
@@ -1119,6 +1261,7 @@ pub fn extract(
     Ok(Extracted {
         blocks,
         density,
+        attributes,
         missing,
     })
 }
@@ -1129,6 +1272,9 @@ pub struct Extracted {
     pub blocks: Blocks,
     /// Each vertex's density (in the order [`Blocks::vertices`] gives them), when asked for.
     pub density: Option<Vec<f32>>,
+    /// Each vertex's attribute values (one per carried attribute, in the same order), when
+    /// the points carry attributes.
+    pub attributes: Option<Vec<f64>>,
     /// Coefficients of the neighbours' face bands that the slab's tree lacks.
     pub missing: usize,
 }
@@ -1138,6 +1284,7 @@ impl Extracted {
     pub fn into_part(self) -> crate::extract::Part {
         crate::extract::Part {
             density: self.density,
+            attributes: self.attributes,
             ..self.blocks.into_part()
         }
     }

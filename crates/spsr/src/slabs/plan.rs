@@ -1,9 +1,11 @@
 //! The plan of a slab run: the unit cube cut along x into columns (the cells of the block
 //! depth), columns grouped into slabs of about equal point counts, the depth solved for the
-//! whole cloud at once, and the padding each slab reads beyond its own columns.
+//! whole cloud at once, the padding each slab reads beyond its own columns, and the
+//! attributes the points carry onto the mesh.
 
 use std::ops::Range;
 
+use crate::attributes::{Attribute, AttributeData, ScalarType};
 use crate::octree::{func_index, DEPTH_OFFSET};
 use crate::pipeline::prepare::Frame;
 use crate::Params;
@@ -17,6 +19,9 @@ const COARSE_BELOW: u32 = 2;
 /// differs from the in-core one (missing neighbours), so the margin must be wide enough for
 /// that difference to fade before the slab's own columns.
 const PAD_CELLS: f64 = 6.0;
+
+/// The attributes the points carry onto the mesh: each one's name and type, in channel order.
+pub type AttributeSchema = Vec<(String, ScalarType)>;
 
 /// How the cube is cut and solved.
 #[derive(Debug, Clone)]
@@ -33,6 +38,8 @@ pub struct Plan {
     pub counts: Vec<u64>,
     /// Each slab's columns; together they cover every column, in order.
     pub slabs: Vec<Range<i64>>,
+    /// The attributes carried onto the mesh (name and type), one spilled value each per point.
+    pub attributes: AttributeSchema,
 }
 
 impl Plan {
@@ -56,7 +63,26 @@ impl Plan {
             pad,
             counts,
             slabs,
+            attributes: Vec::new(),
         }
+    }
+
+    /// The plan carrying `attributes` onto the mesh.
+    pub fn with_attributes(self, attributes: AttributeSchema) -> Plan {
+        Plan { attributes, ..self }
+    }
+
+    /// The attribute values each point and sample carries.
+    pub fn channels(&self) -> usize {
+        self.attributes.len()
+    }
+
+    /// The carried attributes as empty columns of their types, in channel order.
+    pub fn attribute_types(&self) -> Vec<Attribute> {
+        self.attributes
+            .iter()
+            .map(|(name, ty)| Attribute::new(name.clone(), AttributeData::new(*ty)))
+            .collect()
     }
 
     /// Number of columns.

@@ -2,7 +2,8 @@
 //! column (a cell of the block depth along x) in the work folder. A slab reads its columns and
 //! the neighbouring columns' points within its padding, in column order and, within a column,
 //! in input order, so that the points of every finest cell keep their input order (the
-//! samples are then the in-core run's, bit for bit).
+//! samples are then the in-core run's, bit for bit). A point's carried attributes follow it
+//! in its record.
 
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Write};
@@ -11,39 +12,52 @@ use std::path::{Path, PathBuf};
 use crate::pipeline::prepare::UnitPoint;
 use crate::{Error, Result};
 
-/// Bytes of one spilled point: position, unit normal and weight, seven `f64` (little endian).
-const RECORD: usize = 56;
+/// Values of one spilled point before its attributes: position, unit normal and weight.
+const FIXED: usize = 7;
+
+/// Bytes of one spilled point with `channels` attribute values: all `f64`, little endian.
+fn record_len(channels: usize) -> usize {
+    8 * (FIXED + channels)
+}
 
 /// The column files of a run, written point by point.
 pub(crate) struct ColumnWriter {
     dir: PathBuf,
     files: Vec<Option<BufWriter<File>>>,
     pub counts: Vec<u64>,
+    channels: usize,
+    record: Vec<u8>,
 }
 
 impl ColumnWriter {
-    pub fn new(dir: &Path, columns: usize) -> Self {
+    /// Column files for points with `channels` attribute values each.
+    pub fn new(dir: &Path, columns: usize, channels: usize) -> Self {
         ColumnWriter {
             dir: dir.to_path_buf(),
             files: (0..columns).map(|_| None).collect(),
             counts: vec![0; columns],
+            channels,
+            record: Vec::with_capacity(record_len(channels)),
         }
     }
 
-    /// Appends a point to column `c`'s file (created on first use).
-    pub fn push(&mut self, c: usize, p: &UnitPoint) -> Result<()> {
+    /// Appends a point and its attribute values (`channels` of them) to column `c`'s file
+    /// (created on first use).
+    pub fn push(&mut self, c: usize, p: &UnitPoint, values: &[f64]) -> Result<()> {
+        debug_assert_eq!(values.len(), self.channels);
         if self.files[c].is_none() {
             let path = column_path(&self.dir, c);
             let f = File::create(&path).map_err(|e| io_err(&path, e))?;
             self.files[c] = Some(BufWriter::with_capacity(1 << 16, f));
         }
         let w = self.files[c].as_mut().expect("opened above");
-        let mut rec = [0u8; RECORD];
-        let values = [p.0[0], p.0[1], p.0[2], p.1[0], p.1[1], p.1[2], p.2];
-        for (k, v) in values.iter().enumerate() {
-            rec[k * 8..k * 8 + 8].copy_from_slice(&v.to_le_bytes());
+        let rec = &mut self.record;
+        rec.clear();
+        let fixed = [p.0[0], p.0[1], p.0[2], p.1[0], p.1[1], p.1[2], p.2];
+        for v in fixed.iter().chain(values) {
+            rec.extend_from_slice(&v.to_le_bytes());
         }
-        w.write_all(&rec)
+        w.write_all(rec)
             .map_err(|e| io_err(&column_path(&self.dir, c), e))?;
         self.counts[c] += 1;
         Ok(())
@@ -62,15 +76,18 @@ impl ColumnWriter {
     }
 }
 
-/// The points of columns `columns` whose x lies in `[lo, hi)`, in column order.
+/// The points of columns `columns` whose x lies in `[lo, hi)`, in column order, and their
+/// attribute values (`channels` per point, point after point).
 pub(crate) fn read_columns(
     dir: &Path,
     columns: std::ops::Range<usize>,
     counts: &[u64],
-    lo: f64,
-    hi: f64,
-) -> Result<Vec<UnitPoint>> {
-    let mut out = Vec::new();
+    channels: usize,
+    (lo, hi): (f64, f64),
+) -> Result<(Vec<UnitPoint>, Vec<f64>)> {
+    let mut points = Vec::new();
+    let mut values = Vec::new();
+    let mut rec = vec![0u8; record_len(channels)];
     for c in columns {
         if counts[c] == 0 {
             continue;
@@ -78,18 +95,16 @@ pub(crate) fn read_columns(
         let path = column_path(dir, c);
         let f = File::open(&path).map_err(|e| io_err(&path, e))?;
         let mut r = BufReader::with_capacity(1 << 16, f);
-        let mut rec = [0u8; RECORD];
         for _ in 0..counts[c] {
             r.read_exact(&mut rec).map_err(|e| io_err(&path, e))?;
-            let v: [f64; 7] = std::array::from_fn(|k| {
-                f64::from_le_bytes(rec[k * 8..k * 8 + 8].try_into().expect("8 bytes"))
-            });
-            if v[0] >= lo && v[0] < hi {
-                out.push(([v[0], v[1], v[2]], [v[3], v[4], v[5]], v[6]));
+            let v = |k: usize| f64::from_le_bytes(rec[k * 8..k * 8 + 8].try_into().expect("8"));
+            if v(0) >= lo && v(0) < hi {
+                points.push(([v(0), v(1), v(2)], [v(3), v(4), v(5)], v(6)));
+                values.extend((FIXED..FIXED + channels).map(v));
             }
         }
     }
-    Ok(out)
+    Ok((points, values))
 }
 
 /// Deletes the column files (once every slab has read its points).

@@ -1,6 +1,7 @@
 //! Slab mode (issue 15): the mesh of a run cut into slabs is one closed manifold surface
 //! that matches the in-core mesh within a fraction of a finest cell.
 
+use spsr::attributes::{Attribute, AttributeData, ScalarType};
 use spsr::metrics::MeshDistance;
 use spsr::slabs::{self, SlabOptions, Source};
 use spsr::trim::{Threshold, TrimParams};
@@ -402,6 +403,156 @@ fn slab_options(k: usize, dir: &std::path::Path) -> SlabOptions {
         slabs: k,
         work_dir: dir.to_path_buf(),
     }
+}
+
+/// The bunny with three attributes that vary across it: a `u8` red channel along x, an `f32`
+/// intensity along y and an `f64` height (z), as a scan's colours and measurements do.
+fn coloured_bunny() -> PointCloud {
+    let mut cloud = bunny();
+    let red = cloud
+        .positions
+        .iter()
+        .map(|p| (127.5 + 127.0 * (8.0 * p[0]).sin()) as u8)
+        .collect();
+    let intensity = cloud
+        .positions
+        .iter()
+        .map(|p| (p[1] * 3.0).cos() as f32)
+        .collect();
+    let height = cloud.positions.iter().map(|p| p[2]).collect();
+    cloud.attributes = vec![
+        Attribute::new("red", AttributeData::U8(red)),
+        Attribute::new("intensity", AttributeData::F32(intensity)),
+        Attribute::new("height", AttributeData::F64(height)),
+    ];
+    cloud
+}
+
+/// Each slab vertex carries the attributes of the in-core vertex at its place: the samples'
+/// sums are the whole cloud's at the depths coarser than the slabs' padding (summed from
+/// every slab's own samples) and the slab's own at the finer ones. A pull factor of 1 weighs
+/// every depth alike, so a coarse sum that missed another slab's samples would show in the
+/// `f64` height; the default (32) is checked on the written mesh, which also has the
+/// in-core mesh's properties in its order and types.
+#[test]
+fn slabs_carry_attributes_as_one_piece() {
+    let cloud = coloured_bunny();
+    let dir = tempfile::tempdir().unwrap();
+    for pull in [1.0, 32.0] {
+        let params = Params {
+            attributes: true,
+            data_pull: pull,
+            ..plain(8)
+        };
+        let whole = spsr::reconstruct(&cloud, &params).unwrap().mesh;
+        let h = cell(&cloud, &params);
+        for k in [3, 5] {
+            let out = if pull == 1.0 {
+                slabs::reconstruct(
+                    Source::Cloud(&cloud),
+                    &params,
+                    &slab_options(k, dir.path()),
+                    &|_| {},
+                )
+                .unwrap()
+                .mesh
+            } else {
+                let path = dir.path().join(format!("slabs-{k}.ply"));
+                slabs::reconstruct_into(
+                    Source::Cloud(&cloud),
+                    &params,
+                    &slab_options(k, dir.path()),
+                    &path,
+                    &|_| {},
+                )
+                .unwrap();
+                spsr::io::read_mesh(&path).unwrap()
+            };
+            let names = |m: &Mesh| -> Vec<(String, ScalarType)> {
+                m.attributes
+                    .iter()
+                    .map(|a| (a.name.clone(), a.data.scalar_type()))
+                    .collect()
+            };
+            assert_eq!(names(&out), names(&whole), "pull {pull}, {k} slabs");
+            assert_eq!(
+                out.vertices.len(),
+                whole.vertices.len(),
+                "pull {pull}, {k} slabs"
+            );
+            let near = nearest_vertices(&out, &whole, h);
+            let mut worst = [0.0f64; 3];
+            for (i, &(j, dist)) in near.iter().enumerate() {
+                assert!(
+                    dist < 0.01 * h,
+                    "pull {pull}, {k} slabs: vertex {i} {dist} from in-core"
+                );
+                for (c, w) in worst.iter_mut().enumerate() {
+                    let a = out.attributes[c].data.get(i).unwrap();
+                    let b = whole.attributes[c].data.get(j).unwrap();
+                    *w = w.max((a - b).abs());
+                }
+            }
+            eprintln!(
+                "pull {pull}, {k} slabs: largest differences (red, intensity, height) {worst:?}"
+            );
+            // The vertices lie within 1e-4 cells of the in-core ones, and the sums differ by
+            // the order of their additions only.
+            assert!(worst[0] <= 1.0, "pull {pull}, {k} slabs: red {}", worst[0]);
+            assert!(
+                worst[1] <= 1e-5,
+                "pull {pull}, {k} slabs: intensity {}",
+                worst[1]
+            );
+            assert!(
+                worst[2] <= 1e-5 * h,
+                "pull {pull}, {k} slabs: height {}",
+                worst[2]
+            );
+        }
+    }
+}
+
+/// Tiles read as one cloud must carry the same properties, as when they are read into memory;
+/// the error names the tile that differs.
+#[test]
+fn slab_tiles_with_different_properties_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let plain_tile = dir.path().join("plain.ply");
+    let coloured_tile = dir.path().join("coloured.ply");
+    spsr::io::write_cloud(&plain_tile, &bunny(), &Default::default()).unwrap();
+    spsr::io::write_cloud(&coloured_tile, &coloured_bunny(), &Default::default()).unwrap();
+    let tiles = [plain_tile, coloured_tile.clone()];
+    let params = Params {
+        attributes: true,
+        ..plain(6)
+    };
+    let e = slabs::reconstruct(
+        Source::Files(&tiles),
+        &params,
+        &slab_options(2, dir.path()),
+        &|_| {},
+    )
+    .expect_err("refused");
+    let text = e.to_string();
+    assert!(
+        text.contains("coloured.ply") && text.contains("properties differ"),
+        "{text}"
+    );
+    // Without attributes the tiles are one cloud.
+    let params = Params {
+        attributes: false,
+        ..params
+    };
+    slabs::reconstruct(
+        Source::Files(&tiles),
+        &params,
+        &slab_options(2, dir.path()),
+        &|_| {},
+    )
+    .unwrap();
+    // Only the tiles remain: no job folder.
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
 }
 
 /// The density of each slab vertex is the in-core estimator's at that place: the slabs read
