@@ -328,6 +328,16 @@ def children(pid):
     return out
 
 
+def tree_rss_kib(pid):
+    """Resident memory of a process and all its descendants, in KiB (0 for those gone)."""
+    total, todo = 0, [pid]
+    while todo:
+        p = todo.pop()
+        total += rss_kib(p)
+        todo.extend(children(p))
+    return total
+
+
 def measured(cmd, env, timeout, max_rss_mib, log_prefix):
     """Runs cmd in its own session; returns dict(code, wall_s, peak_rss_mib, user_s, sys_s,
     killed, stdout, stderr). A watchdog kills the session past `timeout` seconds or

@@ -39,16 +39,7 @@ DATA = os.path.join(ROOT, "..", "shared", "data")
 CACHE = os.path.expanduser("~/.cache/spsr-bench-inputs")
 sys.path.insert(0, os.path.join(ROOT, "bench"))
 
-
-def tree_rss_kib(pid):
-    """Resident memory of a process and all its descendants, in KiB (0 for those gone)."""
-    from run import children, rss_kib  # bench/run.py
-    total, todo = 0, [pid]
-    while todo:
-        p = todo.pop()
-        total += rss_kib(p)
-        todo.extend(children(p))
-    return total
+from run import tree_rss_kib  # noqa: E402  (bench/run.py)
 
 
 def timed(args):

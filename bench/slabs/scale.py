@@ -20,19 +20,9 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from run import children, rss_kib  # noqa: E402  (bench/run.py)
+from run import tree_rss_kib  # noqa: E402  (bench/run.py)
 
 PERIOD_S = 2.0
-
-
-def tree_rss_kib(pid):
-    """Resident memory of a process and all its descendants, in KiB."""
-    total, todo = 0, [pid]
-    while todo:
-        p = todo.pop()
-        total += rss_kib(p)
-        todo.extend(children(p))
-    return total
 
 
 def main():
