@@ -251,17 +251,22 @@ impl Bounds {
     }
 }
 
+/// The attributes a cloud carries onto the mesh when `enabled`: every property with one value
+/// per point, in the cloud's order (also slab mode's rule, for each tile).
+pub(crate) fn carried_columns(points: &PointCloud, enabled: bool) -> Vec<&Attribute> {
+    if !enabled {
+        return Vec::new();
+    }
+    points
+        .attributes
+        .iter()
+        .filter(|a| a.data.len() == points.len())
+        .collect()
+}
+
 /// The attributes carried onto the mesh: one f64 channel per attribute, per usable point.
 fn carried(points: &PointCloud, valid: &[usize], enabled: bool) -> Carried {
-    let columns: Vec<&Attribute> = if enabled {
-        points
-            .attributes
-            .iter()
-            .filter(|a| a.data.len() == points.len())
-            .collect()
-    } else {
-        Vec::new()
-    };
+    let columns = carried_columns(points, enabled);
     let types = columns
         .iter()
         .map(|a| Attribute::new(a.name.clone(), AttributeData::new(a.data.scalar_type())))

@@ -479,17 +479,11 @@ pub(crate) struct Found {
     pub dropped: usize,
 }
 
-/// The attributes a tile carries onto the mesh (name and type, in order): all of its
-/// properties with one value per point, as in one piece (`prepare::carried`); none when
-/// `params.attributes` is off.
+/// The attributes a tile carries onto the mesh (name and type, in order), by the rule of a
+/// run in one piece (`prepare::carried_columns`).
 fn carried_attributes(cloud: &PointCloud, params: &Params) -> AttributeSchema {
-    if !params.attributes {
-        return Vec::new();
-    }
-    cloud
-        .attributes
-        .iter()
-        .filter(|a| a.data.len() == cloud.len())
+    prepare::carried_columns(cloud, params.attributes)
+        .into_iter()
         .map(|a| (a.name.clone(), a.data.scalar_type()))
         .collect()
 }
@@ -571,12 +565,7 @@ fn spill_pass(
     source.for_each(|cloud, path| {
         // Pass 1 checked the tiles; a file changed since is caught here.
         check_attributes(attributes, &carried_attributes(cloud, params), path)?;
-        let carried: Vec<_> = cloud
-            .attributes
-            .iter()
-            .filter(|a| a.data.len() == cloud.len())
-            .take(attributes.len())
-            .collect();
+        let carried = prepare::carried_columns(cloud, params.attributes);
         let weight_of = prepare::weights(cloud, &params.weights)?;
         for i in prepare::usable(cloud, &weight_of) {
             let p = prepare::unit_point(frame, cloud.positions[i], cloud.normals[i], weight_of(i));
