@@ -606,7 +606,7 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
 
     if let Slabs::Count(k) = args.slabs {
         if slabs::streams(args) {
-            return slabs::run_streamed(args, &params, k, start);
+            return slabs::run_streamed(args, &params, k, trim_params.as_ref(), start);
         }
         let (result, trimmed, reading, progress) =
             slabs::run(args, &params, k, trim_params.as_ref())?;
@@ -682,7 +682,7 @@ pub(crate) fn run_reconstruct(args: &ReconstructArgs) -> Result<(), Failure> {
                 spsr::gib(short.limit)
             );
             if slabs::streams(args) {
-                return slabs::run_streamed(args, &params, k, start);
+                return slabs::run_streamed(args, &params, k, trim_params.as_ref(), start);
             }
             let (result, trimmed, more, progress) =
                 slabs::run(args, &params, k, trim_params.as_ref())?;

@@ -11,10 +11,10 @@ use crate::progress::Progress;
 use crate::reconstruct::ReconstructArgs;
 use crate::{usage, words, Failure};
 
-/// Whether the slab run writes its mesh as it goes: a binary PLY file, untrimmed (trimming
-/// needs the whole mesh: `spsr::slabs::reconstruct_and_trim`).
+/// Whether the slab run writes its mesh as it goes (trimmed on the way with `--trim`): a
+/// binary PLY file.
 pub(crate) fn streams(args: &ReconstructArgs) -> bool {
-    args.trim.is_none() && writes_binary_ply(args)
+    writes_binary_ply(args)
 }
 
 /// Whether the output is a binary PLY file.
@@ -28,27 +28,38 @@ fn writes_binary_ply(args: &ReconstructArgs) -> bool {
 }
 
 /// Runs the reconstruction in `k` slabs, writing the mesh (binary PLY) as the slabs produce
-/// it; then the warnings, `-v`'s stage table and the summary line.
+/// it, trimmed on the way with `trim`; then the warnings, `-v`'s stage table and the summary
+/// line.
 pub(crate) fn run_streamed(
     args: &ReconstructArgs,
     params: &spsr::Params,
     k: usize,
+    trim: Option<&spsr::trim::TrimParams>,
     start: std::time::Instant,
 ) -> Result<(), Failure> {
     let (inputs, options) = check(args)?;
-    let plan = spsr::slabs::stage_plan(params, true, false);
+    let plan = spsr::slabs::stage_plan(params, true, trim.is_some());
     let progress = Progress::new(plan.len(), std::io::stderr().is_terminal());
     let input = args.input();
-    let (stats, written) = spsr::slabs::reconstruct_into(
-        spsr::slabs::Source::Files(&inputs),
-        params,
-        &spsr::slabs::SlabOptions {
-            slabs: k,
-            ..options
-        },
-        &args.output,
-        &|s| progress.stage(s),
-    )
+    let source = spsr::slabs::Source::Files(&inputs);
+    let options = spsr::slabs::SlabOptions {
+        slabs: k,
+        ..options
+    };
+    let stage = |s: &str| progress.stage(s);
+    let (stats, written, trimmed) = match trim {
+        Some(t) => spsr::slabs::reconstruct_and_trim_into(
+            source,
+            params,
+            &options,
+            t,
+            &args.output,
+            &stage,
+        )
+        .map(|(s, w, t)| (s, w, Some(t))),
+        None => spsr::slabs::reconstruct_into(source, params, &options, &args.output, &stage)
+            .map(|(s, w)| (s, w, None)),
+    }
     .map_err(|e| Failure::from_spsr(e, input_name(input)))?;
     drop(progress);
     if let Some(p) = &args.preview {
@@ -74,6 +85,11 @@ pub(crate) fn run_streamed(
                 format!("   peak {:>8.0} MiB", b as f64 / (1024.0 * 1024.0))
             });
             eprintln!("  {name:<34} {:>8.3} s{peak}", time.as_secs_f64());
+        }
+        if let Some(t) = &trimmed {
+            // Trimmed while writing: the writing stage's time includes the trimming.
+            let writing = stats.stages.iter().find(|(n, _)| n == "writing");
+            crate::trim::print_trim(t, writing.map_or(Duration::ZERO, |s| s.1));
         }
     }
     let d = &stats.diagnosis;

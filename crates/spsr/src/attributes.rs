@@ -164,6 +164,25 @@ impl ScalarType {
             ScalarType::F64 => out.extend_from_slice(&v.to_le_bytes()),
         }
     }
+
+    /// The value [`Self::put_le`] wrote at the start of `bytes`, as `f64` (exact for every
+    /// type).
+    ///
+    /// # Panics
+    /// If `bytes` is shorter than [`Self::size`].
+    pub fn get_le(self, bytes: &[u8]) -> f64 {
+        let b = |n: usize| -> &[u8] { &bytes[..n] };
+        match self {
+            ScalarType::U8 => f64::from(bytes[0]),
+            ScalarType::I8 => f64::from(bytes[0] as i8),
+            ScalarType::U16 => f64::from(u16::from_le_bytes(b(2).try_into().expect("2"))),
+            ScalarType::I16 => f64::from(i16::from_le_bytes(b(2).try_into().expect("2"))),
+            ScalarType::U32 => f64::from(u32::from_le_bytes(b(4).try_into().expect("4"))),
+            ScalarType::I32 => f64::from(i32::from_le_bytes(b(4).try_into().expect("4"))),
+            ScalarType::F32 => f64::from(f32::from_le_bytes(b(4).try_into().expect("4"))),
+            ScalarType::F64 => f64::from_le_bytes(b(8).try_into().expect("8")),
+        }
+    }
 }
 
 impl AttributeData {
@@ -407,6 +426,20 @@ pub fn find_colors(attributes: &[Attribute]) -> Option<Colors<'_>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn bytes_read_back_are_the_value_in_its_type() {
+        use ScalarType::*;
+        for ty in [U8, I8, U16, I16, U32, I32, F32, F64] {
+            for v in [-70000.7, -3.5, 0.0, 0.1, 2.5, 255.0, 1e10] {
+                let mut bytes = Vec::new();
+                ty.put_le(v, &mut bytes);
+                assert_eq!(bytes.len(), ty.size());
+                let typed = AttributeData::from_f64(ty, [v]).get(0).unwrap();
+                assert_eq!(ty.get_le(&bytes).to_bits(), typed.to_bits(), "{ty:?} {v}");
+            }
+        }
+    }
 
     #[test]
     fn push_rounds_and_clamps_to_the_type() {

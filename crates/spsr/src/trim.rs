@@ -228,6 +228,11 @@ fn check_mesh(mesh: &Mesh) -> Result<&[f32]> {
 
 fn triangle_area(p: &[[f64; 3]], t: [u32; 3]) -> f64 {
     let [a, b, c] = t.map(|i| p[i as usize]);
+    area(a, b, c)
+}
+
+/// The area of the triangle `a b c`.
+pub(crate) fn area(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> f64 {
     0.5 * norm(cross(sub(b, a), sub(c, a)))
 }
 
@@ -350,85 +355,139 @@ struct Cut {
     positions: Vec<[f64; 3]>,
 }
 
-/// Splits every triangle crossed by the iso-line `s = 0`, where `s` is density − threshold.
-fn cut(mesh: &Mesh, s: &[f64]) -> Cut {
-    let nv = mesh.vertices.len();
-    let mut out = Cut {
-        triangles: Vec::with_capacity(mesh.triangles.len() + mesh.triangles.len() / 8),
-        keep: Vec::with_capacity(mesh.triangles.len() + mesh.triangles.len() / 8),
-        new_vertices: Vec::new(),
-        positions: mesh.vertices.clone(),
-    };
-    let mut on_edge: FxHashMap<(u32, u32), u32> = FxHashMap::default();
-    let mut kept: Vec<u32> = Vec::with_capacity(4);
-    let mut dropped: Vec<u32> = Vec::with_capacity(4);
-    for &t in &mesh.triangles {
-        let sv = t.map(|v| s[v as usize]);
-        let pos = sv.iter().filter(|&&x| x > 0.0).count();
-        let neg = sv.iter().filter(|&&x| x < 0.0).count();
-        if pos == 0 || neg == 0 {
-            // Entirely on one side; a triangle with every vertex exactly on the line has no
-            // positive vertex and is discarded, as the reference keeps only values above.
-            out.triangles.push(t);
-            out.keep.push(pos > 0);
-            continue;
-        }
-        kept.clear();
-        dropped.clear();
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            let (sa, sb) = (sv[k], sv[(k + 1) % 3]);
-            if sa >= 0.0 {
-                kept.push(a);
-            }
-            if sa <= 0.0 {
-                dropped.push(a);
-            }
-            if (sa > 0.0 && sb < 0.0) || (sa < 0.0 && sb > 0.0) {
-                // The same parameter from whichever triangle meets the edge first: computed
-                // from the lower-numbered end.
-                let (lo, hi) = if a < b { (a, b) } else { (b, a) };
-                let c = *on_edge.entry((lo, hi)).or_insert_with(|| {
-                    let (slo, shi) = (s[lo as usize], s[hi as usize]);
-                    let u = slo / (slo - shi);
-                    let (plo, phi) = (out.positions[lo as usize], out.positions[hi as usize]);
-                    out.positions.push([
-                        plo[0] + u * (phi[0] - plo[0]),
-                        plo[1] + u * (phi[1] - plo[1]),
-                        plo[2] + u * (phi[2] - plo[2]),
-                    ]);
-                    out.new_vertices.push((lo, hi, u));
-                    (nv + out.new_vertices.len() - 1) as u32
-                });
-                kept.push(c);
-                dropped.push(c);
-            }
-        }
-        for (poly, side) in [(&kept, true), (&dropped, false)] {
-            match poly.len() {
-                3 => {
-                    out.triangles.push([poly[0], poly[1], poly[2]]);
-                    out.keep.push(side);
-                }
-                4 => {
-                    let p = |i: usize| out.positions[poly[i] as usize];
-                    // The shorter diagonal gives the better-shaped pair of triangles.
-                    let (first, second) = if norm2(sub(p(2), p(0))) <= norm2(sub(p(3), p(1))) {
-                        ([poly[0], poly[1], poly[2]], [poly[0], poly[2], poly[3]])
-                    } else {
-                        ([poly[1], poly[2], poly[3]], [poly[1], poly[3], poly[0]])
-                    };
-                    out.triangles.extend([first, second]);
-                    out.keep.extend([side, side]);
-                }
-                _ => {} // a side that is only a vertex or an edge of the triangle
-            }
-        }
-    }
-    out
+/// What cutting a triangle needs of a mesh (whole in memory here, or a slab at a time in
+/// `crate::slabs`): each vertex's signed distance `s` to the level and its position, and the
+/// vertex on an edge crossed by the level, made when the edge is first met.
+pub(crate) trait CutMesh {
+    /// Density − threshold at vertex `v`.
+    fn s(&self, v: u32) -> f64;
+    /// The position of vertex `v` (also of a vertex made on an edge).
+    fn position(&self, v: u32) -> [f64; 3];
+    /// The vertex where the level crosses the edge `lo hi` (`lo < hi`), at the parameter
+    /// `s(lo) / (s(lo) − s(hi))` from `lo`: made on the first call, the same afterwards.
+    fn on_edge(&mut self, lo: u32, hi: u32) -> u32;
 }
 
-fn find(parent: &mut [u32], mut x: u32) -> u32 {
+/// The point at parameter `u` from `a` towards `b`.
+pub(crate) fn lerp(a: [f64; 3], b: [f64; 3], u: f64) -> [f64; 3] {
+    std::array::from_fn(|k| a[k] + u * (b[k] - a[k]))
+}
+
+/// The parameter of the level's crossing from `lo` towards `hi` (computed from the
+/// lower-numbered end, so that both triangles of the edge agree).
+pub(crate) fn crossing(s_lo: f64, s_hi: f64) -> f64 {
+    s_lo / (s_lo - s_hi)
+}
+
+/// Cuts triangle `t` along the level `s = 0`: appends the pieces with their side (kept or
+/// not) to `out`.
+pub(crate) fn cut_triangle(mesh: &mut impl CutMesh, t: [u32; 3], out: &mut Vec<([u32; 3], bool)>) {
+    let sv = t.map(|v| mesh.s(v));
+    let pos = sv.iter().filter(|&&x| x > 0.0).count();
+    let neg = sv.iter().filter(|&&x| x < 0.0).count();
+    if pos == 0 || neg == 0 {
+        // Entirely on one side; a triangle with every vertex exactly on the line has no
+        // positive vertex and is discarded, as the reference keeps only values above.
+        out.push((t, pos > 0));
+        return;
+    }
+    let mut kept: Vec<u32> = Vec::with_capacity(4);
+    let mut dropped: Vec<u32> = Vec::with_capacity(4);
+    for k in 0..3 {
+        let (a, b) = (t[k], t[(k + 1) % 3]);
+        let (sa, sb) = (sv[k], sv[(k + 1) % 3]);
+        if sa >= 0.0 {
+            kept.push(a);
+        }
+        if sa <= 0.0 {
+            dropped.push(a);
+        }
+        if (sa > 0.0 && sb < 0.0) || (sa < 0.0 && sb > 0.0) {
+            let c = mesh.on_edge(a.min(b), a.max(b));
+            kept.push(c);
+            dropped.push(c);
+        }
+    }
+    for (poly, side) in [(&kept, true), (&dropped, false)] {
+        match poly.len() {
+            3 => out.push(([poly[0], poly[1], poly[2]], side)),
+            4 => {
+                let p = |i: usize| mesh.position(poly[i]);
+                // The shorter diagonal gives the better-shaped pair of triangles.
+                let (first, second) = if norm2(sub(p(2), p(0))) <= norm2(sub(p(3), p(1))) {
+                    ([poly[0], poly[1], poly[2]], [poly[0], poly[2], poly[3]])
+                } else {
+                    ([poly[1], poly[2], poly[3]], [poly[1], poly[3], poly[0]])
+                };
+                out.extend([(first, side), (second, side)]);
+            }
+            _ => {} // a side that is only a vertex or an edge of the triangle
+        }
+    }
+}
+
+/// A mesh in memory being cut: the original vertices, then the new ones.
+struct InMemory<'a> {
+    s: &'a [f64],
+    nv: usize,
+    positions: Vec<[f64; 3]>,
+    new_vertices: Vec<(u32, u32, f64)>,
+    made: FxHashMap<(u32, u32), u32>,
+}
+
+impl CutMesh for InMemory<'_> {
+    fn s(&self, v: u32) -> f64 {
+        self.s[v as usize]
+    }
+
+    fn position(&self, v: u32) -> [f64; 3] {
+        self.positions[v as usize]
+    }
+
+    fn on_edge(&mut self, lo: u32, hi: u32) -> u32 {
+        if let Some(&c) = self.made.get(&(lo, hi)) {
+            return c;
+        }
+        let u = crossing(self.s[lo as usize], self.s[hi as usize]);
+        let p = lerp(self.positions[lo as usize], self.positions[hi as usize], u);
+        self.positions.push(p);
+        self.new_vertices.push((lo, hi, u));
+        let c = (self.nv + self.new_vertices.len() - 1) as u32;
+        self.made.insert((lo, hi), c);
+        c
+    }
+}
+
+/// Splits every triangle crossed by the iso-line `s = 0`, where `s` is density − threshold.
+fn cut(mesh: &Mesh, s: &[f64]) -> Cut {
+    let n = mesh.triangles.len() + mesh.triangles.len() / 8;
+    let mut m = InMemory {
+        s,
+        nv: mesh.vertices.len(),
+        positions: mesh.vertices.clone(),
+        new_vertices: Vec::new(),
+        made: FxHashMap::default(),
+    };
+    let mut triangles = Vec::with_capacity(n);
+    let mut keep = Vec::with_capacity(n);
+    let mut pieces = Vec::with_capacity(4);
+    for &t in &mesh.triangles {
+        pieces.clear();
+        cut_triangle(&mut m, t, &mut pieces);
+        for &(t, side) in &pieces {
+            triangles.push(t);
+            keep.push(side);
+        }
+    }
+    Cut {
+        triangles,
+        keep,
+        new_vertices: m.new_vertices,
+        positions: m.positions,
+    }
+}
+
+pub(crate) fn find(parent: &mut [u32], mut x: u32) -> u32 {
     while parent[x as usize] != x {
         let p = parent[x as usize];
         parent[x as usize] = parent[p as usize];
@@ -439,7 +498,7 @@ fn find(parent: &mut [u32], mut x: u32) -> u32 {
 
 /// Joins the sets of `a` and `b`; the lower root survives, so the result does not depend on
 /// the order of the calls.
-fn union(parent: &mut [u32], a: u32, b: u32) -> u32 {
+pub(crate) fn union(parent: &mut [u32], a: u32, b: u32) -> u32 {
     let (ra, rb) = (find(parent, a), find(parent, b));
     let (lo, hi) = if ra < rb { (ra, rb) } else { (rb, ra) };
     parent[hi as usize] = lo;
@@ -454,15 +513,15 @@ struct Selection {
 }
 
 /// The edge-connected components of each side of the cut and their neighbour graph.
-struct Components {
+pub(crate) struct Components {
     /// Component of each triangle, numbered in the order of their first triangle.
-    of_triangle: Vec<u32>,
+    pub of_triangle: Vec<u32>,
     /// Area of each component.
-    area: Vec<f64>,
+    pub area: Vec<f64>,
     /// Side of each component (kept or not).
-    keep: Vec<bool>,
+    pub keep: Vec<bool>,
     /// The components on the other side that share an edge with each component.
-    neighbours: Vec<Vec<u32>>,
+    pub neighbours: Vec<Vec<u32>>,
 }
 
 /// Edge-connected components of each side, their neighbour graph, and the merging of small
@@ -568,7 +627,7 @@ fn components(triangles: &[[u32; 3]], keep: &[bool], areas: &[f64]) -> Component
 /// neighbours, smallest first, each switching side; then removes kept pieces below `island`
 /// with no neighbour at all. Returns the union-find forest over the components and the
 /// numbers of islands removed and holes filled.
-fn merge_small(c: &mut Components, island: f64, hole: f64) -> (Vec<u32>, usize, usize) {
+pub(crate) fn merge_small(c: &mut Components, island: f64, hole: f64) -> (Vec<u32>, usize, usize) {
     let Components {
         area: comp_area,
         keep: comp_keep,
@@ -714,6 +773,22 @@ pub fn trim(mesh: &Mesh, params: &TrimParams) -> Result<(Mesh, TrimStats)> {
     Ok((out, stats))
 }
 
+/// The normal at parameter `u` from `na` towards `nb`: the direction interpolated and
+/// renormalised, the length interpolated, so that unit normals stay unit and weighted ones
+/// keep their interpolated weight.
+pub(crate) fn interpolate_normal(na: [f32; 3], nb: [f32; 3], u: f64) -> [f32; 3] {
+    let na: [f64; 3] = na.map(f64::from);
+    let nb: [f64; 3] = nb.map(f64::from);
+    let m: [f64; 3] = lerp(na, nb, u);
+    let (la, lb, lm) = (norm(na), norm(nb), norm(m));
+    let len = la + u * (lb - la);
+    if lm > 0.0 {
+        m.map(|x| (x / lm * len) as f32)
+    } else {
+        m.map(|x| x as f32)
+    }
+}
+
 /// The kept triangles with their vertices (original ones in order, then the cut vertices),
 /// every per-vertex value carried over or interpolated.
 fn assemble(mesh: &Mesh, cut: &Cut, keep: &[bool], threshold: f32) -> Mesh {
@@ -766,19 +841,7 @@ fn assemble(mesh: &Mesh, cut: &Cut, keep: &[bool], threshold: f32) -> Mesh {
                 if a == b {
                     return n[a as usize];
                 }
-                let (na, nb) = (n[a as usize], n[b as usize]);
-                let na: [f64; 3] = na.map(f64::from);
-                let nb: [f64; 3] = nb.map(f64::from);
-                // Direction interpolated and renormalised, length interpolated: unit normals
-                // stay unit, weighted ones keep their interpolated weight.
-                let m: [f64; 3] = std::array::from_fn(|k| na[k] + u * (nb[k] - na[k]));
-                let (la, lb, lm) = (norm(na), norm(nb), norm(m));
-                let len = la + u * (lb - la);
-                if lm > 0.0 {
-                    m.map(|x| (x / lm * len) as f32)
-                } else {
-                    m.map(|x| x as f32)
-                }
+                interpolate_normal(n[a as usize], n[b as usize], u)
             })
             .collect()
     });

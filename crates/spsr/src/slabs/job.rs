@@ -17,7 +17,7 @@
 //! | [`cycle`] (with more than one solver cycle; then [`solve`] again) | coordinator | `coarse-k.state`, every `slab-s.coupling-k` | `coarse-(k+1).state`, `slab-s.coarse-solution`; deletes the files of the cycles before |
 //! | [`iso`] | coordinator | every `slab-s.solved` | the iso-value in `job.json` |
 //! | [`extract`] | slab task | `slab-s.samples`, `slab-s.coarse-solution`, `slab-s.solution-k` (the last cycle's), the neighbours' `.solved`, `density.coarse`, `data.coarse` | `slab-s.part` |
-//! | [`finish`] | coordinator | every `slab-s.part` | the output mesh (trimmed in memory when the job trims) |
+//! | [`finish`] | coordinator | every `slab-s.part` | the output mesh (trimmed a slab at a time when the job trims) |
 //!
 //! The tasks are pure functions of their inputs and write every file atomically (to a
 //! temporary name, renamed when complete), so a task that dies half-way leaves nothing behind
@@ -185,7 +185,7 @@ fn slab_file(dir: &Path, s: usize, kind: &str) -> PathBuf {
 
 /// Reads the points of `source` (two passes: the bounding cube, then the spill files) into a
 /// new job folder inside `work_dir`, cut into at most `slabs` slabs. With `trim`, [`finish`]
-/// trims the mesh as [`super::reconstruct_and_trim`] does.
+/// trims the mesh as [`super::reconstruct_and_trim_into`] does.
 pub fn prepare(
     source: Source,
     params: &Params,
@@ -450,8 +450,8 @@ pub fn extract(dir: &Path, s: usize) -> Result<()> {
 }
 
 /// Coordinator: the slabs' parts stitched into one mesh, written to `output` (binary PLY),
-/// with the run's statistics (no stage timings: the tasks ran elsewhere). A job with
-/// trimming assembles the mesh in memory and trims it (see [`super::reconstruct_and_trim`]).
+/// with the run's statistics (no stage timings: the tasks ran elsewhere), trimmed when the
+/// job trims, a slab at a time (`super::trim`).
 pub fn finish(dir: &Path, output: &Path) -> Result<(Stats, Written)> {
     let job = JobFile::read(dir)?;
     let plan = job.plan();
@@ -462,33 +462,6 @@ pub fn finish(dir: &Path, output: &Path) -> Result<(Stats, Written)> {
         points: job.points,
         dropped: job.dropped,
     };
-    if let Some(trim) = job.trim {
-        let parts = (0..plan.slabs.len())
-            .map(|s| load::<Part>(&slab_file(dir, s, "part")))
-            .collect::<Result<Vec<_>>>()?;
-        let mesh = super::output::assemble(parts, plan.frame, &plan.attributes)?;
-        let mut run = crate::pipeline::Run::new(&|_| {});
-        let trim = TrimParams::from(trim);
-        let (mesh, warnings, diagnosis, _) =
-            super::finish_in_memory(mesh, &job.params, Some(&trim), plan.frame, &mut run)?;
-        crate::io::write_mesh(output, &mesh, &crate::io::WriteOptions { ascii: false })?;
-        let written = Written {
-            vertices: mesh.vertices.len() as u64,
-            triangles: mesh.triangles.len() as u64,
-            pieces: diagnosis.pieces,
-            open_edges: diagnosis.boundary_edges as u64,
-        };
-        let stats = super::slab_stats(
-            found,
-            samples as usize,
-            iso,
-            coarse.mean_depth,
-            plan.slabs.len(),
-            diagnosis,
-            warnings,
-        );
-        return Ok((stats, written));
-    }
     let mut files = MeshFiles::new(
         dir,
         super::face_planes(&plan, &job.params),
@@ -498,16 +471,35 @@ pub fn finish(dir: &Path, output: &Path) -> Result<(Stats, Written)> {
         let part: Part = load(&slab_file(dir, s, "part"))?;
         files.add(part, plan.frame)?;
     }
-    let written = files.finish(output)?;
+    let trim = job.trim.map(TrimParams::from);
+    let adaptive = job.params.noise == crate::Noise::Adaptive;
+    let done = super::trim::finish(
+        files.close()?,
+        output,
+        adaptive,
+        trim.as_ref(),
+        job.params.density,
+    )?;
+    let warnings = (done.fragments > 0)
+        .then_some(crate::error::Warning::FragmentsRemoved {
+            pieces: done.fragments,
+        })
+        .into_iter()
+        .collect();
+    let diagnosis = crate::pipeline::diagnose::Diagnosis {
+        trimmed: trim.is_some(),
+        ..super::written_diagnosis(&done.written)
+    };
     let stats = super::slab_stats(
         found,
         samples as usize,
         iso,
         coarse.mean_depth,
         plan.slabs.len(),
-        super::written_diagnosis(&written),
-        Vec::new(),
+        diagnosis,
+        warnings,
     );
+    let written = done.written;
     Ok((stats, written))
 }
 

@@ -22,9 +22,11 @@
 //!
 //! Per-vertex density is the in-core estimator's at each vertex: a slab's own estimator at the
 //! depths its padding covers, the whole cloud's (summed by the coordinator from the slabs'
-//! cells, `phases::density_depth`) at the coarser ones. Trimming assembles the mesh in memory
-//! and trims it as in one piece ([`reconstruct_and_trim`]): its threshold is a quantile of the
-//! whole mesh's densities and its islands and holes cross slabs.
+//! cells, `phases::density_depth`) at the coarser ones. Trimming is that of one piece: its
+//! threshold is a quantile of the whole mesh's densities and its islands and holes cross
+//! slabs. A mesh written as it comes is trimmed from the work files a slab at a time
+//! ([`reconstruct_and_trim_into`], `trim`); one assembled in memory is trimmed there
+//! ([`reconstruct_and_trim`]).
 //!
 //! Attributes (colours and any other numeric property) are carried as in one piece
 //! (`crate::data`): every point's values follow it into its column's spill file, the samples
@@ -43,6 +45,7 @@ mod output;
 pub mod phases;
 mod plan;
 mod spill;
+mod trim;
 
 use std::path::{Path, PathBuf};
 
@@ -231,9 +234,8 @@ pub fn reconstruct(
 
 /// As [`reconstruct`], then the mesh trimmed by density as the run in one piece trims it
 /// (`crate::reconstruct_and_trim`): the density is computed for the trimming and kept on the
-/// mesh only when `params.density` asks for it. The trimming needs the whole mesh (its
-/// threshold is a quantile of the whole mesh's densities, and its islands and holes are
-/// pieces that cross slabs), so the mesh is assembled in memory.
+/// mesh only when `params.density` asks for it. The mesh is assembled in memory;
+/// [`reconstruct_and_trim_into`] trims it on its way to a file instead.
 pub fn reconstruct_and_trim(
     source: Source,
     params: &Params,
@@ -253,7 +255,8 @@ pub fn reconstruct_and_trim(
 
 /// As [`reconstruct`], writing the mesh to `output` (binary PLY) slab by slab, so that it
 /// never has to be in memory whole. The checks of the result count pieces and open edges
-/// only (`Stats::diagnosis`); small pieces are not removed (stage 9).
+/// only (`Stats::diagnosis`). With adaptive noise the small pieces are removed (stage 9) from
+/// the files, as in one piece.
 pub fn reconstruct_into(
     source: Source,
     params: &Params,
@@ -263,6 +266,23 @@ pub fn reconstruct_into(
 ) -> Result<(Stats, Written)> {
     let out = run(source, params, options, Some(output), None, progress)?;
     Ok((out.stats, out.written.expect("written")))
+}
+
+/// As [`reconstruct_into`], the mesh trimmed by density on its way to `output`, a slab at a
+/// time (`trim`: the same mesh as [`reconstruct_and_trim`] gives, written as
+/// `io::write_mesh` writes it, without the whole mesh in memory).
+pub fn reconstruct_and_trim_into(
+    source: Source,
+    params: &Params,
+    options: &SlabOptions,
+    trim: &TrimParams,
+    output: &Path,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Result<(Stats, Written, TrimStats)> {
+    trim.validate()?;
+    let out = run(source, params, options, Some(output), Some(trim), progress)?;
+    let trimmed = out.trimmed.expect("trimmed");
+    Ok((out.stats, out.written.expect("written"), trimmed))
 }
 
 /// What [`run`] made.
@@ -276,8 +296,8 @@ struct Outcome {
     trimmed: Option<TrimStats>,
 }
 
-/// The slab run; with `output`, the mesh goes to that file as it is produced; with `trim`
-/// (and no `output`), the mesh is trimmed.
+/// The slab run; with `output`, the mesh goes to that file as it is produced; with `trim`,
+/// the mesh is trimmed (in memory, or on its way to `output`).
 fn run(
     source: Source,
     params: &Params,
@@ -390,11 +410,24 @@ fn run(
         Ok(())
     })?;
     let mut warnings = Vec::new();
-    let mut trimmed = None;
+    let trimmed;
     let (mesh, written, diagnosis) = match (sink, output) {
         (Sink::Files(files), Some(path)) => {
-            let written = run.stage("writing", || files.finish(path))?;
-            (None, Some(written), written_diagnosis(&written))
+            let adaptive = params.noise == Noise::Adaptive;
+            let done = run.stage("writing", || {
+                trim::finish(files.close()?, path, adaptive, trim, asked.density)
+            })?;
+            if done.fragments > 0 {
+                warnings.push(Warning::FragmentsRemoved {
+                    pieces: done.fragments,
+                });
+            }
+            trimmed = done.trimmed;
+            let diagnosis = Diagnosis {
+                trimmed: trimmed.is_some(),
+                ..written_diagnosis(&done.written)
+            };
+            (None, Some(done.written), diagnosis)
         }
         (Sink::Memory(blocks, density, values), _) => {
             drop(work);

@@ -743,6 +743,155 @@ fn slab_trim_is_the_in_core_trim() {
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
 }
 
+/// `--trim` written as the slabs come: the mesh is trimmed from the work files a slab at a
+/// time, never whole in memory, and the file holds the bytes of the mesh trimmed in memory
+/// (`slabs::reconstruct_and_trim`, written by `io::write_mesh`), with the same figures: the
+/// automatic threshold from the whole mesh's densities (its sorted runs merged), the cut
+/// vertices on the shared faces made once, the islands and holes that cross slabs. Checked
+/// with colours and other properties interpolated on the cut, with and without the density
+/// kept, at the automatic threshold and at one that cuts the bunny into islands (removed or
+/// kept whole by the area rule).
+#[test]
+fn slab_trim_written_as_the_slabs_come_is_the_trim_in_memory() {
+    let cloud = coloured_bunny();
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        (Threshold::Auto, 0.001, false, 3),
+        (Threshold::Value(6.6), 0.001, true, 4),
+        (Threshold::Value(6.6), 0.0, false, 2),
+        (Threshold::Value(6.3), 0.01, false, 5),
+    ];
+    for (threshold, areas, density, k) in cases {
+        let params = Params {
+            attributes: true,
+            density,
+            cycles: Some(1),
+            ..plain(8)
+        };
+        let trim = TrimParams {
+            threshold,
+            min_island_area: areas,
+            hole_area: areas,
+        };
+        let options = slab_options(k, dir.path());
+        let (memory, stats) =
+            slabs::reconstruct_and_trim(Source::Cloud(&cloud), &params, &options, &trim, &|_| {})
+                .unwrap();
+        let expected = dir.path().join("memory.ply");
+        let opts = spsr::io::WriteOptions { ascii: false };
+        spsr::io::write_mesh(&expected, &memory.mesh, &opts).unwrap();
+        let streamed = dir.path().join("streamed.ply");
+        let (st, written, streamed_stats) = slabs::reconstruct_and_trim_into(
+            Source::Cloud(&cloud),
+            &params,
+            &options,
+            &trim,
+            &streamed,
+            &|_| {},
+        )
+        .unwrap();
+        let what = format!("{threshold:?}, areas {areas}, density {density}, {k} slabs");
+        eprintln!(
+            "{what}: V = {}, {} of {} triangles, {} cut vertices, {} islands removed, {} holes \
+             restored, {} pieces, {} open edges",
+            stats.threshold,
+            stats.triangles_out,
+            stats.triangles_in,
+            stats.cut_vertices,
+            stats.islands_removed,
+            stats.holes_filled,
+            written.pieces,
+            written.open_edges
+        );
+        assert_eq!(streamed_stats, stats, "{what}: the trimming's figures");
+        assert!(
+            std::fs::read(&expected).unwrap() == std::fs::read(&streamed).unwrap(),
+            "{what}: the streamed trim's bytes differ from the trim in memory"
+        );
+        assert_eq!(written.vertices as usize, memory.mesh.vertices.len());
+        assert_eq!(written.triangles as usize, memory.mesh.triangles.len());
+        let d = &memory.stats.diagnosis;
+        assert_eq!(
+            (written.pieces, written.open_edges as usize),
+            (d.pieces, d.boundary_edges),
+            "{what}: the checks on the way"
+        );
+        assert_eq!(
+            (
+                st.diagnosis.pieces,
+                st.diagnosis.closed,
+                st.diagnosis.trimmed
+            ),
+            (d.pieces, d.closed, true)
+        );
+        // The trimmed mesh has boundaries, and what it keeps is manifold.
+        let topo = spsr::io::read_mesh(&streamed).unwrap().topology();
+        assert!(!topo.closed && topo.edge_manifold, "{what}: {topo:?}");
+        // Only the meshes are left: the work files, cut and runs included, are gone.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2, "{what}");
+    }
+}
+
+/// With adaptive noise, the small closed pieces that noise leaves (stage 9) are removed from
+/// a mesh written as the slabs come, as from the mesh in memory: the same bytes, and the same
+/// warning. The cloud is a sphere with a speck of points beside it, which closes into a
+/// piece of less than a thousandth of the area.
+#[test]
+fn slab_fragments_are_removed_from_the_mesh_written_as_the_slabs_come() {
+    let mut cloud = crate::common::sphere(20_000, [0.0; 3], 1.0, 5);
+    let speck = crate::common::sphere(400, [1.6, 0.0, 0.0], 0.025, 6);
+    cloud.positions.extend(speck.positions);
+    cloud.normals.extend(speck.normals);
+    let params = Params {
+        depth: 8,
+        attributes: false,
+        keep_outliers: true,
+        ..Params::default()
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let options = slab_options(3, dir.path());
+    let memory = slabs::reconstruct(Source::Cloud(&cloud), &params, &options, &|_| {}).unwrap();
+    let removed = |w: &[spsr::Warning]| {
+        w.iter()
+            .find_map(|w| match w {
+                spsr::Warning::FragmentsRemoved { pieces } => Some(*pieces),
+                _ => None,
+            })
+            .unwrap_or(0)
+    };
+    assert!(
+        removed(&memory.stats.warnings) > 0,
+        "the speck is a small piece"
+    );
+    assert_eq!(memory.stats.diagnosis.pieces, 1);
+    let expected = dir.path().join("memory.ply");
+    let opts = spsr::io::WriteOptions { ascii: false };
+    spsr::io::write_mesh(&expected, &memory.mesh, &opts).unwrap();
+    let streamed = dir.path().join("streamed.ply");
+    let (stats, written) =
+        slabs::reconstruct_into(Source::Cloud(&cloud), &params, &options, &streamed, &|_| {})
+            .unwrap();
+    assert_eq!(
+        removed(&stats.warnings),
+        removed(&memory.stats.warnings),
+        "the same warning"
+    );
+    assert_eq!((written.pieces, written.open_edges), (1, 0));
+    assert!(
+        std::fs::read(&expected).unwrap() == std::fs::read(&streamed).unwrap(),
+        "the streamed mesh's bytes differ from the mesh in memory"
+    );
+    // With the noise adaptation off, nothing is removed (the reference's mesh).
+    let off = Params {
+        noise: Noise::Off,
+        ..params
+    };
+    let (stats, written) =
+        slabs::reconstruct_into(Source::Cloud(&cloud), &off, &options, &streamed, &|_| {}).unwrap();
+    assert_eq!(removed(&stats.warnings), 0);
+    assert!(written.pieces > 1);
+}
+
 #[test]
 fn the_slab_stage_plan_is_what_the_progress_callback_hears() {
     // The progress bar's length: the stages of every solver cycle, streamed or in memory,
