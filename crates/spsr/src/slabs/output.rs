@@ -18,6 +18,7 @@ use crate::attributes::{Attribute, AttributeData};
 use crate::extract::{Part, FOREIGN};
 use crate::io::Extent;
 use crate::pipeline::prepare::Frame;
+use crate::trim::{find, union};
 use crate::{Error, Result};
 
 /// Counts of a written mesh and what its checks found.
@@ -168,6 +169,12 @@ pub(crate) struct MeshFiles {
     planes: Vec<u32>,
     open_edges: u64,
     spans: Vec<Span>,
+    /// A union–find forest over the vertices, joined along the triangles' edges as the slabs
+    /// come: the mesh's pieces.
+    parent: Vec<u32>,
+    /// Edges with an end in a slab not added yet (a global index, or [`FOREIGN`] and an edge
+    /// key): joined when the files are closed.
+    pending: Vec<[u64; 2]>,
 }
 
 fn edge_start_x(key: u64) -> u32 {
@@ -206,6 +213,8 @@ impl MeshFiles {
             planes,
             open_edges: 0,
             spans: Vec::new(),
+            parent: Vec::new(),
+            pending: Vec::new(),
         })
     }
 
@@ -292,6 +301,7 @@ impl MeshFiles {
             }
             self.record = rec;
         }
+        self.parent.extend(base as u32..(base + n) as u32);
         // Edges within the slab must have two triangles; edges in a shared face are counted
         // across slabs.
         // A closed surface has 3/2 edges per triangle: reserved at once, the table is not
@@ -318,10 +328,12 @@ impl MeshFiles {
                 }
             }
             let mut rec = [0u8; TRIANGLE_RECORD];
-            for (c, &r) in t.iter().enumerate() {
-                let g = if r & FOREIGN != 0 { r } else { r + base };
+            let g = t.map(|r| if r & FOREIGN != 0 { r } else { r + base });
+            for (c, g) in g.iter().enumerate() {
                 rec[c * 8..c * 8 + 8].copy_from_slice(&g.to_le_bytes());
             }
+            self.join(g[0], g[1]);
+            self.join(g[1], g[2]);
             self.triangles
                 .write_all(&rec)
                 .map_err(|e| io_err(&tpath, e))?;
@@ -336,8 +348,35 @@ impl MeshFiles {
         Ok(())
     }
 
+    /// A global index, or `None` for a vertex of a slab not added yet.
+    fn index(&self, g: u64) -> Option<u32> {
+        if g & FOREIGN != 0 {
+            self.face_vertices.get(&(g & !FOREIGN)).copied()
+        } else {
+            Some(g as u32)
+        }
+    }
+
+    /// Joins the pieces of the ends of an edge (global indices or [`FOREIGN`] edge keys).
+    fn join(&mut self, a: u64, b: u64) {
+        match (self.index(a), self.index(b)) {
+            (Some(a), Some(b)) => {
+                union(&mut self.parent, a, b);
+            }
+            _ => self.pending.push([a, b]),
+        }
+    }
+
     /// The files complete: flushed and closed, with what is known of them.
     pub fn close(mut self) -> Result<Stored> {
+        for [a, b] in std::mem::take(&mut self.pending) {
+            match (self.index(a), self.index(b)) {
+                (Some(a), Some(b)) => {
+                    union(&mut self.parent, a, b);
+                }
+                _ => return Err(crack()),
+            }
+        }
         let vpath = self.dir.join(VERTICES);
         let tpath = self.dir.join(TRIANGLES);
         for (w, p) in [(&mut self.vertices, &vpath), (&mut self.triangles, &tpath)] {
@@ -359,6 +398,7 @@ impl MeshFiles {
             face_records: self.face_records,
             extent: self.extent,
             open_edges,
+            parent: self.parent,
         })
     }
 }
@@ -379,6 +419,8 @@ pub(crate) struct Stored {
     pub extent: Extent,
     /// Edges with one triangle or more than two.
     pub open_edges: u64,
+    /// A union–find forest over the vertices: the pieces (triangles sharing a vertex).
+    pub parent: Vec<u32>,
 }
 
 impl Drop for Stored {
@@ -454,10 +496,9 @@ impl Stored {
     /// Writes the binary PLY at `path` (through a temporary file beside it, renamed into
     /// place when complete), with the vertices' density when `density` (and the layout has
     /// it). The files are removed afterwards.
-    pub fn write(self, path: &Path, density: bool) -> Result<Written> {
+    pub fn write(mut self, path: &Path, density: bool) -> Result<Written> {
         let nv = self.vertices;
         let nt = self.triangles;
-        let mut parent: Vec<u32> = (0..nv as u32).collect();
         let doubles = self.extent.needs_f64();
         let layout = &self.layout;
         let vpath = self.vertex_path();
@@ -477,27 +518,21 @@ impl Stored {
                 let t = self
                     .resolve(&rec)
                     .map_err(|e| std::io::Error::other(e.to_string()))?;
-                put_triangle(out, t, &mut parent)?;
+                put_triangle(out, t)?;
             }
             Ok(())
         })?;
         Ok(Written {
             vertices: nv,
             triangles: nt,
-            pieces: pieces(&mut parent),
+            pieces: pieces(&mut self.parent),
             open_edges: self.open_edges,
         })
     }
 }
 
-/// Writes a triangle of a binary PLY and joins its vertices' pieces.
-pub(crate) fn put_triangle(
-    out: &mut dyn Write,
-    t: [u32; 3],
-    parent: &mut [u32],
-) -> std::io::Result<()> {
-    union(parent, t[0], t[1]);
-    union(parent, t[1], t[2]);
+/// Writes a triangle of a binary PLY.
+pub(crate) fn put_triangle(out: &mut dyn Write, t: [u32; 3]) -> std::io::Result<()> {
     out.write_all(&[3])?;
     for i in t {
         out.write_all(&(i as i32).to_le_bytes())?;
@@ -593,22 +628,4 @@ pub(crate) fn attribute_columns(types: &AttributeSchema, values: &[f64]) -> Vec<
             )
         })
         .collect()
-}
-
-fn find(parent: &mut [u32], mut v: u32) -> u32 {
-    while parent[v as usize] != v {
-        let p = parent[v as usize];
-        parent[v as usize] = parent[p as usize];
-        v = p;
-    }
-    v
-}
-
-fn union(parent: &mut [u32], a: u32, b: u32) {
-    let (ra, rb) = (find(parent, a), find(parent, b));
-    if ra != rb {
-        // The smaller index becomes the root, so the result does not depend on the order.
-        let (lo, hi) = (ra.min(rb), ra.max(rb));
-        parent[hi as usize] = lo;
-    }
 }

@@ -62,14 +62,14 @@ pub(crate) struct Finished {
 /// [`MIN_PIECE_AREA`] of its area when `fragments` (as `pipeline::fragments` does in memory),
 /// then trimmed with `trim`; the density is written when `density` (and stored).
 pub(crate) fn finish(
-    stored: Stored,
+    mut stored: Stored,
     path: &Path,
     fragments: bool,
     trim: Option<&TrimParams>,
     density: bool,
 ) -> Result<Finished> {
     let small = if fragments {
-        small_pieces(&stored)?
+        small_pieces(&mut stored)?
     } else {
         None
     };
@@ -172,15 +172,20 @@ fn slab_area(layout: &Layout, slab: &Slab, t: [u32; 3]) -> f64 {
 /// The vertices of the pieces (triangles sharing a vertex) smaller than [`MIN_PIECE_AREA`] of
 /// the mesh's area, and how many such pieces there are; none when the mesh is one piece, or
 /// when no piece or every piece is small (`pipeline::fragments::remove_fragments`).
-fn small_pieces(stored: &Stored) -> Result<Option<(Bits, usize)>> {
-    let mut parent: Vec<u32> = (0..stored.vertices as u32).collect();
-    let slabs = stored.spans.len();
-    for s in 0..slabs {
-        for t in stored.slab(s)?.triangles {
-            union(&mut parent, t[0], t[1]);
-            union(&mut parent, t[1], t[2]);
-        }
+fn small_pieces(stored: &mut Stored) -> Result<Option<(Bits, usize)>> {
+    // The pieces were joined as the slabs came: a mesh of one piece is left as it is.
+    if pieces(&mut stored.parent) < 2 {
+        return Ok(None);
     }
+    let mut parent = std::mem::take(&mut stored.parent);
+    let found = pieces_below(stored, &mut parent);
+    stored.parent = parent;
+    found
+}
+
+/// [`small_pieces`] of a mesh of several pieces (`parent`: its forest).
+fn pieces_below(stored: &Stored, parent: &mut [u32]) -> Result<Option<(Bits, usize)>> {
+    let slabs = stored.spans.len();
     // Pieces numbered by their first triangle, each one's area summed in triangle order
     // (`Mesh::pieces`).
     let mut number: FxHashMap<u32, u32> = FxHashMap::default();
@@ -188,7 +193,7 @@ fn small_pieces(stored: &Stored) -> Result<Option<(Bits, usize)>> {
     for s in 0..slabs {
         let slab = stored.slab(s)?;
         for &t in &slab.triangles {
-            let r = find(&mut parent, t[0]);
+            let r = find(parent, t[0]);
             let p = *number.entry(r).or_insert_with(|| {
                 areas.push(0.0);
                 areas.len() as u32 - 1
@@ -210,7 +215,7 @@ fn small_pieces(stored: &Stored) -> Result<Option<(Bits, usize)>> {
     }
     let mut bits = Bits::new(stored.vertices);
     for v in 0..stored.vertices as u32 {
-        let r = find(&mut parent, v);
+        let r = find(parent, v);
         if number.get(&r).is_some_and(|&p| small[p as usize]) {
             bits.set(v);
         }
@@ -270,12 +275,18 @@ impl Runs {
             .collect())
     }
 
-    /// Every run's pairs mapped by `f` (on the values) into new sorted runs next to `stem`.
+    /// Every run's pairs mapped by `f` (on the values) into new sorted runs next to `stem`
+    /// (removed again if one cannot be made).
     fn map(&self, stem: &Path, f: impl Fn(f64) -> f64) -> Result<Runs> {
         let mut out = Runs { paths: Vec::new() };
         for p in &self.paths {
-            let pairs = Runs::read(p)?.into_iter().map(|q| Pair(f(q.0), q.1));
-            out.add(stem, pairs.collect())?;
+            let made = Runs::read(p).and_then(|pairs| {
+                out.add(stem, pairs.into_iter().map(|q| Pair(f(q.0), q.1)).collect())
+            });
+            if let Err(e) = made {
+                out.remove();
+                return Err(e);
+            }
         }
         Ok(out)
     }
@@ -1007,7 +1018,9 @@ fn write(stored: &Stored, selection: &Selection, path: &Path, density: bool) -> 
                         .or_insert(0) += 1;
                 }
                 let r = t.map(|v| ranks.rank(v));
-                if let Err(e) = put_triangle(out, r, &mut parent) {
+                union(&mut parent, r[0], r[1]);
+                union(&mut parent, r[1], r[2]);
+                if let Err(e) = put_triangle(out, r) {
                     failed.get_or_insert(e);
                 }
             })

@@ -832,6 +832,39 @@ fn slab_trim_written_as_the_slabs_come_is_the_trim_in_memory() {
     }
 }
 
+/// A threshold that removes the whole mesh is refused as in memory (the field named, the
+/// mesh's density range given), with no output written and no work file left.
+#[test]
+fn a_streamed_trim_that_keeps_nothing_fails_cleanly() {
+    let cloud = torus(5_000, 1.0, 0.35, 3);
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.ply");
+    let trim = TrimParams {
+        threshold: Threshold::Value(100.0),
+        ..TrimParams::default()
+    };
+    let e = slabs::reconstruct_and_trim_into(
+        Source::Cloud(&cloud),
+        &plain(6),
+        &slab_options(2, dir.path()),
+        &trim,
+        &out,
+        &|_| {},
+    )
+    .unwrap_err();
+    match e {
+        spsr::Error::InvalidParameter {
+            field, expected, ..
+        } => {
+            assert_eq!(field, "threshold");
+            assert!(expected.contains("densities range from"), "{expected}");
+        }
+        e => panic!("{e:?}"),
+    }
+    assert!(!out.exists());
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+}
+
 /// With adaptive noise, the small closed pieces that noise leaves (stage 9) are removed from
 /// a mesh written as the slabs come, as from the mesh in memory: the same bytes, and the same
 /// warning. The cloud is a sphere with a speck of points beside it, which closes into a
