@@ -158,6 +158,23 @@ fn invalid_mesh(message: String) -> Error {
     Error::InvalidMesh(message)
 }
 
+/// The error for a mesh without area to trim.
+pub(crate) fn no_area() -> Error {
+    invalid_mesh("the mesh has no surface area (degenerate or non-finite triangles)".into())
+}
+
+/// The error for a threshold that removes the whole mesh, whose densities span `range`.
+pub(crate) fn keeps_nothing(threshold: f32, range: (f32, f32)) -> Error {
+    let (lo, hi) = range;
+    Error::invalid(
+        "threshold",
+        format!("{threshold}, which removes the whole mesh"),
+        format!(
+            "a value that keeps some of the mesh (its densities range from {lo} to {hi}), or auto"
+        ),
+    )
+}
+
 /// Checks the mesh can be trimmed and returns its densities.
 fn check_mesh(mesh: &Mesh) -> Result<&[f32]> {
     let density = mesh.density.as_deref().ok_or(Error::MissingDensity)?;
@@ -322,9 +339,7 @@ pub fn auto_threshold(mesh: &Mesh) -> Result<AutoThreshold> {
     let density = check_mesh(mesh)?;
     let (pairs, total) = weighted_densities(mesh, density);
     if !(total > 0.0 && total.is_finite()) {
-        return Err(invalid_mesh(
-            "the mesh has no surface area (degenerate or non-finite triangles)".into(),
-        ));
+        return Err(no_area());
     }
     let median = weighted_quantile(&pairs, total, 0.5);
     let mut dev: Vec<(f64, f64)> = pairs
@@ -733,9 +748,7 @@ pub fn trim(mesh: &Mesh, params: &TrimParams) -> Result<(Mesh, TrimStats)> {
         .collect();
     let total: f64 = areas.iter().sum();
     if !(total > 0.0 && total.is_finite()) {
-        return Err(invalid_mesh(
-            "the mesh has no surface area (degenerate or non-finite triangles)".into(),
-        ));
+        return Err(no_area());
     }
     let sel = select(&cut.triangles, &cut.keep, &areas, total, params);
     let kept_area = areas
@@ -749,14 +762,7 @@ pub fn trim(mesh: &Mesh, params: &TrimParams) -> Result<(Mesh, TrimStats)> {
             .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| {
                 (lo.min(d), hi.max(d))
             });
-        return Err(Error::invalid(
-            "threshold",
-            format!("{threshold}, which removes the whole mesh"),
-            format!(
-                "a value that keeps some of the mesh (its densities range from {lo} to {hi}), \
-                 or auto"
-            ),
-        ));
+        return Err(keeps_nothing(threshold, (lo, hi)));
     }
     let out = assemble(mesh, &cut, &sel.keep, threshold);
     let stats = TrimStats {

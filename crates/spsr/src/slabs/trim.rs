@@ -43,9 +43,9 @@ use super::output::{for_each_record, pieces, put_triangle, Layout, Slab, Stored,
 use super::spill::io_err;
 use crate::pipeline::fragments::MIN_PIECE_AREA;
 use crate::trim::{
-    area, crossing, cut_triangle, find, interpolate_normal, lerp, merge_small, union,
-    AutoThreshold, Components, CutMesh, Threshold, TrimParams, TrimStats, AUTO_MAD_FACTOR,
-    AUTO_MIN_OFFSET,
+    area, crossing, cut_triangle, find, interpolate_normal, keeps_nothing, lerp, merge_small,
+    no_area, union, AutoThreshold, Components, CutMesh, Threshold, TrimParams, TrimStats,
+    AUTO_MAD_FACTOR, AUTO_MIN_OFFSET,
 };
 use crate::{Error, Result};
 
@@ -400,9 +400,7 @@ fn threshold_of(runs: &Runs, stem: &Path) -> Result<AutoThreshold> {
         true
     })?;
     if !(total > 0.0 && f64::is_finite(total)) {
-        return Err(Error::InvalidMesh(
-            "the mesh has no surface area (degenerate or non-finite triangles)".into(),
-        ));
+        return Err(no_area());
     }
     let median = runs.quantile(total, 0.5)?;
     let deviations = runs.map(stem, |d| (d - median).abs())?;
@@ -854,9 +852,7 @@ fn select_and_write(
     };
     let total = cut.total_area;
     if !(total > 0.0 && total.is_finite()) {
-        return Err(Error::InvalidMesh(
-            "the mesh has no surface area (degenerate or non-finite triangles)".into(),
-        ));
+        return Err(no_area());
     }
     let (mut merged, islands_removed, holes_filled) = merge_small(
         &mut comps,
@@ -877,15 +873,7 @@ fn select_and_write(
         })?;
     }
     if kept_area <= 0.0 {
-        let (lo, hi) = cut.densities;
-        return Err(Error::invalid(
-            "threshold",
-            format!("{threshold}, which removes the whole mesh"),
-            format!(
-                "a value that keeps some of the mesh (its densities range from {lo} to {hi}), \
-                 or auto"
-            ),
-        ));
+        return Err(keeps_nothing(threshold, cut.densities));
     }
     let written = write(stored, &Selection::Cut(cut, &kept), path, density)?;
     let stats = TrimStats {
