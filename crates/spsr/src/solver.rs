@@ -883,15 +883,37 @@ impl Laps {
 /// coarser solution, Gauss–Seidel sweeps and the prolongation of the cumulative solution.
 /// `v` is the splatted vector field per level (may be empty); each level's V is released as
 /// soon as the cascade no longer needs it.
-pub fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
-    let nlev = p.tree.levels.len();
+/// (The pipeline makes the constraints as a stage of their own and calls
+/// [`solve_constrained`]; this whole solve is the tests'.)
+#[cfg(test)]
+pub(crate) fn solve(p: &Problem, mut v: Vec<Vec<[f32; 3]>>) -> Solution {
     (p.progress)("constraints");
     let mut laps = Laps::new();
+    let tcons = constraints_releasing_v(p, &mut v);
+    laps.lap("divergence constraints".into());
+    solve_constrained(p, tcons, v, laps)
+}
+
+/// The divergence constraints of every level from the base up ([`constraints`]); the finest
+/// level's V, which nothing after them reads, is released (`v` is made one entry per level).
+pub fn constraints_releasing_v(p: &Problem, v: &mut Vec<Vec<[f32; 3]>>) -> Vec<Vec<f32>> {
+    let nlev = p.tree.levels.len();
     v.resize_with(nlev, Vec::new);
-    let tcons = constraints(p, &v, p.base_level);
+    let tcons = constraints(p, v, p.base_level);
     // The finest level's V has entered the constraints; the cascade only prolongs coarser V.
     v[nlev - 1] = Vec::new();
-    laps.lap("divergence constraints".into());
+    tcons
+}
+
+/// [`solve`] from the constraints `tcons` made by [`constraints_releasing_v`] (so that the
+/// screening clusters, which the constraints do not read, need not exist while they are
+/// made); the solve's parts are laps of `laps`.
+pub fn solve_constrained(
+    p: &Problem,
+    tcons: Vec<Vec<f32>>,
+    v: Vec<Vec<[f32; 3]>>,
+    laps: Laps,
+) -> Solution {
     if p.solver == Solver::Cascadic && p.cycles <= 1 && !p.report {
         cascade(p, tcons, v, None, false, None, laps).0
     } else {
@@ -1083,7 +1105,7 @@ pub fn constraints(p: &Problem, v: &[Vec<[f32; 3]>], lowest: u32) -> Vec<Vec<f32
         let tab = p.tables[t].as_ref().expect("tables");
         let v_t = v.get(t).unwrap_or(&empty);
         let v_finer = v.get(t + 1).unwrap_or(&empty);
-        let gf = (t < max_level).then_some(g_finer.as_slice());
+        let gf = (t < max_level && !g_finer.is_empty()).then_some(g_finer.as_slice());
         let (g, b) = divergence_constraints(p.tree, t as u32, tab, p.fem, v_t, v_finer, gf);
         g_finer = g;
         tcons[t] = b;

@@ -505,8 +505,8 @@ pub fn cluster_offsets(degree: u8) -> &'static [i64] {
 }
 
 /// Divergence constraints of level `t` (ALGORITHM.md §6), fine to coarse. Returns
-/// `(G_t, T_t)` where `G_t[i] = ∫∇B_i·V_{>d}` (V of all finer depths) and
-/// `T_t = G_t + ∫∇B_i·V_d` (adding the same depth).
+/// `(G_t, T_t)` where `G_t[i] = ∫∇B_i·V_{>d}` (V of all finer depths; empty when there is
+/// none, as at the finest level) and `T_t = G_t + ∫∇B_i·V_d` (adding the same depth).
 ///
 /// `G_t` is the restriction of `G_{t+1}` (V two or more depths finer: exact, because the
 /// conforming windows guarantee every child function that such V touches) plus the V of the
@@ -529,49 +529,54 @@ pub fn divergence_constraints(
         _ => Vec::new(),
     };
     let vbrood = BroodStencil::new([&tab.vstencil[0], &tab.vstencil[1], &tab.vstencil[2]]);
-    (0..level.len() as u32)
-        .into_par_iter()
-        .map(|n| {
-            let i = func_index(level.key(n), d);
-            if !tab.range.contains(i) {
-                return (0.0, 0.0);
-            }
-            let interior = tab.is_interior(i);
-            let mut g = pushed.get(n as usize).copied().unwrap_or(0.0);
-            if let (Some(gf), Some(next)) = (g_finer, next) {
-                g += restrict_one(tree, level, next, fem, d, n, i, gf);
-            }
-            let mut b = g;
-            if !v.is_empty() && interior {
-                b += vbrood.row(level, n, |m| v_brood(v, m));
-            } else if !v.is_empty() {
-                for w in 0..125 {
-                    let m = neighbor_in(level, n, w);
-                    if m == NONE {
-                        continue;
-                    }
-                    let vm = v[m as usize];
-                    if vm == [0.0; 3] {
-                        continue;
-                    }
-                    let vm = [f64::from(vm[0]), f64::from(vm[1]), f64::from(vm[2])];
-                    let o = [
-                        (w % 5) as i64 - 2,
-                        ((w / 5) % 5) as i64 - 2,
-                        (w / 25) as i64 - 2,
-                    ];
-                    let mx = tab.vmass.get(i[0], o[0]);
-                    let my = tab.vmass.get(i[1], o[1]);
-                    let mz = tab.vmass.get(i[2], o[2]);
-                    let dx = tab.vderiv.get(i[0], o[0]);
-                    let dy = tab.vderiv.get(i[1], o[1]);
-                    let dz = tab.vderiv.get(i[2], o[2]);
-                    b += vm[0] * dx * my * mz + vm[1] * mx * dy * mz + vm[2] * mx * my * dz;
+    let row = |n: u32| {
+        let i = func_index(level.key(n), d);
+        if !tab.range.contains(i) {
+            return (0.0, 0.0);
+        }
+        let interior = tab.is_interior(i);
+        let mut g = pushed.get(n as usize).copied().unwrap_or(0.0);
+        if let (Some(gf), Some(next)) = (g_finer, next) {
+            g += restrict_one(tree, level, next, fem, d, n, i, gf);
+        }
+        let mut b = g;
+        if !v.is_empty() && interior {
+            b += vbrood.row(level, n, |m| v_brood(v, m));
+        } else if !v.is_empty() {
+            for w in 0..125 {
+                let m = neighbor_in(level, n, w);
+                if m == NONE {
+                    continue;
                 }
+                let vm = v[m as usize];
+                if vm == [0.0; 3] {
+                    continue;
+                }
+                let vm = [f64::from(vm[0]), f64::from(vm[1]), f64::from(vm[2])];
+                let o = [
+                    (w % 5) as i64 - 2,
+                    ((w / 5) % 5) as i64 - 2,
+                    (w / 25) as i64 - 2,
+                ];
+                let mx = tab.vmass.get(i[0], o[0]);
+                let my = tab.vmass.get(i[1], o[1]);
+                let mz = tab.vmass.get(i[2], o[2]);
+                let dx = tab.vderiv.get(i[0], o[0]);
+                let dy = tab.vderiv.get(i[1], o[1]);
+                let dz = tab.vderiv.get(i[2], o[2]);
+                b += vm[0] * dx * my * mz + vm[1] * mx * dy * mz + vm[2] * mx * my * dz;
             }
-            (g, b as f32)
-        })
-        .unzip()
+        }
+        (g, b as f32)
+    };
+    let rows = (0..level.len() as u32).into_par_iter();
+    if pushed.is_empty() && g_finer.is_none_or(|g| g.is_empty()) {
+        // No finer V: `G_t` is zero, and is not stored (at the finest level it would be the
+        // largest array alive while the constraints are made).
+        (Vec::new(), rows.map(|n| row(n).1).collect())
+    } else {
+        rows.map(row).unzip()
+    }
 }
 
 /// `∫∇B_I · V_{d+1}` for every FEM function `I` of level `t` (depth `d`), pushed from each

@@ -227,8 +227,7 @@ pub fn reconstruct_and_trim(
 /// "solving". A front end shows them as `[k/N]`.
 pub fn stage_plan(params: &Params, trimming: bool) -> Vec<String> {
     let base = params.base_depth().max(1).min(params.depth);
-    let solver = ["constraints".to_string(), "solving base depth".into()]
-        .into_iter()
+    let solver = std::iter::once("solving base depth".to_string())
         .chain((base + 1..=params.depth).map(|d| format!("solving depth {d}")))
         // Each further cycle of the solver (`solver::cycles`), when there are depths above
         // the base to cycle over.
@@ -244,9 +243,15 @@ pub fn stage_plan(params: &Params, trimming: bool) -> Vec<String> {
         .chain((!params.keep_normals).then(|| ORIENTATION.to_string()))
         .chain(adaptive.then(|| NOISE.to_string()))
         .chain(
-            ["octree", "splatting", "clusters", "solving"]
-                .iter()
-                .map(|s| s.to_string()),
+            [
+                "octree",
+                "splatting",
+                "divergence constraints",
+                "clusters",
+                "solving",
+            ]
+            .iter()
+            .map(|s| s.to_string()),
         )
         .chain(solver)
         .chain(std::iter::once("iso-value".to_string()))
@@ -446,6 +451,9 @@ pub(crate) fn solve_implicit(
     };
     drop(samples);
     let fem = Basis::new(params.degree, params.boundary);
+    let constrained = run.stage("divergence constraints", || {
+        solve::constraints(&tree, fem, field.v, params)
+    });
     let channels = attribute_types.len();
     let screening = run.stage("clusters", || {
         system::screening(
@@ -463,8 +471,8 @@ pub(crate) fn solve_implicit(
         solve::solve(
             &tree,
             fem,
+            constrained,
             &clusters,
-            field.v,
             params,
             gpu.as_ref(),
             run.progress,

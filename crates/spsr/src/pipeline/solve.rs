@@ -1,49 +1,91 @@
-//! Stage 6 (ALGORITHM.md §6, §7): the system's tables per depth and the cascadic
-//! coarse-to-fine solve for the coefficients of χ.
+//! Stage 6 (ALGORITHM.md §6, §7): the system's tables per depth, the divergence constraints,
+//! and the cascadic coarse-to-fine solve for the coefficients of χ.
+//!
+//! The constraints are made before the screening clusters are built, and the clusters after
+//! them: the constraints read V at every depth, and so are the run's peak of memory without
+//! the clusters alive beside them (issue 20).
 
 use rayon::prelude::*;
 
 use crate::bspline::{Basis, Boundary, Degree};
 use crate::gpu::Device;
 use crate::octree::{Octree, DEPTH_OFFSET};
-use crate::solver::{self, Problem, Solution};
+use crate::solver::{self, Laps, Problem, Solution};
 use crate::system::{Clusters, DepthTables};
 use crate::Params;
 
-/// Solves for χ's coefficients (stage 6). V is consumed level by level as the cascade passes.
-pub fn solve(
+/// The divergence constraints of every solved depth, the tables they and the solve use, and
+/// the V the solve still reads (all but the finest depth's).
+pub struct Constrained {
+    tables: Vec<Option<DepthTables>>,
+    tcons: Vec<Vec<f32>>,
+    v: Vec<Vec<[f32; 3]>>,
+}
+
+/// The divergence constraints (stage 6) from V per level; the finest depth's V, which the
+/// solve does not read, is released.
+pub fn constraints(
     tree: &Octree,
     fem: Basis,
-    clusters: &[Clusters],
-    v: Vec<Vec<[f32; 3]>>,
+    mut v: Vec<Vec<[f32; 3]>>,
     params: &Params,
-    gpu: Option<&Device>,
-    progress: &(dyn Fn(&str) + Sync),
-) -> Solution {
-    let base = params.base_depth().max(1).min(params.depth);
-    let tb = base + DEPTH_OFFSET;
+) -> Constrained {
+    let tb = base_level(params);
     // V lives in the degree-2 basis of the derivatives' boundary type (§3.6).
     let vb = Basis::new(Degree::Quadratic, params.boundary.derivative());
     let tables: Vec<Option<DepthTables>> = (0..tree.levels.len())
         .into_par_iter()
         .map(|t| (t as u32 >= tb).then(|| DepthTables::new(fem, vb, t as u32 - DEPTH_OFFSET)))
         .collect();
-    let singular = params.alpha() == 0.0 && params.boundary != Boundary::Dirichlet;
-    solver::solve(
-        &Problem {
-            tree,
-            fem,
-            tables: &tables,
-            clusters,
-            base_level: tb,
-            iters: params.iters(),
-            singular,
-            solver: params.solver,
-            cycles: params.cycles(),
-            report: params.report_residuals,
-            progress,
-            gpu,
-        },
-        v,
-    )
+    let tcons = solver::constraints_releasing_v(
+        &problem(tree, fem, &tables, &[], params, None, &|_| {}),
+        &mut v,
+    );
+    Constrained { tables, tcons, v }
+}
+
+/// Solves for χ's coefficients from the constraints (stage 6). V is consumed level by level
+/// as the cascade passes.
+pub fn solve(
+    tree: &Octree,
+    fem: Basis,
+    constrained: Constrained,
+    clusters: &[Clusters],
+    params: &Params,
+    gpu: Option<&Device>,
+    progress: &(dyn Fn(&str) + Sync),
+) -> Solution {
+    let Constrained { tables, tcons, v } = constrained;
+    let p = problem(tree, fem, &tables, clusters, params, gpu, progress);
+    solver::solve_constrained(&p, tcons, v, Laps::new())
+}
+
+/// The level of the base depth's complete solve.
+fn base_level(params: &Params) -> u32 {
+    params.base_depth().max(1).min(params.depth) + DEPTH_OFFSET
+}
+
+fn problem<'a>(
+    tree: &'a Octree,
+    fem: Basis,
+    tables: &'a [Option<DepthTables>],
+    clusters: &'a [Clusters],
+    params: &Params,
+    gpu: Option<&'a Device>,
+    progress: &'a (dyn Fn(&str) + Sync),
+) -> Problem<'a> {
+    Problem {
+        tree,
+        fem,
+        tables,
+        clusters,
+        base_level: base_level(params),
+        iters: params.iters(),
+        singular: params.alpha() == 0.0 && params.boundary != Boundary::Dirichlet,
+        solver: params.solver,
+        cycles: params.cycles(),
+        report: params.report_residuals,
+        progress,
+        gpu,
+    }
 }
