@@ -11,8 +11,8 @@
 //!   sample of [`SPACING_SAMPLES`] points to their nearest other point (a k-d tree over all
 //!   usable points); the depth is `ceil(log2(cube / s))`: the shallowest whose finest cells
 //!   are no wider than the spacing, which the Chamfer sweep of `bench/depth-auto` places
-//!   within one depth of the most accurate one on 11 of the 15 shared sets (the misses go
-//!   both ways: `docs/design.md`). It is then lowered until
+//!   within one depth of the most accurate one on 11 of the 16 shared sets, and within one
+//!   of a depth within 2 % of it on 14 (the misses: `docs/design.md`). It is then lowered until
 //!   the memory model of `tree.rs` fits the limit, with the octree's nodes predicted from the
 //!   cells the points occupy at each depth.
 //!
