@@ -16,7 +16,8 @@ use crate::octree::{
 };
 use crate::shared_slice::SharedSlice;
 use crate::system::{
-    cluster_offsets, divergence_constraints, prolong, BroodStencil, Clusters, DepthTables,
+    cluster_offsets, divergence_constraints, prolong, prolong_in_place, BroodStencil, Clusters,
+    DepthTables, Prolongation,
 };
 use crate::Solver;
 
@@ -1269,10 +1270,12 @@ fn coarse_cluster_values(op: &Op, fem: Basis, pc: &[f64]) -> Vec<f64> {
 /// plus the level's own coefficients `x`. Carried in double precision.
 fn prolong_solution(op: &Op, pc: &[f64], x: &[f32]) -> Vec<f64> {
     prolong::<1, f64>(
-        op.tree,
-        op.t,
-        &op.tab.prolong,
-        op.tab.range,
+        Prolongation {
+            tree: op.tree,
+            t: op.t,
+            weights: &op.tab.prolong,
+            range: op.tab.range,
+        },
         |q| [pc[q as usize]],
         |n| [f64::from(x[n])],
         |c| c[0],
@@ -1280,13 +1283,26 @@ fn prolong_solution(op: &Op, pc: &[f64], x: &[f32]) -> Vec<f64> {
 }
 
 /// The cumulative V of level `op.t`: the coarser cumulative V `vc` prolonged, plus the
-/// level's own V `vt` (may be empty).
-fn prolong_field(op: &Op, vc: &[[f32; 3]], vt: Vec<[f32; 3]>) -> Vec<[f32; 3]> {
+/// level's own V `vt` (may be empty; when not, the sums are written over it).
+fn prolong_field(op: &Op, vc: &[[f32; 3]], mut vt: Vec<[f32; 3]>) -> Vec<[f32; 3]> {
+    let at = Prolongation {
+        tree: op.tree,
+        t: op.t,
+        weights: &op.tab.vprolong,
+        range: op.tab.vrange,
+    };
+    if vt.len() == op.level.len() {
+        prolong_in_place::<3, [f32; 3]>(
+            at,
+            |q| vc[q as usize].map(f64::from),
+            &mut vt,
+            |v| v.map(f64::from),
+            |c| c.map(|x| x as f32),
+        );
+        return vt;
+    }
     prolong::<3, [f32; 3]>(
-        op.tree,
-        op.t,
-        &op.tab.vprolong,
-        op.tab.vrange,
+        at,
         |q| vc[q as usize].map(f64::from),
         |n| vt.get(n).map_or([0.0; 3], |v| v.map(f64::from)),
         |c| c.map(|x| x as f32),

@@ -711,60 +711,102 @@ pub(crate) fn restrict_one(
     s
 }
 
+/// Where a prolongation runs: level `t` of `tree`, with the two-scale `weights`, for the
+/// functions in `range`.
+#[derive(Clone, Copy)]
+pub struct Prolongation<'a> {
+    /// The tree.
+    pub tree: &'a Octree,
+    /// The finer level, prolonged to.
+    pub t: u32,
+    /// The two-scale weights.
+    pub weights: &'a Prolong,
+    /// The functions that have coefficients.
+    pub range: Range,
+}
+
 /// Prolongs per-node coefficients `coarse` of level `t − 1` to level `t` (pull form),
 /// for functions in `range`; `add` (same level) is added on top, and `store` converts each
 /// sum (computed in double precision) to the stored type.
 pub fn prolong<const K: usize, T: Send>(
-    tree: &Octree,
-    t: u32,
-    weights: &Prolong,
-    range: Range,
+    at: Prolongation,
     coarse: impl Fn(u32) -> [f64; K] + Sync,
     add: impl Fn(usize) -> [f64; K] + Sync,
     store: impl Fn([f64; K]) -> T + Sync,
 ) -> Vec<T> {
+    (0..at.tree.levels[at.t as usize].len() as u32)
+        .into_par_iter()
+        .map(|n| store(prolong_one(at, &coarse, n, || add(n as usize))))
+        .collect()
+}
+
+/// [`prolong`] with `add` read from and the result written to `out`, in place (one entry
+/// per node of level `t`): the same sums, without a second array of the level alive.
+pub fn prolong_in_place<const K: usize, T: Send>(
+    at: Prolongation,
+    coarse: impl Fn(u32) -> [f64; K] + Sync,
+    out: &mut [T],
+    add: impl Fn(&T) -> [f64; K] + Sync,
+    store: impl Fn([f64; K]) -> T + Sync,
+) {
+    debug_assert_eq!(out.len(), at.tree.levels[at.t as usize].len());
+    out.par_iter_mut().enumerate().for_each(|(n, o)| {
+        *o = store(prolong_one(at, &coarse, n as u32, || add(o)));
+    });
+}
+
+/// Node `n`'s prolonged sum: `add()` plus the coarse coefficients of its parent window,
+/// weighted; zero outside `range`.
+#[inline]
+fn prolong_one<const K: usize>(
+    at: Prolongation,
+    coarse: &impl Fn(u32) -> [f64; K],
+    n: u32,
+    add: impl FnOnce() -> [f64; K],
+) -> [f64; K] {
+    let Prolongation {
+        tree,
+        t,
+        weights,
+        range,
+    } = at;
     let d = t - DEPTH_OFFSET;
     let level = &tree.levels[t as usize];
     let parent_level = &tree.levels[t as usize - 1];
-    (0..level.len() as u32)
-        .into_par_iter()
-        .map(|n| {
-            let j = func_index(level.key(n), d);
-            if !range.contains(j) {
-                return store([0.0; K]);
+    let j = func_index(level.key(n), d);
+    if !range.contains(j) {
+        return [0.0; K];
+    }
+    let mut acc = add();
+    let p = level.brood_parent[(n >> 3) as usize];
+    for oz in -1..=1i64 {
+        let wz = weights.get(j[2], oz);
+        if wz == 0.0 {
+            continue;
+        }
+        for oy in -1..=1i64 {
+            let wy = weights.get(j[1], oy);
+            if wy == 0.0 {
+                continue;
             }
-            let mut acc = add(n as usize);
-            let p = level.brood_parent[(n >> 3) as usize];
-            for oz in -1..=1i64 {
-                let wz = weights.get(j[2], oz);
-                if wz == 0.0 {
+            for ox in -1..=1i64 {
+                let wx = weights.get(j[0], ox);
+                if wx == 0.0 {
                     continue;
                 }
-                for oy in -1..=1i64 {
-                    let wy = weights.get(j[1], oy);
-                    if wy == 0.0 {
-                        continue;
-                    }
-                    for ox in -1..=1i64 {
-                        let wx = weights.get(j[0], ox);
-                        if wx == 0.0 {
-                            continue;
-                        }
-                        let q = neighbor_in(parent_level, p, window_index([ox, oy, oz]));
-                        if q == NONE {
-                            continue;
-                        }
-                        let w = wx * wy * wz;
-                        let c = coarse(q);
-                        for k in 0..K {
-                            acc[k] += w * c[k];
-                        }
-                    }
+                let q = neighbor_in(parent_level, p, window_index([ox, oy, oz]));
+                if q == NONE {
+                    continue;
+                }
+                let w = wx * wy * wz;
+                let c = coarse(q);
+                for k in 0..K {
+                    acc[k] += w * c[k];
                 }
             }
-            store(acc)
-        })
-        .collect()
+        }
+    }
+    acc
 }
 
 #[cfg(test)]

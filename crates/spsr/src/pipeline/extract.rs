@@ -53,7 +53,7 @@ pub(crate) fn extract(
             (blocks.assemble()?, None)
         }
     };
-    if params.density {
+    if let (true, Some(density)) = (params.density, &density) {
         mesh.density = Some(
             mesh.vertices
                 .par_iter()

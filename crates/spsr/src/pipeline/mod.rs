@@ -124,8 +124,8 @@ pub struct Implicit {
     pub solution: Solution,
     /// The finite elements.
     pub fem: Basis,
-    /// The sampling density (for the per-vertex density).
-    pub density: Density,
+    /// The sampling density, for the per-vertex density (`None` unless `params.density`).
+    pub density: Option<Density>,
     /// The iso-value γ.
     pub iso: f64,
     /// The unit cube in the input's frame.
@@ -436,11 +436,14 @@ pub(crate) fn solve_implicit(
         depths,
     } = sampled;
     drop(depths);
+    // Only the per-vertex density reads the density after the splatting.
+    let density = params.density.then_some(density);
     let tree::Refined {
         tree,
         memory_estimate,
-        ..
+        splats,
     } = refined;
+    drop(splats);
     // From here on only the samples' positions and weights are needed, and a few normals to
     // check χ against (stage 9).
     let probe = NormalProbe::take(&samples);
