@@ -999,9 +999,15 @@ pub fn cascade(
         (p.progress)(&format!("solving depth {dd}"));
         let op = Op::new(p, t as u32);
         let u_t = u.get_mut(t).map(std::mem::take).unwrap_or_default();
-        let r = right_hand_side(&op, p.fem, &tcons[t], &p_prev, &vc, &u_t);
+        let r = right_hand_side(
+            &op,
+            p.fem,
+            std::mem::take(&mut tcons[t]),
+            &p_prev,
+            &vc,
+            &u_t,
+        );
         drop(u_t);
-        tcons[t] = Vec::new();
         let carry_on = t < max_level || keep_last;
         if !carry_on {
             // The coarser V has entered the right-hand side for the last time.
@@ -1071,7 +1077,14 @@ pub fn relax_down(
     }
     let mut u: Vec<f64> = Vec::new();
     for t in (first..=max).rev() {
-        let r = right_hand_side(op(t), p.fem, &tcons[t], &pcum[t - 1], &vcum[t - 1], &u);
+        let r = right_hand_side(
+            op(t),
+            p.fem,
+            tcons[t].clone(),
+            &pcum[t - 1],
+            &vcum[t - 1],
+            &u,
+        );
         op(t).gauss_seidel(&r, &mut x[t], p.iters);
         if t > first {
             u = cycles::coupling_below_of(p, op(t), &x[t], &u);
@@ -1217,11 +1230,11 @@ fn remove_mean(b: &mut [f64], valid: &[bool]) {
 /// constraints `tcons`, plus the coarser V (`vc`, cumulative, on the parent level), minus
 /// what the coarser solution (`pc`, cumulative, on the parent level) already meets, plus the
 /// screening targets `Σ_c ω_c B_i(p_c) (τ − χ_{<d}(p_c))`, minus the finer levels' gradient
-/// coupling `u` (empty for none: the cascade's first pass).
+/// coupling `u` (empty for none: the cascade's first pass). Written over `tcons`.
 fn right_hand_side(
     op: &Op,
     fem: Basis,
-    tcons: &[f32],
+    mut tcons: Vec<f32>,
     pc: &[f64],
     vc: &[[f32; 3]],
     u: &[f64],
@@ -1229,28 +1242,28 @@ fn right_hand_side(
     let coarse_chi = coarse_cluster_values(op, fem, pc);
     #[cfg(feature = "gpu")]
     if u.is_empty() {
-        if let Some((r, _)) = op.first_right_hand_sides_gpu(tcons, pc, vc, &coarse_chi, false) {
+        if let Some((r, _)) = op.first_right_hand_sides_gpu(&tcons, pc, vc, &coarse_chi, false) {
             return r;
         }
     }
-    (0..op.level.len() as u32)
-        .into_par_iter()
-        .map(|n| {
-            let i = op.index(n);
-            if !op.tab.range.contains(i) {
-                return 0.0;
-            }
-            let mut s =
-                op.add_coarse_coupling::<true, true>(f64::from(tcons[n as usize]), n, i, pc, vc);
-            op.for_each_cluster(n, i, |c, bv| {
-                s += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
-            });
-            if !u.is_empty() {
-                s -= u[n as usize];
-            }
-            s as f32
-        })
-        .collect()
+    // Each row reads only its own constraint: the right-hand side is written over them.
+    tcons.par_iter_mut().enumerate().for_each(|(n, row)| {
+        let n = n as u32;
+        let i = op.index(n);
+        if !op.tab.range.contains(i) {
+            *row = 0.0;
+            return;
+        }
+        let mut s = op.add_coarse_coupling::<true, true>(f64::from(*row), n, i, pc, vc);
+        op.for_each_cluster(n, i, |c, bv| {
+            s += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
+        });
+        if !u.is_empty() {
+            s -= u[n as usize];
+        }
+        *row = s as f32;
+    });
+    tcons
 }
 
 /// The coarser solution `χ_{<d}` at each cluster of the level, from the cumulative

@@ -393,6 +393,9 @@ pub(crate) fn solve_implicit(
     run: &mut Run,
 ) -> Result<(Implicit, Stats)> {
     params.validate()?;
+    // The stages build and free arrays of tens of MiB one after another: without this, glibc
+    // keeps the freed ones for reuse and the run's peak is a fifth above what it holds.
+    resources::return_large_blocks_when_freed();
     // Opened before any heavy stage, so that a GPU that cannot be used fails the run at once.
     let (gpu, gpu_warning) = open_gpu(params)?;
     let cloud = input.cloud();

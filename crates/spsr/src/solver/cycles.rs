@@ -225,8 +225,8 @@ impl<'a> Cycles<'a> {
             let dd = t as u32 - DEPTH_OFFSET;
             (p.progress)(&format!("solving depth {dd}"));
             let op = self.ops[t].as_ref().expect("operators above the base");
-            let (r, b) = right_hand_sides(op, p.fem, &tcons[t], &self.pcum[t - 1], &vc);
-            tcons[t] = Vec::new();
+            let tc = std::mem::take(&mut tcons[t]);
+            let (r, b) = right_hand_sides(op, p.fem, tc, &self.pcum[t - 1], &vc);
             if t == max && !keep_top {
                 vc = Vec::new();
             }
@@ -645,35 +645,40 @@ fn record(
 /// A level's right-hand side for the first pass, bit for bit the cascade's
 /// ([`super::right_hand_side`]), and, from the same walk over the parent windows, its fixed
 /// part: its constraints, the coarser V (`vc`, cumulative, on the parent level) and the
-/// screening targets `Σ_c ω_c B_i(p_c) τ`, which the further cycles keep.
+/// screening targets `Σ_c ω_c B_i(p_c) τ`, which the further cycles keep. The right-hand
+/// side is written over `tcons`.
 pub(super) fn right_hand_sides(
     op: &Op,
     fem: crate::bspline::Basis,
-    tcons: &[f32],
+    mut tcons: Vec<f32>,
     pc: &[f64],
     vc: &[[f32; 3]],
 ) -> (Vec<f32>, Vec<f32>) {
     let coarse_chi = coarse_cluster_values(op, fem, pc);
     #[cfg(feature = "gpu")]
-    if let Some(out) = op.first_right_hand_sides_gpu(tcons, pc, vc, &coarse_chi, true) {
+    if let Some(out) = op.first_right_hand_sides_gpu(&tcons, pc, vc, &coarse_chi, true) {
         return out;
     }
-    (0..op.level.len() as u32)
-        .into_par_iter()
-        .map(|n| {
+    let mut fixed = vec![0.0f32; tcons.len()];
+    (tcons.par_iter_mut().zip(fixed.par_iter_mut()))
+        .enumerate()
+        .for_each(|(n, (row, fixed))| {
+            let n = n as u32;
             let i = op.index(n);
             if !op.tab.range.contains(i) {
-                return (0.0, 0.0);
+                *row = 0.0;
+                return;
             }
-            let t = f64::from(tcons[n as usize]);
+            let t = f64::from(*row);
             let [mut r, mut b] = op.coarse_coupling::<true, true, true>([t, t], n, i, pc, vc);
             op.for_each_cluster(n, i, |c, bv| {
                 r += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
                 b += op.cl.omega[c as usize] * bv * TAU;
             });
-            (r as f32, b as f32)
-        })
-        .unzip()
+            *row = r as f32;
+            *fixed = b as f32;
+        });
+    (tcons, fixed)
 }
 
 /// The right-hand side a further cycle relaxes a level against: its fixed part `b`, minus the

@@ -475,11 +475,11 @@ fn the_gpu_kernels_run_on_the_cpu_give_the_solvers_bits() {
             let seed = u64::from(t);
             let (tcons, pc, vc) = right_hand_side_inputs(f, t);
             let cchi = coarse_cluster_values(&op, f.fem, &pc);
-            let (r, b) = cycles::right_hand_sides(&op, f.fem, &tcons, &pc, &vc);
+            let (r, b) = cycles::right_hand_sides(&op, f.fem, tcons.clone(), &pc, &vc);
             let (er, eb) = first_right_hand_sides(&kernels, &sys, &tcons, &pc, &vc, &cchi);
             same_bits(&r, &er, &format!("{what}, level {t}: r"));
             same_bits(&b, &eb, &format!("{what}, level {t}: b"));
-            let single = right_hand_side(&op, f.fem, &tcons, &pc, &vc, &[]);
+            let single = right_hand_side(&op, f.fem, tcons.clone(), &pc, &vc, &[]);
             same_bits(&single, &er, &format!("{what}, level {t}: the cascade's r"));
             let u = pseudo_random(op.level.len(), 19 + seed);
             for u in [Vec::new(), u] {

@@ -349,7 +349,7 @@ fn finest_right_hand_side(f: &Fixture, op: &Op) -> Vec<f32> {
     right_hand_side(
         op,
         f.fem,
-        &tcons[op.t as usize],
+        tcons[op.t as usize].clone(),
         &vec![0.0; parent_len],
         &vec![[0.0; 3]; parent_len],
         &[],
@@ -604,11 +604,13 @@ fn the_gpu_gives_the_cpus_bits() {
             let (cpu_op, gpu_op) = (Op::new(&cpu_p, t), Op::new(&gpu_p, t));
             let seed = u64::from(t);
             let (tcons, pc, vc) = right_hand_side_inputs(f, t);
-            let (r_cpu, b_cpu) = super::cycles::right_hand_sides(&cpu_op, f.fem, &tcons, &pc, &vc);
-            let (r_gpu, b_gpu) = super::cycles::right_hand_sides(&gpu_op, f.fem, &tcons, &pc, &vc);
+            let (r_cpu, b_cpu) =
+                super::cycles::right_hand_sides(&cpu_op, f.fem, tcons.clone(), &pc, &vc);
+            let (r_gpu, b_gpu) =
+                super::cycles::right_hand_sides(&gpu_op, f.fem, tcons.clone(), &pc, &vc);
             assert_eq!(bits(&r_cpu), bits(&r_gpu), "{what}, level {t}: r");
             assert_eq!(bits(&b_cpu), bits(&b_gpu), "{what}, level {t}: b");
-            let single = super::right_hand_side(&gpu_op, f.fem, &tcons, &pc, &vc, &[]);
+            let single = super::right_hand_side(&gpu_op, f.fem, tcons.clone(), &pc, &vc, &[]);
             assert_eq!(
                 bits(&r_cpu),
                 bits(&single),
