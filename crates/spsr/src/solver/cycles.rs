@@ -112,6 +112,10 @@ struct Cycles<'a> {
     pcum: Vec<Vec<f64>>,
     /// `U_t`, the finer depths' gradient coupling, of each level below the deepest.
     u: Vec<Vec<f64>>,
+    /// Whether this is the last cycle of a solve that keeps no state after it (in one piece,
+    /// no residuals reported, not W-cycles): each level's fixed part `b` is then last read
+    /// by its relaxation going up, which writes its right-hand side over it.
+    last_use: bool,
     report: Option<SolveReport>,
     /// Time spent in this cycle on each of [`PARTS`].
     parts: [std::time::Duration; PARTS.len()],
@@ -151,6 +155,7 @@ pub(super) fn solve(
             break;
         }
         c.cycle = k;
+        c.last_use = k == p.cycles && c.report.is_none() && p.solver != Solver::WCycle;
         (p.progress)(&format!("solver cycle {k}"));
         c.parts = [std::time::Duration::ZERO; PARTS.len()];
         c.cycle_from(max);
@@ -277,6 +282,9 @@ impl<'a> Cycles<'a> {
                 self.cycle_from(t - 1);
             }
         }
+        // Level t − 1 has been relaxed against the finer coupling for the last time in this
+        // cycle; the next cycle gathers it afresh.
+        self.u[t - 1] = Vec::new();
         self.relax(t, "up");
         let clock = std::time::Instant::now();
         if t < self.max {
@@ -290,18 +298,24 @@ impl<'a> Cycles<'a> {
         coupling_below_of(self.p, self.op(t), &self.x[t], u_t)
     }
 
-    /// The right-hand side level `t` is relaxed against ([`cycle_right_hand_side`]).
-    fn level_right_hand_side(&self, t: usize) -> Vec<f32> {
+    /// The right-hand side level `t` is relaxed against ([`cycle_right_hand_side`]), written
+    /// over the level's fixed part when this relaxation is its last use ([`Cycles::last_use`]).
+    fn level_right_hand_side(&mut self, t: usize, phase: &'static str) -> Vec<f32> {
+        let b = if self.last_use && phase == "up" {
+            std::mem::take(&mut self.b[t])
+        } else {
+            self.b[t].clone()
+        };
         let op = self.op(t);
         let pc = &self.pcum[t - 1];
         let coarse_chi = coarse_cluster_values(op, self.p.fem, pc);
-        cycle_right_hand_side(op, &self.b[t], pc, &coarse_chi, &self.u[t])
+        cycle_right_hand_side(op, b, pc, &coarse_chi, &self.u[t])
     }
 
     /// `iters` Gauss–Seidel sweeps on level `t` from its current solution.
     fn relax(&mut self, t: usize, phase: &'static str) {
         let clock = std::time::Instant::now();
-        let r = self.level_right_hand_side(t);
+        let r = self.level_right_hand_side(t, phase);
         self.parts[RHS] += clock.elapsed();
         let op = self.ops[t].as_ref().expect("operators above the base");
         let before = self
@@ -520,6 +534,7 @@ impl<'a> Cycles<'a> {
             x_base: Vec::new(),
             pcum: vec![Vec::new(); nlev],
             u: vec![Vec::new(); nlev],
+            last_use: false,
             report: None,
             parts: [std::time::Duration::ZERO; PARTS.len()],
             cycle: 1,
@@ -685,35 +700,36 @@ pub(super) fn right_hand_sides(
 /// coarser solution's coupling (`pc`, cumulative, on the parent level, and `coarse_chi`, the
 /// coarser solution at the level's clusters), minus the finer levels' `u` (empty for none);
 /// stored in single precision, as the cascade's. On the GPU where the problem has one.
+/// Written over `b`.
 pub(super) fn cycle_right_hand_side(
     op: &Op,
-    b: &[f32],
+    mut b: Vec<f32>,
     pc: &[f64],
     coarse_chi: &[f64],
     u: &[f64],
 ) -> Vec<f32> {
     #[cfg(feature = "gpu")]
-    if let Some(r) = op.cycle_right_hand_side_gpu(b, pc, coarse_chi, u) {
+    if let Some(r) = op.cycle_right_hand_side_gpu(&b, pc, coarse_chi, u) {
         return r;
     }
-    (0..op.level.len() as u32)
-        .into_par_iter()
-        .map(|n| {
-            let i = op.index(n);
-            if !op.tab.range.contains(i) {
-                return 0.0;
-            }
-            let mut s = f64::from(b[n as usize]);
-            s = op.add_coarse_coupling::<true, false>(s, n, i, pc, &[]);
-            op.for_each_cluster(n, i, |c, bv| {
-                s -= op.cl.omega[c as usize] * bv * coarse_chi[c as usize];
-            });
-            if !u.is_empty() {
-                s -= u[n as usize];
-            }
-            s as f32
-        })
-        .collect()
+    b.par_iter_mut().enumerate().for_each(|(n, row)| {
+        let n = n as u32;
+        let i = op.index(n);
+        if !op.tab.range.contains(i) {
+            *row = 0.0;
+            return;
+        }
+        let mut s = f64::from(*row);
+        s = op.add_coarse_coupling::<true, false>(s, n, i, pc, &[]);
+        op.for_each_cluster(n, i, |c, bv| {
+            s -= op.cl.omega[c as usize] * bv * coarse_chi[c as usize];
+        });
+        if !u.is_empty() {
+            s -= u[n as usize];
+        }
+        *row = s as f32;
+    });
+    b
 }
 
 /// `Σ_n (r_n − ((L + S) x)_n)²` over the level's functions, summed in a fixed order.

@@ -483,7 +483,7 @@ fn the_gpu_kernels_run_on_the_cpu_give_the_solvers_bits() {
             same_bits(&single, &er, &format!("{what}, level {t}: the cascade's r"));
             let u = pseudo_random(op.level.len(), 19 + seed);
             for u in [Vec::new(), u] {
-                let cpu = cycles::cycle_right_hand_side(&op, &b, &pc, &cchi, &u);
+                let cpu = cycles::cycle_right_hand_side(&op, b.clone(), &pc, &cchi, &u);
                 let emu = cycle_right_hand_side(&kernels, &sys, &b, &pc, &cchi, &u);
                 same_bits(&cpu, &emu, &format!("{what}, level {t}: a cycle's r"));
             }
