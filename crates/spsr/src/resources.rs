@@ -54,7 +54,7 @@ const LARGE_BLOCK: i32 = 4 << 20;
 /// - a slab run, whose phases each build and free their slab's tree: 1,037 MiB against
 ///   774 MiB with this (depth 11), for about a tenth more time;
 /// - a run in one piece (issue 20; 1 M points at depth 10, median of 3 alternated runs):
-///   899 against 773 MB at degree 1 and 855 against 678 MB at degree 2, for 1–2 % more time
+///   878 against 755 MiB at degree 1 and 835 against 663 MiB at degree 2, for 1–2 % more time
 ///   (the kernel hands out fresh pages).
 ///
 /// Both take the trade. Elsewhere it does nothing.
