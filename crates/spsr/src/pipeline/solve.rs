@@ -30,13 +30,7 @@ pub fn constraints(
     mut v: Vec<Vec<[f32; 3]>>,
     params: &Params,
 ) -> Constrained {
-    let tb = base_level(params);
-    // V lives in the degree-2 basis of the derivatives' boundary type (§3.6).
-    let vb = Basis::new(Degree::Quadratic, params.boundary.derivative());
-    let tables: Vec<Option<DepthTables>> = (0..tree.levels.len())
-        .into_par_iter()
-        .map(|t| (t as u32 >= tb).then(|| DepthTables::new(fem, vb, t as u32 - DEPTH_OFFSET)))
-        .collect();
+    let tables = tables(tree, fem, params);
     let tcons = solver::constraints_releasing_v(
         &problem(tree, fem, &tables, &[], params, None, &|_| {}),
         &mut v,
@@ -61,11 +55,23 @@ pub fn solve(
 }
 
 /// The level of the base depth's complete solve.
-fn base_level(params: &Params) -> u32 {
+pub(crate) fn base_level(params: &Params) -> u32 {
     params.base_depth().max(1).min(params.depth) + DEPTH_OFFSET
 }
 
-fn problem<'a>(
+/// The system's tables of every level of `tree` from the base level on.
+pub(crate) fn tables(tree: &Octree, fem: Basis, params: &Params) -> Vec<Option<DepthTables>> {
+    let tb = base_level(params);
+    // V lives in the degree-2 basis of the derivatives' boundary type (§3.6).
+    let vb = Basis::new(Degree::Quadratic, params.boundary.derivative());
+    (0..tree.levels.len())
+        .into_par_iter()
+        .map(|t| (t as u32 >= tb).then(|| DepthTables::new(fem, vb, t as u32 - DEPTH_OFFSET)))
+        .collect()
+}
+
+/// The solver's problem for `params` over the tree, its tables and its clusters.
+pub(crate) fn problem<'a>(
     tree: &'a Octree,
     fem: Basis,
     tables: &'a [Option<DepthTables>],

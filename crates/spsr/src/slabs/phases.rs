@@ -28,7 +28,7 @@ use rayon::prelude::*;
 use super::codec::{load as load_record, save, CoarseData, CoarseDensity, CoarseState, Coupling};
 use super::plan::Plan;
 use super::spill::{io_err, read_columns};
-use crate::bspline::{Basis, Degree};
+use crate::bspline::Basis;
 use crate::data::{DataField, KeyedSums};
 use crate::density::{Density, DepthAndArea, Sample};
 use crate::evaluate::Evaluator;
@@ -36,6 +36,7 @@ use crate::extract::Blocks;
 use crate::octree::{Octree, TreeRequest, DEPTH_OFFSET};
 use crate::pipeline::density::{self, Sampled};
 use crate::pipeline::prepare::Carried;
+use crate::pipeline::solve::{base_level, problem as in_core_problem, tables as level_tables};
 use crate::pipeline::{extract, noise, splat, system, tree};
 use crate::solver::{self, Carry, Laps, Problem, Solution};
 use crate::system::{
@@ -263,21 +264,16 @@ pub fn noise_depths(dir: &Path, plan: &Plan, s: usize, params: &Params) -> Resul
     Ok(histogram)
 }
 
-fn base_level(params: &Params) -> u32 {
-    params.base_depth().max(1).min(params.depth) + DEPTH_OFFSET
-}
-
 /// The per-level tables of a tree, from the base level on.
 fn tables(tree: &Octree, params: &Params) -> (Basis, Vec<Option<DepthTables>>) {
     let fem = Basis::new(params.degree, params.boundary);
-    let vb = Basis::new(Degree::Quadratic, params.boundary.derivative());
-    let tb = base_level(params);
-    let tables = (0..tree.levels.len() as u32)
-        .map(|t| (t >= tb).then(|| DepthTables::new(fem, vb, t - DEPTH_OFFSET)))
-        .collect();
-    (fem, tables)
+    (fem, level_tables(tree, fem, params))
 }
 
+/// The in-core problem ([`in_core_problem`]) as the phases solve it: one cycle at a time
+/// (cascadic cycles and V-cycles run across the slabs, [`cycle_coarse`], [`solve`];
+/// W-cycles are refused by `check_supported`), no residuals, on the CPU (`check_supported`
+/// refuses `Gpu::On`).
 fn problem<'a>(
     tree: &'a Octree,
     fem: Basis,
@@ -286,21 +282,9 @@ fn problem<'a>(
     params: &Params,
 ) -> Problem<'a> {
     Problem {
-        tree,
-        fem,
-        tables,
-        clusters,
-        base_level: base_level(params),
-        iters: params.iters(),
-        singular: params.alpha() == 0.0 && params.boundary != crate::Boundary::Dirichlet,
-        // Cascadic cycles and V-cycles, which the phases run across the slabs
-        // ([`cycle_coarse`], [`solve`]); W-cycles are refused (`check_supported`).
-        solver: params.solver,
         cycles: 1,
         report: false,
-        progress: &|_| {},
-        // Slab mode relaxes on the CPU (`check_supported` refuses `Gpu::On`).
-        gpu: None,
+        ..in_core_problem(tree, fem, tables, clusters, params, None, &|_| {})
     }
 }
 
