@@ -1119,7 +1119,7 @@ pub fn constraints(p: &Problem, v: &[Vec<[f32; 3]>], lowest: u32) -> Vec<Vec<f32
         let tab = p.tables[t].as_ref().expect("tables");
         let v_t = v.get(t).unwrap_or(&empty);
         let v_finer = v.get(t + 1).unwrap_or(&empty);
-        let gf = (t < max_level && !g_finer.is_empty()).then_some(g_finer.as_slice());
+        let gf = (t < max_level).then_some(g_finer.as_slice());
         let (g, b) = divergence_constraints(p.tree, t as u32, tab, p.fem, v_t, v_finer, gf);
         g_finer = g;
         tcons[t] = b;

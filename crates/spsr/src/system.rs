@@ -528,6 +528,8 @@ pub fn divergence_constraints(
         Some(next) if !v_finer.is_empty() => push_finer_v(level, next, d, tab, v_finer),
         _ => Vec::new(),
     };
+    // An empty `G_{t+1}` is the zero one (see the end).
+    let g_finer = g_finer.filter(|g| !g.is_empty());
     let vbrood = BroodStencil::new([&tab.vstencil[0], &tab.vstencil[1], &tab.vstencil[2]]);
     let row = |n: u32| {
         let i = func_index(level.key(n), d);
@@ -570,7 +572,7 @@ pub fn divergence_constraints(
         (g, b as f32)
     };
     let rows = (0..level.len() as u32).into_par_iter();
-    if pushed.is_empty() && g_finer.is_none_or(|g| g.is_empty()) {
+    if pushed.is_empty() && g_finer.is_none() {
         // No finer V: `G_t` is zero, and is not stored (at the finest level it would be the
         // largest array alive while the constraints are made).
         (Vec::new(), rows.map(|n| row(n).1).collect())
