@@ -28,6 +28,23 @@ pub(crate) fn encode(c: [u64; 3]) -> u64 {
     spread(c[0]) | spread(c[1]) << 1 | spread(c[2]) << 2
 }
 
+/// Gathers every third bit of `x` (bit `3i` to bit `i`): the inverse of [`spread`].
+#[inline]
+pub(crate) fn compact(x: u64) -> u64 {
+    let mut x = x & 0x1249_2492_4924_9249;
+    x = (x | x >> 2) & 0x10c3_0c30_c30c_30c3;
+    x = (x | x >> 4) & 0x100f_00f0_0f00_f00f;
+    x = (x | x >> 8) & 0x1f_0000_ff00_00ff;
+    x = (x | x >> 16) & 0x1f_0000_0000_ffff;
+    (x | x >> 32) & MAX
+}
+
+/// The point whose Morton code is `m`: the inverse of [`encode`].
+#[inline]
+pub(crate) fn decode(m: u64) -> [u64; 3] {
+    [compact(m), compact(m >> 1), compact(m >> 2)]
+}
+
 /// Morton codes of real points: each coordinate is quantised to 21 bits over the cube whose
 /// corner is the low corner of a bounding box and whose side is the box's longest extent.
 #[derive(Debug, Clone, Copy)]
@@ -117,6 +134,11 @@ mod tests {
         #[test]
         fn spread_matches_the_bit_loop(x: u64) {
             prop_assert_eq!(spread(x), naive([x, 0, 0]));
+        }
+
+        #[test]
+        fn decode_inverts_encode(x in 0..=MAX, y in 0..=MAX, z in 0..=MAX) {
+            prop_assert_eq!(decode(encode([x, y, z])), [x, y, z]);
         }
     }
 }

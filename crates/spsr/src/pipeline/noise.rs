@@ -51,6 +51,7 @@ use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
 use crate::density::{cell_of, DepthAndArea, Sample};
+use crate::morton;
 use crate::normals::estimate::{eigen_sym3, Sym3};
 
 /// A neighbourhood is flat when `√(λ_min / λ_mid)` is at most this.
@@ -206,35 +207,6 @@ fn pack(c: [i64; 3]) -> u64 {
     (c[0] as u64) | ((c[1] as u64) << 21) | ((c[2] as u64) << 42)
 }
 
-/// The moments and sample counts of the occupied cells of one depth.
-type Level = FxHashMap<u64, (Moments, f64)>;
-
-/// Sums the samples' moments into the cells of every depth `0..=top`.
-fn levels(samples: &[Sample], top: u32) -> Vec<Level> {
-    let mut out: Vec<Level> = Vec::with_capacity(top as usize + 1);
-    let mut fine = Level::default();
-    for s in samples {
-        let e = fine
-            .entry(pack(cell_of(s.pos, top)))
-            .or_insert((Moments::default(), 0.0));
-        e.0.add(&Moments::of(s));
-        e.1 += 1.0;
-    }
-    out.push(fine);
-    for _ in 0..top {
-        let mut up = Level::default();
-        for (&k, (m, n)) in out.last().expect("one level") {
-            let c = unpack(k).map(|v| v >> 1);
-            let e = up.entry(pack(c)).or_insert((Moments::default(), 0.0));
-            e.0.add(m);
-            e.1 += n;
-        }
-        out.push(up);
-    }
-    out.reverse();
-    out
-}
-
 fn unpack(k: u64) -> [i64; 3] {
     let m = (1u64 << 21) - 1;
     [
@@ -244,22 +216,210 @@ fn unpack(k: u64) -> [i64; 3] {
     ]
 }
 
-/// The patch of each occupied cell's 3×3×3 neighbourhood, where it holds enough samples.
-fn patches(level: &Level) -> FxHashMap<u64, Patch> {
-    let keys: Vec<u64> = level.keys().copied().collect();
-    keys.par_iter()
-        .filter_map(|&k| {
-            let mut m = Moments::default();
-            let mut n = 0.0;
-            for_each_neighbour(unpack(k), |q| {
-                if let Some((qm, qn)) = level.get(&pack(q)) {
-                    m.add(qm);
-                    n += qn;
+/// The occupied cells of one depth, in Morton order: each cell's code, its moments and sample
+/// count (until the patches are made), and its samples as a range of the samples sorted by
+/// their finest cell's code (a cell's samples are contiguous there at every depth).
+struct Depth {
+    codes: Vec<u64>,
+    moments: Vec<(Moments, f64)>,
+    ranges: Vec<(u32, u32)>,
+    index: FxHashMap<u64, u32>,
+    /// Each cell's children as a range of the next finer depth's cells (empty at the finest).
+    children: Vec<(u32, u32)>,
+}
+
+impl Depth {
+    /// The cells of the finest depth from the samples sorted by code, `(code, sample)`: a
+    /// cell's moments are its samples' added in the samples' order.
+    fn finest(samples: &[Sample], sorted: &[(u64, u32)]) -> Self {
+        let runs = runs(sorted.len(), |k| sorted[k].0);
+        let moments = runs
+            .par_iter()
+            .map(|&(a, b)| {
+                let mut m = Moments::default();
+                for &(_, i) in &sorted[a as usize..b as usize] {
+                    m.add(&Moments::of(&samples[i as usize]));
                 }
-            });
-            m.patch(n).map(|s| (k, s))
+                (m, f64::from(b - a))
+            })
+            .collect();
+        let codes = runs.iter().map(|&(a, _)| sorted[a as usize].0).collect();
+        Depth::new(codes, moments, runs)
+    }
+
+    /// The cells of the next coarser depth: a cell's moments are its children's added in
+    /// Morton order.
+    fn parent(&self) -> Self {
+        let runs = runs(self.codes.len(), |k| self.codes[k] >> 3);
+        let moments = runs
+            .par_iter()
+            .map(|&(a, b)| {
+                let mut m = Moments::default();
+                let mut n = 0.0;
+                for (cm, cn) in &self.moments[a as usize..b as usize] {
+                    m.add(cm);
+                    n += cn;
+                }
+                (m, n)
+            })
+            .collect();
+        let codes = runs
+            .iter()
+            .map(|&(a, _)| self.codes[a as usize] >> 3)
+            .collect();
+        let ranges = runs
+            .iter()
+            .map(|&(a, b)| (self.ranges[a as usize].0, self.ranges[b as usize - 1].1))
+            .collect();
+        let mut up = Depth::new(codes, moments, ranges);
+        up.children = runs;
+        up
+    }
+
+    fn new(codes: Vec<u64>, moments: Vec<(Moments, f64)>, ranges: Vec<(u32, u32)>) -> Self {
+        let mut index = FxHashMap::with_capacity_and_hasher(codes.len(), Default::default());
+        index.extend(codes.iter().enumerate().map(|(k, &c)| (c, k as u32)));
+        Depth {
+            codes,
+            moments,
+            ranges,
+            index,
+            children: Vec::new(),
+        }
+    }
+
+    /// The position of the cell at `c`, if occupied.
+    #[inline]
+    fn find(&self, c: [i64; 3]) -> Option<usize> {
+        let code = morton::encode(c.map(|v| v as u64));
+        self.index.get(&code).map(|&k| k as usize)
+    }
+
+    /// The cell coordinates of the cell at position `k`.
+    fn cell(&self, k: usize) -> [i64; 3] {
+        morton::decode(self.codes[k]).map(|v| v as i64)
+    }
+}
+
+/// The patch of each cell's 3×3×3 neighbourhood at depth `d`, where it holds enough samples;
+/// the depth's moments are released once read.
+///
+/// The neighbours are found parent by parent: the children of the parent's 3×3×3 neighbours
+/// (one lookup each) fill a 6×6×6 grid, which holds the neighbourhood of every child of the
+/// parent. That is a quarter of the lookups of finding each cell's 27 neighbours on its own,
+/// and the sums are the same, in the same order.
+fn patches(depths: &mut [Depth], d: usize) -> Vec<Option<Patch>> {
+    let out = if d == 0 {
+        depths[0].moments.iter().map(|(m, n)| m.patch(*n)).collect()
+    } else {
+        let (up, here) = (&depths[d - 1], &depths[d]);
+        (0..up.codes.len())
+            .into_par_iter()
+            .flat_map_iter(|p| {
+                let grid = Neighbourhood::of(up, here, p);
+                let (a, b) = up.children[p];
+                (a as usize..b as usize).map(move |k| {
+                    let mut m = Moments::default();
+                    let mut n = 0.0;
+                    grid.for_each_around(here.cell(k), |j| {
+                        let (qm, qn) = &here.moments[j];
+                        m.add(qm);
+                        n += qn;
+                    });
+                    m.patch(n)
+                })
+            })
+            .collect()
+    };
+    depths[d].moments = Vec::new();
+    out
+}
+
+/// The cells of one depth around the children of one parent cell: a 6×6×6 grid over the
+/// children of the parent's 3×3×3 neighbours, each slot a cell's position or `NO_CELL`.
+struct Neighbourhood {
+    origin: [i64; 3],
+    slots: [u32; 216],
+}
+
+const NO_CELL: u32 = u32::MAX;
+
+impl Neighbourhood {
+    /// The grid around the children of cell `p` of `up`, the cells of `here` (one depth finer).
+    fn of(up: &Depth, here: &Depth, p: usize) -> Self {
+        let pc = up.cell(p);
+        let mut grid = Neighbourhood {
+            origin: pc.map(|v| 2 * (v - 1)),
+            slots: [NO_CELL; 216],
+        };
+        for_each_neighbour(pc, |q| {
+            let Some(j) = up.find(q) else { return };
+            let (a, b) = up.children[j];
+            for k in a..b {
+                let slot = grid
+                    .slot(here.cell(k as usize))
+                    .expect("a child of a neighbour");
+                grid.slots[slot] = k;
+            }
+        });
+        grid
+    }
+
+    #[inline]
+    fn slot(&self, c: [i64; 3]) -> Option<usize> {
+        let r: [i64; 3] = std::array::from_fn(|a| c[a] - self.origin[a]);
+        r.iter()
+            .all(|v| (0..6).contains(v))
+            .then(|| (r[0] + 6 * (r[1] + 6 * r[2])) as usize)
+    }
+
+    /// Calls `f` with the position of each occupied cell of the 3×3×3 cells around `c` (a
+    /// child of the grid's parent), in [`for_each_neighbour`]'s order.
+    #[inline]
+    fn for_each_around(&self, c: [i64; 3], mut f: impl FnMut(usize)) {
+        for_each_neighbour(c, |q| {
+            let k = self.slots[self.slot(q).expect("within the grid")];
+            if k != NO_CELL {
+                f(k as usize);
+            }
+        });
+    }
+}
+
+/// The runs of equal keys among `len` sorted keys `key(k)`, as `(first, end)`.
+fn runs(len: usize, key: impl Fn(usize) -> u64) -> Vec<(u32, u32)> {
+    let mut out = Vec::new();
+    let mut start = 0;
+    for k in 1..=len {
+        if k == len || key(k) != key(start) {
+            out.push((start as u32, k as u32));
+            start = k;
+        }
+    }
+    out
+}
+
+/// The cells of every depth `0..=top` (indexed by depth) and the samples sorted by their
+/// finest cell's Morton code, `(code, sample)`.
+fn depths(samples: &[Sample], top: u32) -> (Vec<Depth>, Vec<(u64, u32)>) {
+    let mut sorted: Vec<(u64, u32)> = samples
+        .par_iter()
+        .enumerate()
+        .map(|(i, s)| {
+            (
+                morton::encode(cell_of(s.pos, top).map(|v| v as u64)),
+                i as u32,
+            )
         })
-        .collect()
+        .collect();
+    sorted.par_sort_unstable();
+    let mut out = vec![Depth::finest(samples, &sorted)];
+    for _ in 0..top {
+        let up = out.last().expect("the finest depth").parent();
+        out.push(up);
+    }
+    out.reverse();
+    (out, sorted)
 }
 
 /// Each sample's noise `σ` and the depth its plane was fitted at, `None` where no depth is
@@ -269,106 +429,90 @@ fn patches(level: &Level) -> FxHashMap<u64, Patch> {
 /// residual of the quadratic height field fitted, over the cell's plane, to the offsets of
 /// the samples in the cell's 3×3×3 neighbourhood, and counts only where the next finer
 /// neighbourhood resolved the surface (else 0; the module docs say why).
+///
+/// The cells are kept in Morton order, so that a cell's parent, its samples and (mostly) its
+/// neighbours lie close in memory, and every sum is taken in an order fixed by the samples'
+/// order and positions alone.
 pub fn measure(samples: &[Sample], top: u32) -> Measured {
-    let levels = levels(samples, top);
-    let flat: Vec<FxHashMap<u64, Patch>> = levels.iter().map(patches).collect();
-    drop(levels);
+    let (mut depths, sorted) = depths(samples, top);
+    let flat: Vec<Vec<Option<Patch>>> = (0..depths.len())
+        .rev()
+        .map(|d| patches(&mut depths, d))
+        .collect::<Vec<_>>()
+        .into_iter()
+        .rev()
+        .collect();
+    let mut code_of = vec![0u64; samples.len()];
+    for &(c, i) in &sorted {
+        code_of[i as usize] = c;
+    }
+    // The position of sample `i`'s cell at depth `d`.
+    let cell_at = |i: usize, d: u32| -> usize {
+        let code = code_of[i] >> (3 * (top - d));
+        depths[d as usize].index[&code] as usize
+    };
     // Each sample's finest flat depth and cell there.
-    let home: Vec<Option<(u32, u64)>> = samples
-        .par_iter()
-        .map(|s| {
+    let home: Vec<Option<(u32, u32)>> = (0..samples.len())
+        .into_par_iter()
+        .map(|i| {
             (1..top).rev().find_map(|d| {
-                let k = pack(cell_of(s.pos, d));
-                flat[d as usize]
-                    .get(&k)
+                let k = cell_at(i, d);
+                flat[d as usize][k]
+                    .as_ref()
                     .and_then(Patch::plane)
-                    .map(|_| (d, k))
+                    .map(|_| (d, k as u32))
             })
         })
         .collect();
     // Whether noise is what kept each sample's next finer neighbourhood from being flat:
     // it held enough samples, and was bent. Where it held too few, the surface is not
     // resolved finer than the plane's depth, and the plane's residual may be shape.
-    let resolved: Vec<bool> = samples
+    let resolved: Vec<bool> = home
         .par_iter()
-        .zip(&home)
-        .map(|(s, h)| {
+        .enumerate()
+        .map(|(i, h)| {
             h.is_some_and(|(d, _)| {
-                flat[d as usize + 1]
-                    .get(&pack(cell_of(s.pos, d + 1)))
+                flat[d as usize + 1][cell_at(i, d + 1)]
+                    .as_ref()
                     .is_some_and(|p| p.plane().is_none())
             })
         })
         .collect();
-    // The samples of every cell at the depths some sample's plane was fitted at.
-    let mut wanted: Vec<(u32, u64)> = home.iter().flatten().copied().collect();
+    // The noise of every cell some sample's plane was fitted at.
+    let mut wanted: Vec<(u32, u32)> = home.iter().flatten().copied().collect();
     wanted.par_sort_unstable();
     wanted.dedup();
-    let mut noise: FxHashMap<(u32, u64), f64> = FxHashMap::default();
-    for cells in wanted.chunk_by(|a, b| a.0 == b.0) {
-        let d = cells[0].0;
-        let index = CellIndex::new(samples, d);
-        let w = 1.0 / (1u64 << d) as f64;
-        let found: Vec<((u32, u64), f64)> = cells
-            .par_iter()
-            .filter_map(|&(d, k)| {
-                let plane = flat[d as usize][&k].plane().expect("a flat cell");
-                let mut fit = QuadricFit::default();
-                for_each_neighbour(unpack(k), |q| {
-                    for &i in index.members(pack(q)) {
-                        let p = samples[i as usize].pos;
-                        let [u, v] = plane.along(p).map(|x| x / w);
-                        fit.add(u, v, plane.offset(p) / w);
-                    }
-                });
-                fit.residual().map(|r| ((d, k), r * w))
-            })
-            .collect();
-        noise.extend(found);
-    }
-    home.iter()
+    let fitted: Vec<Option<f64>> = wanted
+        .par_iter()
+        .map(|&(d, k)| {
+            let depth = &depths[d as usize];
+            let plane = flat[d as usize][k as usize]
+                .as_ref()
+                .and_then(Patch::plane)
+                .expect("a flat cell");
+            let w = 1.0 / (1u64 << d) as f64;
+            let mut fit = QuadricFit::default();
+            for_each_neighbour(depth.cell(k as usize), |q| {
+                let Some(j) = depth.find(q) else { return };
+                let (a, b) = depth.ranges[j];
+                for &(_, i) in &sorted[a as usize..b as usize] {
+                    let p = samples[i as usize].pos;
+                    let [u, v] = plane.along(p).map(|x| x / w);
+                    fit.add(u, v, plane.offset(p) / w);
+                }
+            });
+            fit.residual().map(|r| r * w)
+        })
+        .collect();
+    home.par_iter()
         .zip(&resolved)
         .map(|(h, &resolved)| {
             let (d, k) = (*h)?;
-            let sigma = noise.get(&(d, k))?;
-            Some((if resolved { *sigma } else { 0.0 }, d))
+            let at = wanted.binary_search(&(d, k)).expect("a wanted cell");
+            let sigma = fitted[at]?;
+            Some((if resolved { sigma } else { 0.0 }, d))
         })
         .collect()
-}
-
-/// The samples of each occupied cell of one depth: their indices sorted by cell, and each
-/// cell's range of them.
-struct CellIndex {
-    order: Vec<u32>,
-    ranges: FxHashMap<u64, (usize, usize)>,
-}
-
-impl CellIndex {
-    fn new(samples: &[Sample], d: u32) -> Self {
-        let mut keyed: Vec<(u64, u32)> = samples
-            .par_iter()
-            .enumerate()
-            .map(|(i, s)| (pack(cell_of(s.pos, d)), i as u32))
-            .collect();
-        keyed.par_sort_unstable();
-        let mut ranges = FxHashMap::default();
-        let mut start = 0;
-        for run in keyed.chunk_by(|a, b| a.0 == b.0) {
-            ranges.insert(run[0].0, (start, start + run.len()));
-            start += run.len();
-        }
-        CellIndex {
-            order: keyed.into_iter().map(|(_, i)| i).collect(),
-            ranges,
-        }
-    }
-
-    /// The samples in cell `key` (none when it is empty).
-    fn members(&self, key: u64) -> &[u32] {
-        self.ranges
-            .get(&key)
-            .map_or(&[], |&(a, b)| &self.order[a..b])
-    }
 }
 
 /// Calls `f` with each of the 3×3×3 cells around `c` (itself included) inside the cube's
