@@ -274,7 +274,9 @@ fn auto_depth(
     let mut limited = (wanted > MAX_DEPTH).then_some(DepthLimit::MaxDepth);
     if let Some((limit, source)) = tree::memory_limit(params) {
         let nodes = predicted_nodes(&points.positions, valid, frame, depth, params);
-        let bytes = |d: u32| tree::estimate_bytes(nodes[..=d as usize].iter().sum(), points.len());
+        let bytes = |d: u32| {
+            tree::estimate_bytes(nodes[..=d as usize].iter().sum(), points.len(), params, d)
+        };
         while depth > 1 && bytes(depth) > limit {
             limited = Some(DepthLimit::Memory {
                 estimate: bytes(depth),

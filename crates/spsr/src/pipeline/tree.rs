@@ -107,20 +107,32 @@ fn splat_depths(ds: f64, base: u32, depth: u32, params: &Params) -> Splat {
 }
 
 // The memory model: peak resident memory ≈ BYTES_PER_NODE × octree nodes + BYTES_PER_POINT ×
-// input points + BASE_BYTES. Fitted to peak RSS measured with `/usr/bin/time -v` (2 threads)
-// and rounded up (docs/memory.md): bunny_100k
-// depth 8 and 10, sphere_200k depth 10, spot_1m depth 8 and 10 and bunny_1m depth 11 land
-// 5–46 % above it. Known gap: few points at a large depth (bunny_20k at depth 12 peaks 41 %
-// above the estimate), where the density estimator and the complete base level dominate.
+// input points + BASE_BYTES + the base level's assembled matrix. Fitted to peak RSS measured
+// with GNU time (2 threads, degrees 1 and 2, November 2026, after issue 20's memory work) and
+// rounded up (docs/memory.md): on bunny_100k at depths 8 and 10, sphere_200k at 10, spot_1m
+// at 8 and 10, bunny_1m at 10 and 11, bunny_20k and bunny_small_10k at 12, torus_200k at 11
+// and a 4 M-point bunny at 11 it lands 4–100 % above the peak, 16–40 % on the million-point
+// clouds.
 
-/// Peak memory per octree node over the whole run (solve and extraction; 55–70 bytes measured).
-const BYTES_PER_NODE: u64 = 70;
+/// Peak memory per octree node over the whole run (the tree's neighbour table, the screening
+/// clusters, the levels' solutions and right-hand sides; 35–40 bytes measured on large trees).
+const BYTES_PER_NODE: u64 = 44;
 
 /// Memory per input point (the cloud, its unit-cube copy, samples and density).
 const BYTES_PER_POINT: u64 = 80;
 
-/// The program, thread stacks, read and write buffers.
-const BASE_BYTES: u64 = 32 << 20;
+/// The program, thread stacks, read and write buffers, and what small runs hold whatever their
+/// size (the density estimator, the extraction's per-thread caches).
+const BASE_BYTES: u64 = 64 << 20;
+
+/// The base level's matrix, assembled for its conjugate gradients: the complete grid of the
+/// base depth, one row of the stiffness window's `(2·degree + 1)³` slots per node, 12 bytes a
+/// slot (49 MB at degree 2 and base depth 5), for a run of `params` at `depth`.
+fn base_matrix_bytes(params: &Params, depth: u32) -> u64 {
+    let base = params.full_depth.max(1).min(depth).min(20);
+    let width = (2 * u64::from(params.degree.get()) + 1).pow(3);
+    (1u64 << (3 * base)).saturating_mul(width * 12)
+}
 
 /// The memory of a complete tree down to `depth` (every cell of the unit cube at every depth,
 /// as the levels up to the full depth are) with the program's base: what any part of a run
@@ -130,10 +142,13 @@ pub fn full_grid_bytes(depth: u32) -> u64 {
     BYTES_PER_NODE.saturating_mul(nodes) + BASE_BYTES
 }
 
-/// The peak memory the model gives for a run with `nodes` octree nodes and `points` input
-/// points, in bytes.
-pub(crate) fn estimate_bytes(nodes: u64, points: usize) -> u64 {
-    BYTES_PER_NODE * nodes + BYTES_PER_POINT * points as u64 + BASE_BYTES
+/// The peak memory the model gives for a run of `params` at `depth` with `nodes` octree nodes
+/// and `points` input points, in bytes.
+pub(crate) fn estimate_bytes(nodes: u64, points: usize, params: &Params, depth: u32) -> u64 {
+    BYTES_PER_NODE * nodes
+        + BYTES_PER_POINT * points as u64
+        + BASE_BYTES
+        + base_matrix_bytes(params, depth)
 }
 
 /// The limit a run's memory estimate is checked against and where it comes from: the
@@ -148,20 +163,22 @@ pub(crate) fn memory_limit(params: &Params) -> Option<(u64, MemoryLimit)> {
 /// Refuses a run whose estimated peak memory exceeds the limit. The suggested depth is the
 /// deepest whose levels of this tree fit: a shallower run keeps the same coarse levels.
 fn check_memory(level_counts: &[usize], points: usize, params: &Params) -> Result<u64> {
-    let estimate_to = |levels: usize| {
-        let nodes: usize = level_counts.iter().take(levels).sum();
-        estimate_bytes(nodes as u64, points)
+    // The levels down to depth `d` (tree depth `d + DEPTH_OFFSET`).
+    let estimate_at = |d: u32| {
+        let nodes: usize = level_counts
+            .iter()
+            .take((d + DEPTH_OFFSET + 1) as usize)
+            .sum();
+        estimate_bytes(nodes as u64, points, params, d)
     };
-    let estimate = estimate_to(level_counts.len());
+    let estimate = estimate_at(params.depth);
     let Some((limit, source)) = memory_limit(params) else {
         return Ok(estimate);
     };
     if estimate <= limit {
         return Ok(estimate);
     }
-    let suggested_depth = (1..params.depth)
-        .rev()
-        .find(|&d| estimate_to((d + DEPTH_OFFSET + 1) as usize) <= limit);
+    let suggested_depth = (1..params.depth).rev().find(|&d| estimate_at(d) <= limit);
     Err(Error::ResourceLimit(MemoryShortfall {
         estimate,
         limit,

@@ -411,7 +411,7 @@ fn a_run_over_the_memory_limit_is_refused_with_a_depth_that_fits() {
     let cloud = sphere(50_000, [0.0; 3], 1.0, 9);
     let params = Params {
         depth: 9,
-        max_memory: Some(40 << 20),
+        max_memory: Some(100 << 20),
         ..Params::default()
     };
     match reconstruct(&cloud, &params) {

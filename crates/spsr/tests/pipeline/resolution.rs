@@ -101,7 +101,7 @@ fn depth_auto_stays_within_the_memory_limit_and_says_so() {
     };
     let wanted = spsr::resolve(&cloud, &free).unwrap().params.depth;
     let tight = Params {
-        max_memory: Some(40 << 20),
+        max_memory: Some(90 << 20),
         ..free
     };
     let r = spsr::resolve(&cloud, &tight).unwrap();
