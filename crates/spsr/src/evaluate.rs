@@ -49,8 +49,13 @@ impl<'a> Evaluator<'a> {
 
     /// The deepest tree key of the cell containing `p` (lower cell on ties, clamped).
     fn key(&self, p: [f64; 3]) -> [u64; 3] {
+        p.map(|x| self.key_coord(x))
+    }
+
+    /// One coordinate of [`Evaluator::key`].
+    fn key_coord(&self, x: f64) -> u64 {
         let n = 1i64 << self.max_depth();
-        std::array::from_fn(|a| (((p[a] * n as f64).floor() as i64).clamp(0, n - 1) + n) as u64)
+        (((x * n as f64).floor() as i64).clamp(0, n - 1) + n) as u64
     }
 
     /// χ(p) alone.
@@ -116,6 +121,21 @@ impl<'a> Evaluator<'a> {
         let key = c.map(|x| u64::from(x).min(n - 1) + n);
         let (t, node) = self.tree.descend_near(key, self.t_max, near);
         self.sum_in::<GRAD, _>(t, node, &|d| table.get(d, c))
+    }
+
+    /// [`Evaluator::value_grad`] at the point just below corner `c` that
+    /// [`CornerWindows::below`] describes, from the table: the same leaf (its key is the
+    /// table's) and the same windows, so the same bits as evaluating at that point.
+    fn below_sum(
+        &self,
+        c: [u32; 3],
+        table: &CornerWindows,
+        below: &Below,
+        near: (u32, u32),
+    ) -> (f64, [f64; 3]) {
+        let key = c.map(|x| below.key[x as usize]);
+        let (t, node) = self.tree.descend_near(key, self.t_max, near);
+        self.sum_in::<true, _>(t, node, &|d| table.below_windows(below, d, c))
     }
 
     fn windows(&self, d: u32, p: [f64; 3]) -> [Window; 3] {
@@ -254,6 +274,18 @@ pub struct CornerWindows {
     side: usize,
     /// Window of depth `d` at coordinate `c`, at `d · side + c`.
     windows: Vec<Window>,
+    /// The same just below each coordinate, for degree 1 (see [`CornerField::corner`]).
+    below: Option<Below>,
+}
+
+/// The points just below the corner coordinates, where [`CornerField::corner`] takes the
+/// other one-sided derivative for degree 1: per coordinate, the tree key coordinate of the
+/// cell holding the point and the windows there (laid out as [`CornerWindows::windows`]).
+/// Evaluating there was a sixth of extraction, most of it locating and evaluating the
+/// B-splines, which depend on one coordinate each.
+struct Below {
+    key: Vec<u64>,
+    windows: Vec<Window>,
 }
 
 /// Deepest corner grid given a window table (beyond it the table would outgrow the caches it
@@ -272,7 +304,20 @@ impl CornerWindows {
         let windows = (0..=dm)
             .flat_map(|d| (0..side).map(move |c| eval.fem.window(d, c as f64 * s)))
             .collect();
-        Some(Self { side, windows })
+        let below = (eval.degree() == 1).then(|| {
+            let q: Vec<f64> = (0..side as u32).map(|c| below_coord(c, dm)).collect();
+            Below {
+                key: q.iter().map(|&x| eval.key_coord(x)).collect(),
+                windows: (0..=dm)
+                    .flat_map(|d| q.iter().map(move |&x| eval.fem.window(d, x)))
+                    .collect(),
+            }
+        });
+        Some(Self {
+            side,
+            windows,
+            below,
+        })
     }
 
     #[inline]
@@ -280,6 +325,22 @@ impl CornerWindows {
         let row = &self.windows[d as usize * self.side..][..self.side];
         c.map(|x| &row[x as usize])
     }
+
+    /// [`CornerWindows::get`] just below the corner.
+    #[inline]
+    fn below_windows<'b>(&self, below: &'b Below, d: u32, c: [u32; 3]) -> [&'b Window; 3] {
+        let row = &below.windows[d as usize * self.side..][..self.side];
+        c.map(|x| &row[x as usize])
+    }
+}
+
+/// The coordinate just below corner coordinate `c` of the grid of unit depth `depth`, clamped
+/// at the cube's lower face (see [`CornerField::corner`]).
+#[inline]
+fn below_coord(c: u32, depth: u32) -> f64 {
+    let s = 1.0 / (1u64 << depth) as f64;
+    let eps = s * 1e-6;
+    (f64::from(c) * s - eps).max(0.0)
 }
 
 /// χ sampled at corners of the finest grid, for extraction.
@@ -335,15 +396,17 @@ impl Field<(u32, u32)> for CornerField<'_> {
         }
         // Just below the corner on every axis (clamped at the cube's lower faces), where the
         // evaluation uses the cells on the other side.
-        let s = 1.0 / (1u64 << self.depth) as f64;
-        let p = self.point(c);
-        let eps = s * 1e-6;
-        let q = [
-            (p[0] - eps).max(0.0),
-            (p[1] - eps).max(0.0),
-            (p[2] - eps).max(0.0),
-        ];
-        let (_, gl) = self.eval.sum_near::<true>(q, near);
+        let gl = match &self.table {
+            Some(
+                table @ CornerWindows {
+                    below: Some(below), ..
+                },
+            ) => self.eval.below_sum(c, table, below, near).1,
+            _ => {
+                let q = c.map(|x| below_coord(x, self.depth));
+                self.eval.sum_near::<true>(q, near).1
+            }
+        };
         (
             v,
             [
