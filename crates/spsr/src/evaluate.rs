@@ -5,6 +5,8 @@
 //! the depth-`d+1` coefficients of the children of `t`'s neighbours. Deeper functions cannot
 //! reach a leaf's closure because the tree is conforming.
 
+use std::borrow::Borrow;
+
 use crate::bspline::{Basis, Window};
 use crate::extract::Field;
 use crate::octree::{func_index, neighbor_in, window_index, Octree, DEPTH_OFFSET, NONE};
@@ -47,8 +49,13 @@ impl<'a> Evaluator<'a> {
 
     /// The deepest tree key of the cell containing `p` (lower cell on ties, clamped).
     fn key(&self, p: [f64; 3]) -> [u64; 3] {
+        p.map(|x| self.key_coord(x))
+    }
+
+    /// One coordinate of [`Evaluator::key`].
+    fn key_coord(&self, x: f64) -> u64 {
         let n = 1i64 << self.max_depth();
-        std::array::from_fn(|a| (((p[a] * n as f64).floor() as i64).clamp(0, n - 1) + n) as u64)
+        (((x * n as f64).floor() as i64).clamp(0, n - 1) + n) as u64
     }
 
     /// χ(p) alone.
@@ -63,37 +70,38 @@ impl<'a> Evaluator<'a> {
 
     fn sum<const GRAD: bool>(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
         let (t, n) = self.leaf(p);
-        self.sum_in::<GRAD>(t, n, &|d| self.windows(d, p))
+        self.sum_in::<GRAD, _>(t, n, &|d| self.windows(d, p))
     }
 
     /// [`Evaluator::sum`] at a point on or near the closure of leaf `near` (same bits: the
     /// leaf containing `p` is found from `near` instead of from the root).
     fn sum_near<const GRAD: bool>(&self, p: [f64; 3], near: (u32, u32)) -> (f64, [f64; 3]) {
         let (t, n) = self.tree.descend_near(self.key(p), self.t_max, near);
-        self.sum_in::<GRAD>(t, n, &|d| self.windows(d, p))
+        self.sum_in::<GRAD, _>(t, n, &|d| self.windows(d, p))
     }
 
     /// χ (and ∇χ) at a point of leaf `(t, n)` whose per-axis windows at unit depth `d` are
     /// `win(d)`. The windows are asked for only when a level has coefficients, and the terms
     /// are summed in one fixed order, so any `win` that returns the same windows gives the
-    /// same bits.
-    fn sum_in<const GRAD: bool>(
+    /// same bits. `win` may hand out references (a table's windows): copying three windows
+    /// per level was a tenth of extraction's time.
+    fn sum_in<const GRAD: bool, W: Borrow<Window>>(
         &self,
         t: u32,
         n: u32,
-        win: &impl Fn(u32) -> [Window; 3],
+        win: &impl Fn(u32) -> [W; 3],
     ) -> (f64, [f64; 3]) {
         let mut acc = (0.0, [0.0; 3]);
         let base = self.sol.base_level;
         if t > base {
             let par = self.tree.parent(t, n);
-            self.window_sum::<GRAD>(t - 1, par, win, &self.sol.p[t as usize - 1], &mut acc);
+            self.window_sum::<GRAD, _>(t - 1, par, win, &self.sol.p[t as usize - 1], &mut acc);
         }
         if t >= base {
-            self.window_sum::<GRAD>(t, n, win, &self.sol.x[t as usize], &mut acc);
+            self.window_sum::<GRAD, _>(t, n, win, &self.sol.x[t as usize], &mut acc);
         }
         if t < self.t_max && t >= base {
-            self.finer_sum::<GRAD>(t, n, win, &mut acc);
+            self.finer_sum::<GRAD, _>(t, n, win, &mut acc);
         }
         acc
     }
@@ -112,7 +120,22 @@ impl<'a> Evaluator<'a> {
         let n = 1u64 << self.max_depth();
         let key = c.map(|x| u64::from(x).min(n - 1) + n);
         let (t, node) = self.tree.descend_near(key, self.t_max, near);
-        self.sum_in::<GRAD>(t, node, &|d| table.get(d, c))
+        self.sum_in::<GRAD, _>(t, node, &|d| table.get(d, c))
+    }
+
+    /// [`Evaluator::value_grad`] at the point just below corner `c` that
+    /// [`CornerWindows::below`] describes, from the table: the same leaf (its key is the
+    /// table's) and the same windows, so the same bits as evaluating at that point.
+    fn below_sum(
+        &self,
+        c: [u32; 3],
+        table: &CornerWindows,
+        below: &Below,
+        near: (u32, u32),
+    ) -> (f64, [f64; 3]) {
+        let key = c.map(|x| below.key[x as usize]);
+        let (t, node) = self.tree.descend_near(key, self.t_max, near);
+        self.sum_in::<true, _>(t, node, &|d| table.below_windows(below, d, c))
     }
 
     fn windows(&self, d: u32, p: [f64; 3]) -> [Window; 3] {
@@ -123,11 +146,11 @@ impl<'a> Evaluator<'a> {
         ]
     }
 
-    fn window_sum<const GRAD: bool>(
+    fn window_sum<const GRAD: bool, W: Borrow<Window>>(
         &self,
         t: u32,
         node: u32,
-        win: &impl Fn(u32) -> [Window; 3],
+        win: &impl Fn(u32) -> [W; 3],
         coeff: &[f32],
         acc: &mut (f64, [f64; 3]),
     ) {
@@ -138,6 +161,7 @@ impl<'a> Evaluator<'a> {
         let level = &self.tree.levels[t as usize];
         let own = func_index(level.key(node), d);
         let w = win(d);
+        let w = w.each_ref().map(|w| w.borrow());
         let k = i64::from(self.fem.degree.get());
         let [rx, ry, rz] = w.each_ref().map(|w| live::<GRAD>(w, k));
         for z in rz.clone() {
@@ -158,11 +182,11 @@ impl<'a> Evaluator<'a> {
         }
     }
 
-    fn finer_sum<const GRAD: bool>(
+    fn finer_sum<const GRAD: bool, W: Borrow<Window>>(
         &self,
         t: u32,
         node: u32,
-        win: &impl Fn(u32) -> [Window; 3],
+        win: &impl Fn(u32) -> [W; 3],
         acc: &mut (f64, [f64; 3]),
     ) {
         let coeff = &self.sol.x[t as usize + 1];
@@ -173,6 +197,7 @@ impl<'a> Evaluator<'a> {
         let level = &self.tree.levels[t as usize];
         let own = func_index(level.key(node), d);
         let w = win(d + 1);
+        let w = w.each_ref().map(|w| w.borrow());
         let k = i64::from(self.fem.degree.get());
         let [rx, ry, rz] = w.each_ref().map(|w| live::<GRAD>(w, k));
         for z in rz.clone() {
@@ -210,22 +235,23 @@ impl<'a> Evaluator<'a> {
 /// there, two of the three degree-2 ones); all of them for a gradient. The values are 0 only
 /// at the ends of the window, and skipping a term whose weight is 0 leaves the sum bit for bit
 /// as it was, since adding a zero changes no non-zero sum.
+/// Half-open, as an inclusive range's iterator costs a branch more per step.
 #[inline]
-fn live<const GRAD: bool>(w: &Window, k: i64) -> std::ops::RangeInclusive<i64> {
+fn live<const GRAD: bool>(w: &Window, k: i64) -> std::ops::Range<i64> {
     if GRAD {
-        return 0..=k;
+        return 0..k + 1;
     }
     let lo = i64::from(w.values[0] == 0.0);
-    let hi = if w.values[k as usize] == 0.0 {
-        k - 1
-    } else {
+    let end = if w.values[k as usize] == 0.0 {
         k
+    } else {
+        k + 1
     };
-    lo..=hi
+    lo..end
 }
 
 #[inline]
-fn accumulate<const GRAD: bool>(w: &[Window; 3], k: [i64; 3], c: f64, acc: &mut (f64, [f64; 3])) {
+fn accumulate<const GRAD: bool>(w: &[&Window; 3], k: [i64; 3], c: f64, acc: &mut (f64, [f64; 3])) {
     if c == 0.0 {
         return;
     }
@@ -248,6 +274,18 @@ pub struct CornerWindows {
     side: usize,
     /// Window of depth `d` at coordinate `c`, at `d · side + c`.
     windows: Vec<Window>,
+    /// The same just below each coordinate, for degree 1 (see [`CornerField::corner`]).
+    below: Option<Below>,
+}
+
+/// The points just below the corner coordinates, where [`CornerField::corner`] takes the
+/// other one-sided derivative for degree 1: per coordinate, the tree key coordinate of the
+/// cell holding the point and the windows there (laid out as [`CornerWindows::windows`]).
+/// Evaluating there was a sixth of extraction, most of it locating and evaluating the
+/// B-splines, which depend on one coordinate each.
+struct Below {
+    key: Vec<u64>,
+    windows: Vec<Window>,
 }
 
 /// Deepest corner grid given a window table (beyond it the table would outgrow the caches it
@@ -266,14 +304,43 @@ impl CornerWindows {
         let windows = (0..=dm)
             .flat_map(|d| (0..side).map(move |c| eval.fem.window(d, c as f64 * s)))
             .collect();
-        Some(Self { side, windows })
+        let below = (eval.degree() == 1).then(|| {
+            let q: Vec<f64> = (0..side as u32).map(|c| below_coord(c, dm)).collect();
+            Below {
+                key: q.iter().map(|&x| eval.key_coord(x)).collect(),
+                windows: (0..=dm)
+                    .flat_map(|d| q.iter().map(move |&x| eval.fem.window(d, x)))
+                    .collect(),
+            }
+        });
+        Some(Self {
+            side,
+            windows,
+            below,
+        })
     }
 
     #[inline]
-    fn get(&self, d: u32, c: [u32; 3]) -> [Window; 3] {
+    fn get(&self, d: u32, c: [u32; 3]) -> [&Window; 3] {
         let row = &self.windows[d as usize * self.side..][..self.side];
-        c.map(|x| row[x as usize])
+        c.map(|x| &row[x as usize])
     }
+
+    /// [`CornerWindows::get`] just below the corner.
+    #[inline]
+    fn below_windows<'b>(&self, below: &'b Below, d: u32, c: [u32; 3]) -> [&'b Window; 3] {
+        let row = &below.windows[d as usize * self.side..][..self.side];
+        c.map(|x| &row[x as usize])
+    }
+}
+
+/// The coordinate just below corner coordinate `c` of the grid of unit depth `depth`, clamped
+/// at the cube's lower face (see [`CornerField::corner`]).
+#[inline]
+fn below_coord(c: u32, depth: u32) -> f64 {
+    let s = 1.0 / (1u64 << depth) as f64;
+    let eps = s * 1e-6;
+    (f64::from(c) * s - eps).max(0.0)
 }
 
 /// χ sampled at corners of the finest grid, for extraction.
@@ -329,15 +396,17 @@ impl Field<(u32, u32)> for CornerField<'_> {
         }
         // Just below the corner on every axis (clamped at the cube's lower faces), where the
         // evaluation uses the cells on the other side.
-        let s = 1.0 / (1u64 << self.depth) as f64;
-        let p = self.point(c);
-        let eps = s * 1e-6;
-        let q = [
-            (p[0] - eps).max(0.0),
-            (p[1] - eps).max(0.0),
-            (p[2] - eps).max(0.0),
-        ];
-        let (_, gl) = self.eval.sum_near::<true>(q, near);
+        let gl = match &self.table {
+            Some(
+                table @ CornerWindows {
+                    below: Some(below), ..
+                },
+            ) => self.eval.below_sum(c, table, below, near).1,
+            _ => {
+                let q = c.map(|x| below_coord(x, self.depth));
+                self.eval.sum_near::<true>(q, near).1
+            }
+        };
         (
             v,
             [

@@ -22,17 +22,12 @@ impl<H: Copy> Here<H> {
     #[inline]
     fn refined<C: Cells<Handle = H>>(&self, cells: &C, depth: u32, offset: [u32; 3]) -> bool {
         if depth == self.depth {
-            let mut s = 0;
-            let mut mul = 1;
-            for a in 0..3 {
-                let r = i64::from(offset[a]) - i64::from(self.offset[a]) + 1;
-                if !(0..3).contains(&r) {
-                    return cells.refined(self.h, depth, offset);
-                }
-                s += r as u32 * mul;
-                mul *= 3;
+            // `r` is the offset plus one, wrapped: below 3 iff the offset is in -1..=1.
+            let r: [u32; 3] =
+                std::array::from_fn(|a| offset[a].wrapping_sub(self.offset[a]).wrapping_add(1));
+            if r.iter().all(|&x| x < 3) {
+                return self.around >> (r[0] + 3 * r[1] + 9 * r[2]) & 1 != 0;
             }
-            return self.around >> s & 1 != 0;
         }
         cells.refined(self.h, depth, offset)
     }
@@ -193,8 +188,10 @@ impl<C: Cells> Walk<'_, C> {
                 (origin[n] < self.ctx.full).then_some(origin[n])
             };
             if let Some(a) = across {
-                let mut cell = origin.map(|x| x / size);
-                cell[n] = a / size;
+                // Sizes are powers of two: shifts, not divisions (which showed in profiles).
+                let sh = size.trailing_zeros();
+                let mut cell = origin.map(|x| x >> sh);
+                cell[n] = a >> sh;
                 if self.here.refined(self.ctx.cells, k, cell) {
                     let half = size / 2;
                     for (du, dv) in [(0, 0), (1, 0), (1, 1), (0, 1)] {
@@ -230,11 +227,13 @@ impl<C: Cells> Walk<'_, C> {
             e[axis] -= len;
         }
         let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
-        let cell_count = self.ctx.full / len;
+        // `len` is a power of two: shifts, not divisions (this loop is hot).
+        let sh = len.trailing_zeros();
+        let cell_count = self.ctx.full >> sh;
         for du in 0..2u32 {
             for dv in 0..2u32 {
                 let (Some(cu), Some(cv)) =
-                    ((e[u] / len).checked_sub(du), (e[v] / len).checked_sub(dv))
+                    ((e[u] >> sh).checked_sub(du), (e[v] >> sh).checked_sub(dv))
                 else {
                     continue;
                 };
@@ -242,7 +241,7 @@ impl<C: Cells> Walk<'_, C> {
                     continue;
                 }
                 let mut cell = [0u32; 3];
-                cell[axis] = e[axis] / len;
+                cell[axis] = e[axis] >> sh;
                 cell[u] = cu;
                 cell[v] = cv;
                 if self.here.refined(self.ctx.cells, k, cell) {
