@@ -307,7 +307,8 @@ impl Depth {
 /// The neighbours are found parent by parent: the children of the parent's 3×3×3 neighbours
 /// (one lookup each) fill a 6×6×6 grid, which holds the neighbourhood of every child of the
 /// parent. That is a quarter of the lookups of finding each cell's 27 neighbours on its own,
-/// and the sums are the same, in the same order.
+/// and the sums are the same, in the same order. Only depth `d`'s moments are read (and
+/// released), so the depths may be taken in any order.
 fn patches(depths: &mut [Depth], d: usize) -> Vec<Option<Patch>> {
     let out = if d == 0 {
         depths[0].moments.iter().map(|(m, n)| m.patch(*n)).collect()
@@ -435,13 +436,8 @@ fn depths(samples: &[Sample], top: u32) -> (Vec<Depth>, Vec<(u64, u32)>) {
 /// order and positions alone.
 pub fn measure(samples: &[Sample], top: u32) -> Measured {
     let (mut depths, sorted) = depths(samples, top);
-    let flat: Vec<Vec<Option<Patch>>> = (0..depths.len())
-        .rev()
-        .map(|d| patches(&mut depths, d))
-        .collect::<Vec<_>>()
-        .into_iter()
-        .rev()
-        .collect();
+    let flat: Vec<Vec<Option<Patch>>> =
+        (0..depths.len()).map(|d| patches(&mut depths, d)).collect();
     let mut code_of = vec![0u64; samples.len()];
     for &(c, i) in &sorted {
         code_of[i as usize] = c;
