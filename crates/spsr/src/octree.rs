@@ -73,6 +73,13 @@ impl Level {
         &self.brood_key
     }
 
+    /// Brood index of each node's children at the next level, or [`NONE`]; empty when no node
+    /// has children (for the GPU's copy of [`Level::child`]).
+    #[cfg(feature = "gpu")]
+    pub fn children(&self) -> &[u32] {
+        &self.child
+    }
+
     /// Brood index of node `n`'s children at the next level, or [`NONE`].
     #[inline]
     pub fn child(&self, n: u32) -> u32 {

@@ -1107,8 +1107,13 @@ pub fn cumulate(p: &Problem, from: &Carry, x: &[Vec<f32>]) -> Vec<Vec<f32>> {
 }
 
 /// The divergence constraints of every level from `lowest` up, computed fine to coarse and
-/// stored in single precision (summed in double precision); empty below `lowest`.
+/// stored in single precision (summed in double precision); empty below `lowest`. On the
+/// problem's GPU where it has one (the same bits), else, or where that fails, on the CPU.
 pub fn constraints(p: &Problem, v: &[Vec<[f32; 3]>], lowest: u32) -> Vec<Vec<f32>> {
+    #[cfg(feature = "gpu")]
+    if let Some(tcons) = device::constraints_gpu(p, v, lowest) {
+        return tcons;
+    }
     let nlev = p.tree.levels.len();
     let max_level = nlev - 1;
     let mut tcons: Vec<Vec<f32>> = vec![Vec::new(); nlev];

@@ -145,6 +145,13 @@ impl CoarseFine {
         Self { lo, rows }
     }
 
+    /// The lowest coarse index and the rows from it on, eight offsets `k = −3..=4` each, for
+    /// the GPU's copy of [`CoarseFine::get`] (`gpu/kernels.cu`).
+    #[cfg(feature = "gpu")]
+    pub fn rows(&self) -> (i64, &[[f64; 8]]) {
+        (self.lo, &self.rows)
+    }
+
     /// Entry for coarse index `i` and offset `k = o − 2i` (0 outside `[−3, 4]` or the range).
     #[inline]
     pub fn get(&self, i: i64, k: i64) -> f64 {
@@ -581,11 +588,6 @@ pub fn divergence_constraints(
     }
 }
 
-/// `∫∇B_I · V_{d+1}` for every FEM function `I` of level `t` (depth `d`), pushed from each
-/// nonzero V coefficient of the next level to the 4×4×4 coarse functions it overlaps (all in
-/// its parent's 5×5×5 window). Broods are coloured by their parent's key modulo 5 per axis:
-/// parents of one colour are at least 5 apart, so their windows never overlap and a colour is
-/// pushed in parallel without races, in an order that does not depend on the thread count.
 /// The V of brood `b`'s eight nodes, component by component.
 #[inline]
 fn v_brood(v: &[[f32; 3]], b: u32) -> [[f64; 8]; 3] {
@@ -595,14 +597,9 @@ fn v_brood(v: &[[f32; 3]], b: u32) -> [[f64; 8]; 3] {
     std::array::from_fn(|a| std::array::from_fn(|k| f64::from(nodes[k][a])))
 }
 
-fn push_finer_v(
-    level: &Level,
-    next: &Level,
-    d: u32,
-    tab: &DepthTables,
-    v_finer: &[[f32; 3]],
-) -> Vec<f64> {
-    let mut g = vec![0.0f64; level.len()];
+/// The broods of `next` with a nonzero V, in 125 colours by their parent's key modulo 5 per
+/// axis (see [`push_finer_v`]), each colour in brood order.
+pub(crate) fn push_colours(level: &Level, next: &Level, v_finer: &[[f32; 3]]) -> Vec<Vec<u32>> {
     let mut colours: Vec<Vec<u32>> = vec![Vec::new(); 125];
     for b in 0..(next.len() / 8) as u32 {
         let base = (b * 8) as usize;
@@ -612,6 +609,23 @@ fn push_finer_v(
         let k = level.key(next.brood_parent[b as usize]);
         colours[(k[0] % 5 + 5 * (k[1] % 5) + 25 * (k[2] % 5)) as usize].push(b);
     }
+    colours
+}
+
+/// `∫∇B_I · V_{d+1}` for every FEM function `I` of level `t` (depth `d`), pushed from each
+/// nonzero V coefficient of the next level to the 4×4×4 coarse functions it overlaps (all in
+/// its parent's 5×5×5 window). Broods are coloured by their parent's key modulo 5 per axis:
+/// parents of one colour are at least 5 apart, so their windows never overlap and a colour is
+/// pushed in parallel without races, in an order that does not depend on the thread count.
+fn push_finer_v(
+    level: &Level,
+    next: &Level,
+    d: u32,
+    tab: &DepthTables,
+    v_finer: &[[f32; 3]],
+) -> Vec<f64> {
+    let mut g = vec![0.0f64; level.len()];
+    let colours = push_colours(level, next, v_finer);
     let gs = SharedSlice::new(&mut g);
     for list in &colours {
         list.par_iter().with_min_len(64).for_each(|&b| {

@@ -10,7 +10,7 @@ use cudarc::driver::{
 };
 use cudarc::nvrtc::{compile_ptx_with_opts, CompileOptions};
 
-use super::{kernel_source, GpuKernel, GpuRelaxation, LevelSystem};
+use super::{kernel_source, ConstraintLevel, GpuKernel, GpuRelaxation, LevelSystem};
 
 /// Threads per block of every kernel.
 const BLOCK: u32 = 256;
@@ -22,6 +22,8 @@ pub struct Device {
     cluster_values: CudaFunction,
     first_right_hand_sides: CudaFunction,
     cycle_right_hand_side: CudaFunction,
+    push_finer_v: CudaFunction,
+    constraint_rows: CudaFunction,
     /// Degree of the elements the kernels were compiled for.
     degree: u8,
     name: String,
@@ -127,6 +129,8 @@ impl Device {
             cluster_values: function("cluster_values")?,
             first_right_hand_sides: function("first_right_hand_sides")?,
             cycle_right_hand_side: function("cycle_right_hand_side")?,
+            push_finer_v: function("push_finer_v")?,
+            constraint_rows: function("constraint_rows")?,
             degree,
             name,
             failure: Mutex::new(None),
@@ -478,6 +482,175 @@ impl Device {
         })
     }
 
+    /// The divergence constraints `T` of one depth (`system::divergence_constraints`), given
+    /// what the next finer depth left on the card (`None` for the finest, or to copy the V and
+    /// `G` of `sys` instead); also hands back what this depth leaves there for the next
+    /// coarser one: its V, and its `G` where the CPU's is not empty. `G` never leaves the card.
+    pub fn constraints(
+        &self,
+        sys: &ConstraintLevel,
+        finer: Option<OnCard>,
+    ) -> Result<(Vec<f32>, OnCard), String> {
+        let broods = sys.nodes / 8;
+        let finer_g = finer
+            .as_ref()
+            .map_or(sys.g_finer.is_some(), |f| f.g.is_some());
+        if sys.brood_nbrs.len() != broods
+            || !(sys.v.is_empty() || sys.v.len() == sys.nodes)
+            || !(sys.children.is_empty() || sys.children.len() == sys.nodes)
+            || (sys.push && sys.v_finer.len() != 8 * sys.next_parent.len())
+            || (finer_g && sys.children.is_empty())
+        {
+            return Err("the constraints' inputs do not match the depth".into());
+        }
+        let keep_g = sys.push || finer_g;
+        let run = || -> Result<(Vec<f32>, OnCard), DriverError> {
+            let s = &self.stream;
+            let clock = Instant::now();
+            let nbrs = upload(s, sys.brood_nbrs.as_flattened())?;
+            let keys = upload(s, sys.brood_key.as_flattened())?;
+            let v = upload(s, sys.v.as_flattened())?;
+            let (finer_v, finer_g) = match finer {
+                Some(f) => (Some(f.v), f.g),
+                None => (None, sys.g_finer.map(|g| upload(s, g)).transpose()?),
+            };
+            let mut g = s.alloc_zeros::<f64>(if keep_g { sys.nodes.max(1) } else { 1 })?;
+            let mut b = s.alloc_zeros::<f32>(sys.nodes.max(1))?;
+            s.synchronize()?;
+            let mut transfer = clock.elapsed();
+            let mut kernels = Duration::ZERO;
+            if sys.push {
+                let clock = Instant::now();
+                let list = upload(s, &sys.push_order)?;
+                let parent = upload(s, sys.next_parent)?;
+                let v_finer = match finer_v {
+                    Some(v) => v,
+                    None => upload(s, sys.v_finer.as_flattened())?,
+                };
+                let cvmass = upload(s, sys.cvmass.as_flattened())?;
+                let cvderiv = upload(s, sys.cvderiv.as_flattened())?;
+                s.synchronize()?;
+                transfer += clock.elapsed();
+                let clock = Instant::now();
+                let (depth, rows) = (sys.depth as i32, sys.cvmass.len() as u64);
+                let mut start = 0usize;
+                for &end in &sys.push_ends {
+                    let (first, count) = (start as u64, (end - start) as u32);
+                    start = end;
+                    if count == 0 {
+                        continue;
+                    }
+                    let mut launch = s.launch_builder(&self.push_finer_v);
+                    launch
+                        .arg(&list)
+                        .arg(&first)
+                        .arg(&count)
+                        .arg(&parent)
+                        .arg(&nbrs)
+                        .arg(&keys)
+                        .arg(&depth)
+                        .arg(&sys.coarse_lo)
+                        .arg(&rows)
+                        .arg(&cvmass)
+                        .arg(&cvderiv)
+                        .arg(&v_finer)
+                        .arg(&mut g);
+                    // SAFETY: the arguments match the kernel's parameters in order and type;
+                    // the list names broods of the next level, whose parents are nodes of this
+                    // one, and the threads of one colour write disjoint entries of `g`.
+                    unsafe { launch.launch(config(count)) }?;
+                }
+                s.synchronize()?;
+                kernels += clock.elapsed();
+            }
+            let clock = Instant::now();
+            let vstart = upload(s, &sys.v_start)?;
+            let vslot = upload(s, &sys.v_slot)?;
+            let vcoef = upload(s, &sys.v_coef)?;
+            let vmass = upload(s, &sys.vmass)?;
+            let vderiv = upload(s, &sys.vderiv)?;
+            let children = upload(s, sys.children)?;
+            let ch_count = upload(s, &sys.child_count)?;
+            let ch_j = upload(s, &sys.child_index)?;
+            let ch_w = upload(s, &sys.child_weight)?;
+            s.synchronize()?;
+            transfer += clock.elapsed();
+            let clock = Instant::now();
+            let null = 0u64;
+            let (count, depth, nchildren) = (
+                sys.nodes as u32,
+                sys.depth as i32,
+                sys.children.len() as u64,
+            );
+            let mut launch = s.launch_builder(&self.constraint_rows);
+            launch
+                .arg(&count)
+                .arg(&nbrs)
+                .arg(&keys)
+                .arg(&depth)
+                .arg(&sys.lo)
+                .arg(&sys.hi)
+                .arg(&vstart)
+                .arg(&vslot)
+                .arg(&vcoef)
+                .arg(&vmass)
+                .arg(&vderiv)
+                .arg(&children)
+                .arg(&nchildren)
+                .arg(&ch_count)
+                .arg(&ch_j)
+                .arg(&ch_w);
+            // The pushed sums are in `g`: each thread reads its own entry before it writes its
+            // `G` there.
+            let pushed = i32::from(sys.push);
+            launch.arg(&pushed);
+            match &finer_g {
+                Some(gf) => launch.arg(gf),
+                None => launch.arg(&null),
+            };
+            if sys.v.is_empty() {
+                launch.arg(&null);
+            } else {
+                launch.arg(&v);
+            }
+            if keep_g {
+                launch.arg(&mut g);
+            } else {
+                launch.arg(&null);
+            }
+            launch.arg(&mut b);
+            // SAFETY: the arguments match the kernel's parameters in order and type (null for
+            // the arrays the CPU has empty, which the kernel checks); each thread reads and
+            // writes only its own node's `g` and `b`, and every index it forms stays in the
+            // arrays (children index the next level's `G`, which has its nodes).
+            if count > 0 {
+                unsafe { launch.launch(config(count)) }?;
+            }
+            s.synchronize()?;
+            kernels += clock.elapsed();
+            let clock = Instant::now();
+            let b = download(s, &b, sys.nodes)?;
+            transfer += clock.elapsed();
+            self.record(GpuRelaxation {
+                kind: GpuKernel::Constraints,
+                depth: sys.depth,
+                nodes: sys.nodes,
+                sweeps: 1,
+                transfer,
+                kernels,
+                bytes_per_sweep: sys.bytes(),
+            });
+            let g = keep_g.then_some(g);
+            Ok((b, OnCard { v, g }))
+        };
+        run().map_err(|e| {
+            driver(
+                &format!("the constraints of depth {} on {}", sys.depth, self.name),
+                e,
+            )
+        })
+    }
+
     fn record_rhs(&self, lvl: &Resident, transfer: Duration, kernels: Duration, parents: usize) {
         // Per node its constraint (or fixed part) and result; per brood its neighbours, key
         // and parent; per parent brood its neighbours, per parent node its solution and V; per
@@ -498,6 +671,13 @@ impl Device {
             bytes_per_sweep: bytes,
         });
     }
+}
+
+/// What one depth's constraints leave on the card for the next coarser depth's
+/// ([`Device::constraints`]): the depth's V, and its `G` where it has one.
+pub struct OnCard {
+    v: CudaSlice<f32>,
+    g: Option<CudaSlice<f64>>,
 }
 
 /// The arguments the two right-hand-side kernels share, in their order: the depth, its

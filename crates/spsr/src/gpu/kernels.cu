@@ -399,3 +399,176 @@ extern "C" __global__ void cycle_right_hand_side(
     if (u) rr -= u[n];
     r[n] = (float)rr;
 }
+
+// The divergence constraints of one depth (system.rs `divergence_constraints`, ALGORITHM.md
+// §6), fine to coarse, in two kernels: `push_finer_v` adds the next depth's V into `g`, colour
+// by colour, and `constraint_rows` finishes each node's row.
+
+// An entry of a coarse-against-fine 1-D table (system.rs `CoarseFine::get`): rows from coarse
+// index `lo`, eight offsets `k = −3..=4` each, zero outside.
+__device__ __forceinline__ double coarse_fine(const double* __restrict__ t, i64 lo, u64 rows,
+                                              i64 i, i64 k) {
+    if (k < -3 || k > 4) return 0.0;
+    u64 r = (u64)(i - lo);
+    if (r >= rows) return 0.0;
+    return t[r * 8u + (u64)(k + 3)];
+}
+
+// One launch per colour of `system::push_colours`: each thread pushes the V of one brood of
+// the next depth (list[first + thread]) into the window of its parent (system.rs
+// `push_finer_v`). Parents of one colour are at least five apart, so the threads of a launch
+// write disjoint entries, and each entry receives its terms in the CPU's order: colour by
+// colour, and within a brood by child, then z, y, x.
+extern "C" __global__ void push_finer_v(
+    const u32* __restrict__ list, u64 first, u32 count, const u32* __restrict__ next_parent,
+    const u32* __restrict__ nbrs, const u32* __restrict__ brood_key, int depth, i64 clo,
+    u64 crows, const double* __restrict__ cvmass, const double* __restrict__ cvderiv,
+    const float* __restrict__ v_finer, double* g) {
+    u32 t = blockIdx.x * blockDim.x + threadIdx.x;
+    if (t >= count) return;
+    u32 b = list[first + t];
+    u32 p = next_parent[b];
+    i64 ip[3];
+    func_index(brood_key, depth, p, ip);
+    for (u32 c = 0; c < 8u; c++) {
+        const float* vf = v_finer + ((u64)b * 8u + c) * 3u;
+        if (vf[0] == 0.0f && vf[1] == 0.0f && vf[2] == 0.0f) continue;
+        double v0 = (double)vf[0], v1 = (double)vf[1], v2 = (double)vf[2];
+        // Per axis: the four coarse indices around the fine index o = 2·ip + bit, their
+        // window offsets, and the 1-D tables at k = o − 2I.
+        i64 rel[3][4];
+        double m[3][4], dv[3][4];
+        for (int a = 0; a < 3; a++) {
+            i64 bit = (i64)((c >> a) & 1u);
+            i64 o = 2 * ip[a] + bit;
+            for (int s = 0; s < 4; s++) {
+                i64 r = bit - 2 + s;
+                i64 ia = ip[a] + r;
+                rel[a][s] = r;
+                m[a][s] = coarse_fine(cvmass, clo, crows, ia, o - 2 * ia);
+                dv[a][s] = coarse_fine(cvderiv, clo, crows, ia, o - 2 * ia);
+            }
+        }
+        for (int z = 0; z < 4; z++) {
+            for (int y = 0; y < 4; y++) {
+                double mz = m[2][z], dz = dv[2][z], my = m[1][y], dy = dv[1][y];
+                if ((mz == 0.0 && dz == 0.0) || (my == 0.0 && dy == 0.0)) continue;
+                for (int x = 0; x < 4; x++) {
+                    double mx = m[0][x], dx = dv[0][x];
+                    double val = v0 * dx * my * mz + v1 * mx * dy * mz + v2 * mx * my * dz;
+                    if (val == 0.0) continue;
+                    int w = (int)((rel[0][x] + 2) + 5 * (rel[1][y] + 2) + 25 * (rel[2][z] + 2));
+                    u32 q = neighbour(nbrs, p, w);
+                    if (q == NONE) continue;
+                    g[q] = g[q] + val;
+                }
+            }
+        }
+    }
+}
+
+// `Σ_j c_ij y_j` over the next depth's children `j` of function `i` (node `n`) (system.rs
+// `restrict_one`), with the two-scale children of each index from the host's tables (bspline.rs
+// `Basis::children`): ch_count[i − lo], and four (index, weight) slots.
+__device__ __forceinline__ double restrict_one(const u32* __restrict__ nbrs,
+                                               const u32* __restrict__ children, u64 nchildren,
+                                               u32 n, const i64 i[3], i64 lo,
+                                               const u32* __restrict__ ch_count,
+                                               const i64* __restrict__ ch_j,
+                                               const double* __restrict__ ch_w,
+                                               const double* __restrict__ y) {
+    u32 cnt[3];
+    const i64* js[3];
+    const double* ws[3];
+    for (int a = 0; a < 3; a++) {
+        u64 k = (u64)(i[a] - lo);
+        cnt[a] = ch_count[k];
+        js[a] = ch_j + k * 4u;
+        ws[a] = ch_w + k * 4u;
+    }
+    double s = 0.0;
+    for (u32 cz = 0; cz < cnt[2]; cz++) {
+        for (u32 cy = 0; cy < cnt[1]; cy++) {
+            for (u32 cx = 0; cx < cnt[0]; cx++) {
+                i64 j[3] = {js[0][cx], js[1][cy], js[2][cz]};
+                i64 o0 = (j[0] >> 1) - i[0], o1 = (j[1] >> 1) - i[1], o2 = (j[2] >> 1) - i[2];
+                u32 m = neighbour(nbrs, n, (int)((o0 + 2) + 5 * (o1 + 2) + 25 * (o2 + 2)));
+                if (m == NONE) continue;
+                u32 b = (u64)m < nchildren ? children[m] : NONE;
+                if (b == NONE) continue;
+                u32 bits = (u32)((j[0] & 1) | ((j[1] & 1) << 1) | ((j[2] & 1) << 2));
+                u32 f = b * 8u + bits;
+                s += ws[0][cx] * ws[1][cy] * ws[2][cz] * y[f];
+            }
+        }
+    }
+    return s;
+}
+
+// Each node's constraints (system.rs `divergence_constraints`, its `row`): `G` (V of the finer
+// depths: the next depth's, which `push_finer_v` left in `g` when `pushed` is set, plus the
+// restriction of the next depth's `G`, `gf`) into `g`, and `T = G + ∫∇B_i·V_d` into `b`. Null
+// `gf`, `v` or `g` stand for none (the CPU's empty arrays); `g` is not null when `pushed` is
+// set. Each thread reads and writes only its own node's `g`.
+extern "C" __global__ void constraint_rows(
+    u32 count, const u32* __restrict__ nbrs, const u32* __restrict__ brood_key, int depth,
+    i64 lo, i64 hi,
+    // The interior V stencils by neighbouring brood (system.rs `BroodStencil<3>`): per child
+    // position entries vstart[c]..vstart[c + 1], each a brood slot and 3 × 8 coefficients.
+    const u32* __restrict__ vstart, const u32* __restrict__ vslot,
+    const double* __restrict__ vcoef,
+    // Same-depth FEM-against-V 1-D tables, rows lo..=hi, five offsets each.
+    const double* __restrict__ vmass, const double* __restrict__ vderiv,
+    // Each node's children brood (empty: none), and the two-scale children per index.
+    const u32* __restrict__ children, u64 nchildren, const u32* __restrict__ ch_count,
+    const i64* __restrict__ ch_j, const double* __restrict__ ch_w,
+    int pushed, const double* __restrict__ gf, const float* __restrict__ v, double* g,
+    float* __restrict__ b) {
+    u32 n = blockIdx.x * blockDim.x + threadIdx.x;
+    if (n >= count) return;
+    i64 i[3];
+    func_index(brood_key, depth, n, i);
+    if (!in_range(i, lo, hi)) {
+        if (g) g[n] = 0.0;
+        b[n] = 0.0f;
+        return;
+    }
+    double gg = pushed ? g[n] : 0.0;
+    if (gf) gg += restrict_one(nbrs, children, nchildren, n, i, lo, ch_count, ch_j, ch_w, gf);
+    double bb = gg;
+    if (v && interior(i, lo, hi, 4)) {
+        // BroodStencil::row: lane l sums the l-th nodes of the broods, component by component.
+        const u32* around = nbrs + (u64)(n >> 3) * 27u;
+        double acc[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+        u32 pos = n & 7u;
+        for (u32 e = vstart[pos]; e < vstart[pos + 1]; e++) {
+            u32 br = around[vslot[e]];
+            if (br == NONE) continue;
+            for (int k = 0; k < 3; k++) {
+                const double* cf = vcoef + ((u64)e * 3u + k) * 8u;
+                for (int l = 0; l < 8; l++) {
+                    acc[l] += cf[l] * (double)v[((u64)br * 8u + l) * 3u + k];
+                }
+            }
+        }
+        bb += ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]));
+    } else if (v) {
+        for (int w = 0; w < 125; w++) {
+            u32 m = neighbour(nbrs, n, w);
+            if (m == NONE) continue;
+            const float* vm = v + (u64)m * 3u;
+            if (vm[0] == 0.0f && vm[1] == 0.0f && vm[2] == 0.0f) continue;
+            double v0 = (double)vm[0], v1 = (double)vm[1], v2 = (double)vm[2];
+            i64 o0 = w % 5 - 2, o1 = (w / 5) % 5 - 2, o2 = w / 25 - 2;
+            double mx = table(vmass, lo, hi, i[0], o0);
+            double my = table(vmass, lo, hi, i[1], o1);
+            double mz = table(vmass, lo, hi, i[2], o2);
+            double dx = table(vderiv, lo, hi, i[0], o0);
+            double dy = table(vderiv, lo, hi, i[1], o1);
+            double dz = table(vderiv, lo, hi, i[2], o2);
+            bb += v0 * dx * my * mz + v1 * mx * dy * mz + v2 * mx * my * dz;
+        }
+    }
+    if (g) g[n] = gg;
+    b[n] = (float)bb;
+}

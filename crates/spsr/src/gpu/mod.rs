@@ -63,6 +63,8 @@ pub enum GpuKernel {
     RightHandSide,
     /// Gauss–Seidel sweeps over a depth.
     Relaxation,
+    /// A depth's divergence constraints.
+    Constraints,
 }
 
 impl GpuKernel {
@@ -72,6 +74,7 @@ impl GpuKernel {
             GpuKernel::Upload => "copy in",
             GpuKernel::RightHandSide => "right-hand side",
             GpuKernel::Relaxation => "relaxation",
+            GpuKernel::Constraints => "constraints",
         }
     }
 }
@@ -167,6 +170,78 @@ pub struct LevelSystem<'a> {
     pub order: Vec<u32>,
     /// Where each class of `order` ends.
     pub class_ends: Vec<usize>,
+}
+
+#[cfg(feature = "gpu")]
+/// One octree depth's divergence constraints as the kernels `push_finer_v` and
+/// `constraint_rows` read them (`system::divergence_constraints`): the depth's neighbour tables
+/// and 1-D tables, the V of the depth and of the next, and the next depth's `G`.
+pub struct ConstraintLevel<'a> {
+    /// Unit-cube depth of the level.
+    pub depth: u32,
+    /// Nodes of the level.
+    pub nodes: usize,
+    /// The 27 broods around each brood.
+    pub brood_nbrs: &'a [[u32; 27]],
+    /// The key of each brood's parent.
+    pub brood_key: &'a [[u32; 3]],
+    /// Lowest function index per axis.
+    pub lo: i64,
+    /// Highest function index per axis.
+    pub hi: i64,
+    /// The interior V stencils by neighbouring brood (`system::BroodStencil<3>`): where each
+    /// child position's entries start (nine values), each entry's brood slot, and its 3 × 8
+    /// coefficients.
+    pub v_start: Vec<u32>,
+    /// See `v_start`.
+    pub v_slot: Vec<u32>,
+    /// See `v_start`.
+    pub v_coef: Vec<f64>,
+    /// FEM values against same-depth V, five offsets per index `lo..=hi`.
+    pub vmass: Vec<f64>,
+    /// FEM derivatives against same-depth V, laid out as `vmass`.
+    pub vderiv: Vec<f64>,
+    /// Each node's children brood at the next level (empty: none has children).
+    pub children: &'a [u32],
+    /// Per index `lo..=hi`, how many two-scale children it has (`Basis::children`) ...
+    pub child_count: Vec<u32>,
+    /// ... their indices, four slots per index ...
+    pub child_index: Vec<i64>,
+    /// ... and their weights, laid out as `child_index`.
+    pub child_weight: Vec<f64>,
+    /// The first coarse index of `cvmass` and `cvderiv` (`system::CoarseFine`).
+    pub coarse_lo: i64,
+    /// FEM values against V one depth finer, eight offsets per coarse index.
+    pub cvmass: &'a [[f64; 8]],
+    /// FEM derivatives against V one depth finer, laid out as `cvmass`.
+    pub cvderiv: &'a [[f64; 8]],
+    /// The parent node of each brood of the next level (empty without one).
+    pub next_parent: &'a [u32],
+    /// The next level's broods with V to push, colour after colour (`system::push_colours`).
+    pub push_order: Vec<u32>,
+    /// Where each colour of `push_order` ends.
+    pub push_ends: Vec<usize>,
+    /// Whether the next level's V is pushed (the CPU's `pushed` is not empty).
+    pub push: bool,
+    /// V of the level's nodes (empty: none).
+    pub v: &'a [[f32; 3]],
+    /// V of the next level's nodes (empty: none).
+    pub v_finer: &'a [[f32; 3]],
+    /// `G` of the next level (`None`: none).
+    pub g_finer: Option<&'a [f64]>,
+}
+
+#[cfg(feature = "gpu")]
+impl ConstraintLevel<'_> {
+    /// The bytes the two kernels must read or write at least: per node its neighbours (per
+    /// brood), key, children, V and results; per next node its V and `G`.
+    pub fn bytes(&self) -> u64 {
+        let broods = self.nodes / 8;
+        (broods * (27 * 4 + 12)
+            + self.nodes * (4 + 12 + 8 + 4)
+            + self.v_finer.len() * 12
+            + self.g_finer.map_or(0, |g| g.len() * 8)) as u64
+    }
 }
 
 #[cfg(feature = "gpu")]

@@ -458,7 +458,7 @@ pub(crate) fn solve_implicit(
     drop(samples);
     let fem = Basis::new(params.degree, params.boundary);
     let constrained = run.stage("divergence constraints", || {
-        solve::constraints(&tree, fem, field.v, params)
+        solve::constraints(&tree, fem, field.v, params, gpu.as_ref())
     });
     let channels = attribute_types.len();
     let screening = run.stage("clusters", || {

@@ -22,17 +22,18 @@ pub struct Constrained {
     v: Vec<Vec<[f32; 3]>>,
 }
 
-/// The divergence constraints (stage 6) from V per level; the finest depth's V, which the
-/// solve does not read, is released.
+/// The divergence constraints (stage 6) from V per level, on `gpu` where there is one; the
+/// finest depth's V, which the solve does not read, is released.
 pub fn constraints(
     tree: &Octree,
     fem: Basis,
     mut v: Vec<Vec<[f32; 3]>>,
     params: &Params,
+    gpu: Option<&Device>,
 ) -> Constrained {
     let tables = tables(tree, fem, params);
     let tcons = solver::constraints_releasing_v(
-        &problem(tree, fem, &tables, &[], params, None, &|_| {}),
+        &problem(tree, fem, &tables, &[], params, gpu, &|_| {}),
         &mut v,
     );
     Constrained { tables, tcons, v }

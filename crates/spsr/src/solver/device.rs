@@ -6,8 +6,11 @@
 
 use rayon::prelude::*;
 
-use super::Op;
-use crate::gpu::{Device, LevelSystem, Resident};
+use super::{Op, Problem};
+use crate::bspline::Table1D;
+use crate::gpu::{ConstraintLevel, Device, LevelSystem, Resident};
+use crate::octree::DEPTH_OFFSET;
+use crate::system::{push_colours, BroodStencil};
 
 impl Op<'_> {
     /// The device and this level's system on it, copied there on first use; `None` without a
@@ -68,11 +71,7 @@ impl Op<'_> {
     /// The level's system as the kernels read it.
     pub(super) fn level_system(&self) -> LevelSystem<'_> {
         let (lo, hi) = (self.tab.range.lo, self.tab.range.hi);
-        let row = |t: &crate::bspline::Table1D| -> Vec<f64> {
-            (lo..=hi)
-                .flat_map(|i| (-2..=2).map(move |o| t.get(i, o)))
-                .collect()
-        };
+        let row = |t: &Table1D| table_rows(t, lo, hi);
         let (rank_bits, rank_before) = self.cl.of_node.words();
         let (order, class_ends) = self.relaxation_classes();
         let parent = &self.tree.levels[self.t as usize - 1];
@@ -168,5 +167,111 @@ impl Op<'_> {
             let m = i64::from(self.degree) + 1;
             (i[0].rem_euclid(m) + m * (i[1].rem_euclid(m) + m * i[2].rem_euclid(m))) as u32
         }
+    }
+}
+
+/// A 1-D table's rows `lo..=hi`, five offsets `−2..=2` each, as the kernels read them.
+fn table_rows(t: &Table1D, lo: i64, hi: i64) -> Vec<f64> {
+    (lo..=hi)
+        .flat_map(|i| (-2..=2).map(move |o| t.get(i, o)))
+        .collect()
+}
+
+/// The divergence constraints of every level from `lowest` up on the GPU
+/// (`super::constraints`, same arguments and result), bit for bit. Each level's V and `G`
+/// stay on the card for the next coarser level; only the constraints come back. `None`
+/// without a device, or where a level failed there (the device keeps the reason; the caller
+/// then makes them all on the CPU, which needs the `G` that stayed on the card).
+pub(super) fn constraints_gpu(
+    p: &Problem,
+    v: &[Vec<[f32; 3]>],
+    lowest: u32,
+) -> Option<Vec<Vec<f32>>> {
+    let dev = p.gpu?;
+    let nlev = p.tree.levels.len();
+    let mut tcons: Vec<Vec<f32>> = vec![Vec::new(); nlev];
+    let mut finer = None;
+    let empty = Vec::new();
+    for t in (lowest as usize..nlev).rev() {
+        let v_t = v.get(t).unwrap_or(&empty);
+        let v_finer = v.get(t + 1).unwrap_or(&empty);
+        let sys = constraint_level(p, t as u32, v_t, v_finer, None);
+        let (b, on_card) = dev
+            .constraints(&sys, finer.take())
+            .map_err(|reason| dev.record_failure(reason))
+            .ok()?;
+        tcons[t] = b;
+        finer = Some(on_card);
+    }
+    Some(tcons)
+}
+
+/// Level `t`'s constraints as the kernels read them.
+pub(super) fn constraint_level<'a>(
+    p: &'a Problem,
+    t: u32,
+    v: &'a [[f32; 3]],
+    v_finer: &'a [[f32; 3]],
+    g_finer: Option<&'a [f64]>,
+) -> ConstraintLevel<'a> {
+    let tab = p.tables[t as usize]
+        .as_ref()
+        .expect("tables exist at solved levels");
+    let level = &p.tree.levels[t as usize];
+    let next = p.tree.levels.get(t as usize + 1);
+    let d = t - DEPTH_OFFSET;
+    let (lo, hi) = (tab.range.lo, tab.range.hi);
+    let vbrood = BroodStencil::new([&tab.vstencil[0], &tab.vstencil[1], &tab.vstencil[2]]);
+    let (mut v_start, mut v_slot, mut v_coef) = (vec![0u32], vec![], vec![]);
+    for row in vbrood.rows() {
+        for (slot, coef) in row {
+            v_slot.push(u32::from(*slot));
+            v_coef.extend(coef.iter().flatten());
+        }
+        v_start.push(v_slot.len() as u32);
+    }
+    let (mut child_count, mut child_index, mut child_weight) = (vec![], vec![], vec![]);
+    for i in lo..=hi {
+        let mut out = [(0i64, 0.0f64); 4];
+        child_count.push(p.fem.children(d, i, &mut out) as u32);
+        child_index.extend(out.iter().map(|c| c.0));
+        child_weight.extend(out.iter().map(|c| c.1));
+    }
+    // As the CPU: the next level's V is pushed when there is a next level and V on it.
+    let push = next.is_some() && !v_finer.is_empty();
+    let (mut push_order, mut push_ends) = (Vec::new(), Vec::new());
+    if let (true, Some(next)) = (push, next) {
+        for list in push_colours(level, next, v_finer) {
+            push_order.extend_from_slice(&list);
+            push_ends.push(push_order.len());
+        }
+    }
+    let (coarse_lo, cvmass) = tab.cvmass.rows();
+    ConstraintLevel {
+        depth: d,
+        nodes: level.len(),
+        brood_nbrs: &level.brood_nbrs,
+        brood_key: level.brood_keys(),
+        lo,
+        hi,
+        v_start,
+        v_slot,
+        v_coef,
+        vmass: table_rows(&tab.vmass, lo, hi),
+        vderiv: table_rows(&tab.vderiv, lo, hi),
+        children: level.children(),
+        child_count,
+        child_index,
+        child_weight,
+        coarse_lo,
+        cvmass,
+        cvderiv: tab.cvderiv.rows().1,
+        next_parent: next.map_or(&[], |n| &n.brood_parent),
+        push_order,
+        push_ends,
+        push,
+        v,
+        v_finer,
+        g_finer: g_finer.filter(|g| !g.is_empty()),
     }
 }

@@ -9,9 +9,11 @@
 
 use std::path::{Path, PathBuf};
 
+use super::device::constraint_level;
 use super::tests::{fixtures, pseudo_random, right_hand_side_inputs};
 use super::{coarse_cluster_values, cycles, right_hand_side, Op};
-use crate::gpu::{kernel_source, LevelSystem};
+use crate::gpu::{kernel_source, ConstraintLevel, LevelSystem};
+use crate::system::divergence_constraints;
 
 /// What CUDA provides and C++ does not: the qualifiers, the thread index (set before each
 /// call, one thread per block) and the bit intrinsics.
@@ -149,6 +151,45 @@ type CycleRhs = unsafe extern "C" fn(
     *const f64,
     *const f64,
     *const f64,
+    *mut f32,
+);
+
+type PushFinerV = unsafe extern "C" fn(
+    *const u32,
+    u64,
+    u32,
+    *const u32,
+    *const u32,
+    *const u32,
+    i32,
+    i64,
+    u64,
+    *const f64,
+    *const f64,
+    *const f32,
+    *mut f64,
+);
+type ConstraintRows = unsafe extern "C" fn(
+    u32,
+    *const u32,
+    *const u32,
+    i32,
+    i64,
+    i64,
+    *const u32,
+    *const u32,
+    *const f64,
+    *const f64,
+    *const f64,
+    *const u32,
+    u64,
+    *const u32,
+    *const i64,
+    *const f64,
+    i32,
+    *const f64,
+    *const f32,
+    *mut f64,
     *mut f32,
 );
 
@@ -432,6 +473,83 @@ fn gauss_seidel(k: &Kernels, sys: &LevelSystem, rhs: &[f32], x: &mut [f32], iter
     }
 }
 
+/// The emulated `Device::constraints`: the pushes colour by colour, then the rows.
+fn constraints(k: &Kernels, sys: &ConstraintLevel) -> (Vec<f64>, Vec<f32>) {
+    let push: PushFinerV = k.get("push_finer_v");
+    let rows: ConstraintRows = k.get("constraint_rows");
+    let keep_g = sys.push || sys.g_finer.is_some();
+    let mut g = vec![0.0f64; if keep_g { sys.nodes } else { 0 }];
+    let mut b = vec![f32::NAN; sys.nodes];
+    let gp = if keep_g {
+        g.as_mut_ptr()
+    } else {
+        std::ptr::null_mut()
+    };
+    let nbrs = sys.brood_nbrs.as_flattened().as_ptr();
+    let keys = sys.brood_key.as_flattened().as_ptr();
+    if sys.push {
+        let mut start = 0usize;
+        for &end in &sys.push_ends {
+            let count = end - start;
+            k.threads(count, || {
+                // SAFETY: the kernel's arguments, over arrays of the sizes it indexes.
+                unsafe {
+                    push(
+                        sys.push_order.as_ptr(),
+                        start as u64,
+                        count as u32,
+                        sys.next_parent.as_ptr(),
+                        nbrs,
+                        keys,
+                        sys.depth as i32,
+                        sys.coarse_lo,
+                        sys.cvmass.len() as u64,
+                        sys.cvmass.as_flattened().as_ptr(),
+                        sys.cvderiv.as_flattened().as_ptr(),
+                        sys.v_finer.as_flattened().as_ptr(),
+                        gp,
+                    )
+                }
+            });
+            start = end;
+        }
+    }
+    let or_null = |empty: bool, p: *const f32| if empty { std::ptr::null() } else { p };
+    let vp = or_null(sys.v.is_empty(), sys.v.as_flattened().as_ptr());
+    let gf = sys.g_finer.map_or(std::ptr::null(), |g| g.as_ptr());
+    let bp = b.as_mut_ptr();
+    k.threads(sys.nodes, || {
+        // SAFETY: the kernel's arguments (null for the arrays the CPU has empty); each thread
+        // writes its own node's values.
+        unsafe {
+            rows(
+                sys.nodes as u32,
+                nbrs,
+                keys,
+                sys.depth as i32,
+                sys.lo,
+                sys.hi,
+                sys.v_start.as_ptr(),
+                sys.v_slot.as_ptr(),
+                sys.v_coef.as_ptr(),
+                sys.vmass.as_ptr(),
+                sys.vderiv.as_ptr(),
+                sys.children.as_ptr(),
+                sys.children.len() as u64,
+                sys.child_count.as_ptr(),
+                sys.child_index.as_ptr(),
+                sys.child_weight.as_ptr(),
+                i32::from(sys.push),
+                gf,
+                vp,
+                gp,
+                bp,
+            )
+        }
+    });
+    (g, b)
+}
+
 /// Asserts that `a` and `b` hold the same bits, naming the first difference and their count.
 fn same_bits(a: &[f32], b: &[f32], what: &str) {
     assert_eq!(a.len(), b.len(), "{what}: lengths");
@@ -496,5 +614,44 @@ fn the_gpu_kernels_run_on_the_cpu_give_the_solvers_bits() {
                 same_bits(&cpu, &emu, &format!("{what}, level {t}: sweeps"));
             }
         }
+    }
+}
+
+/// The constraint kernels, run on the CPU in the device's launch order, give
+/// `system::divergence_constraints`' `G` and `T` bit for bit, fine to coarse over every level
+/// of every fixture (degrees 1 and 2, each boundary), with each level's `G` feeding the next
+/// coarser one as in `solver::constraints`. Skipped, with a message, without a C++ compiler.
+#[test]
+fn the_constraint_kernels_run_on_the_cpu_give_the_solvers_bits() {
+    let f64_bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
+    for (what, f) in fixtures() {
+        let kernels = match Kernels::build(f.fem.degree.get()) {
+            Ok(k) => k,
+            Err(reason) => {
+                assert!(!reason.contains("do not compile"), "{reason}");
+                eprintln!("skipped: {reason}");
+                return;
+            }
+        };
+        let p = f.problem();
+        let mut v = f.v.clone();
+        v.resize_with(f.tree.levels.len(), Vec::new);
+        let empty = Vec::new();
+        let mut g_finer: Vec<f64> = Vec::new();
+        let mut pushed_levels = 0;
+        for t in (f.base_level..=f.max_level()).rev() {
+            let tab = p.tables[t as usize].as_ref().expect("tables");
+            let v_finer = v.get(t as usize + 1).unwrap_or(&empty);
+            let gf = (t < f.max_level()).then_some(g_finer.as_slice());
+            let (g, b) =
+                divergence_constraints(&f.tree, t, tab, f.fem, &v[t as usize], v_finer, gf);
+            let sys = constraint_level(&p, t, &v[t as usize], v_finer, gf);
+            pushed_levels += usize::from(sys.push);
+            let (eg, eb) = constraints(&kernels, &sys);
+            assert_eq!(f64_bits(&g), f64_bits(&eg), "{what}, level {t}: G");
+            same_bits(&b, &eb, &format!("{what}, level {t}: T"));
+            g_finer = g;
+        }
+        assert!(pushed_levels > 0, "{what}: no level had finer V to push");
     }
 }

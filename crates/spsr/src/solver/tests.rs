@@ -149,7 +149,7 @@ pub(super) struct Fixture {
     pub(super) fem: Basis,
     tables: Vec<Option<DepthTables>>,
     clusters: Vec<Clusters>,
-    v: Vec<Vec<[f32; 3]>>,
+    pub(super) v: Vec<Vec<[f32; 3]>>,
     pub(super) base_level: u32,
     singular: bool,
 }
@@ -630,6 +630,14 @@ fn the_gpu_gives_the_cpus_bits() {
             }
             assert_eq!(dev.take_failure(), None, "{what}, level {t}");
         }
+        let mut v = f.v.clone();
+        v.resize_with(f.tree.levels.len(), Vec::new);
+        let cpu_t = constraints(&cpu_p, &v, f.base_level);
+        let gpu_t = constraints(&gpu_p, &v, f.base_level);
+        assert_eq!(dev.take_failure(), None, "{what}: constraints");
+        for (t, (c, g)) in cpu_t.iter().zip(&gpu_t).enumerate() {
+            assert_eq!(bits(c), bits(g), "{what}, level {t}: constraints");
+        }
         for (solver, cycles) in [
             (crate::Solver::Cascadic, 1),
             (crate::Solver::Cascadic, 2),
@@ -655,7 +663,11 @@ fn the_gpu_gives_the_cpus_bits() {
             );
             assert_eq!(dev.take_failure(), None, "{what}");
             let steps = dev.take_timings();
-            for kind in [GpuKernel::RightHandSide, GpuKernel::Relaxation] {
+            for kind in [
+                GpuKernel::Constraints,
+                GpuKernel::RightHandSide,
+                GpuKernel::Relaxation,
+            ] {
                 assert!(
                     steps.iter().any(|s| s.kind == kind),
                     "{what} {solver:?} x {cycles}: no {kind:?} on the GPU"
