@@ -2,6 +2,8 @@
 //! ([`extract_blocks`]), each block with its own corner cache and output, and the blocks'
 //! outputs are then numbered globally and assembled into one mesh ([`Blocks::assemble`]).
 
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
@@ -423,43 +425,66 @@ impl Blocks {
                 }
             }
         });
-        let mut triangles: Vec<[u32; 3]> =
-            Vec::with_capacity(chunks.iter().map(|c| c.tris.len()).sum());
         let with_normals = chunks
             .iter()
             .any(|c| !c.owned_nrm.is_empty() || !c.bary_nrm.is_empty());
-        let mut normals: Vec<[f32; 3]> = Vec::with_capacity(if with_normals { total } else { 0 });
-        let mut vertices = Vec::with_capacity(total);
-        let mut is_edge = Vec::with_capacity(if cfg!(test) { total } else { 0 });
-        for (c, &base) in chunks.into_iter().zip(&bases) {
-            let bary_base = (base + c.owned_keys.len()) as u64;
-            triangles.par_extend(c.tris.par_iter().map(|t| {
-                t.map(|r| {
-                    if r & BARY != 0 {
-                        (bary_base + (r & !BARY)) as u32
-                    } else {
-                        vt.get(r).unwrap_or(u32::MAX)
-                    }
+        let is_edge = if cfg!(test) {
+            chunks
+                .iter()
+                .flat_map(|c| {
+                    let own = std::iter::repeat_n(true, c.owned_pos.len());
+                    own.chain(std::iter::repeat_n(false, c.bary.len()))
                 })
-            }));
-            vertices.extend_from_slice(&c.owned_pos);
-            vertices.extend_from_slice(&c.bary);
-            if with_normals {
-                normals.extend_from_slice(&c.owned_nrm);
-                normals.extend_from_slice(&c.bary_nrm);
-            }
-            if cfg!(test) {
-                is_edge.extend(std::iter::repeat_n(true, c.owned_pos.len()));
-                is_edge.extend(std::iter::repeat_n(false, c.bary.len()));
-            }
-        }
+                .collect()
+        } else {
+            Vec::new()
+        };
+        // Each block's share of the mesh is a fixed range of each array (its place in the
+        // block order), filled by blocks in parallel; a block's output is freed once copied.
+        let mut triangles = vec![[0u32; 3]; chunks.iter().map(|c| c.tris.len()).sum()];
+        let mut vertices = vec![[0.0f64; 3]; total];
+        let nrm_len = |c: &ChunkOut| c.owned_nrm.len() + c.bary_nrm.len();
+        let mut normals = vec![[0.0f32; 3]; chunks.iter().map(nrm_len).sum()];
+        let tri_parts = split_into(&mut triangles, chunks.iter().map(|c| c.tris.len()));
+        let pos_parts = split_into(
+            &mut vertices,
+            chunks.iter().map(|c| c.owned_pos.len() + c.bary.len()),
+        );
+        let nrm_parts = split_into(&mut normals, chunks.iter().map(nrm_len));
+        chunks
+            .into_par_iter()
+            .zip(bases)
+            .zip(tri_parts)
+            .zip(pos_parts)
+            .zip(nrm_parts)
+            .for_each(|((((c, base), tris), pos), nrm)| {
+                let bary_base = (base + c.owned_keys.len()) as u64;
+                for (out, t) in tris.iter_mut().zip(&c.tris) {
+                    *out = t.map(|r| {
+                        if r & BARY != 0 {
+                            (bary_base + (r & !BARY)) as u32
+                        } else {
+                            vt.get(r).unwrap_or(u32::MAX)
+                        }
+                    });
+                }
+                let (own, bary) = pos.split_at_mut(c.owned_pos.len());
+                own.copy_from_slice(&c.owned_pos);
+                bary.copy_from_slice(&c.bary);
+                let (own, bary) = nrm.split_at_mut(c.owned_nrm.len());
+                own.copy_from_slice(&c.owned_nrm);
+                bary.copy_from_slice(&c.bary_nrm);
+            });
         drop(vt);
-        let unowned = triangles.par_iter().flatten().any(|&i| i == u32::MAX);
+        // Per triangle, not `flatten`: rayon's `flatten` makes an iterator of each triangle,
+        // which cost more than the test.
+        let unowned = triangles.par_iter().any(|t| t.contains(&u32::MAX));
         if unowned {
             return Err(bad_leaves(
                 "the leaves do not tile the unit cube (unowned iso-vertex)",
             ));
         }
+        let mut is_edge = is_edge;
         drop_unused(
             &mut vertices,
             &mut normals,
@@ -480,6 +505,16 @@ impl Blocks {
     }
 }
 
+/// `v` cut into consecutive slices of the given lengths (which must sum to at most its length).
+fn split_into<T>(mut v: &mut [T], lens: impl Iterator<Item = usize>) -> Vec<&mut [T]> {
+    lens.map(|n| {
+        let (head, tail) = std::mem::take(&mut v).split_at_mut(n);
+        v = tail;
+        head
+    })
+    .collect()
+}
+
 /// Drops the vertices no triangle uses (possible only next to dropped two-vertex loops), with
 /// their normals and (in test builds) edge flags, and renumbers the triangles.
 fn drop_unused(
@@ -489,13 +524,18 @@ fn drop_unused(
     is_edge: &mut Vec<bool>,
     triangles: &mut [[u32; 3]],
 ) {
-    let mut used = vec![false; vertices.len()];
-    for &i in triangles.iter().flatten() {
-        used[i as usize] = true;
-    }
-    if used.iter().all(|&u| u) {
+    let marks: Vec<AtomicBool> = (0..vertices.len())
+        .map(|_| AtomicBool::new(false))
+        .collect();
+    triangles.par_iter().for_each(|t| {
+        for &i in t {
+            marks[i as usize].store(true, Ordering::Relaxed);
+        }
+    });
+    if marks.par_iter().all(|u| u.load(Ordering::Relaxed)) {
         return;
     }
+    let used: Vec<bool> = marks.into_iter().map(AtomicBool::into_inner).collect();
     let mut remap = vec![u32::MAX; vertices.len()];
     let mut kept = Vec::with_capacity(vertices.len());
     let mut kept_nrm = Vec::with_capacity(normals.len());
