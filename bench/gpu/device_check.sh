@@ -8,7 +8,8 @@
 #   bash bench/gpu/device_check.sh [POINTS] [DEPTH]
 # 1. the GPU unit tests (right-hand sides, sweeps and solves against the CPU's, bit for bit);
 #    on a failure it stops there, to leave device time for a fix;
-# 2. a small cloud (POINTS/10, DEPTH-2) on the CPU and twice on the GPU: the same bytes?
+# 2. a small cloud (POINTS/10, DEPTH-2) on the CPU and twice on the GPU: the same bytes? Then
+#    PoissonRecon on every core, on the same cloud and depth;
 # 3. POINTS points at DEPTH: the CPU on every core, then --gpu, then PoissonRecon on every
 #    core (each -v); the CPU's and the GPU's meshes compared byte for byte.
 set -u
@@ -63,6 +64,12 @@ run "$W/small.ply" $((DEPTH - 2)) small-gpu2 --gpu
 cmp "$W/small-cpu.ply" "$W/small-gpu.ply" && echo "small: GPU bytes == CPU bytes"
 cmp "$W/small-gpu.ply" "$W/small-gpu2.ply" && echo "small: GPU bytes == GPU bytes"
 sha256sum "$W"/small-*.ply | sed "s|$W/||"
+if [ -x "$B/PoissonRecon" ]; then
+    OMP_NUM_THREADS=$(nproc) timeout 90 /usr/bin/time -f "%e s wall, %M KiB peak" \
+        "$B/PoissonRecon" --in "$W/small.ply" --out "$W/small-pr.ply" --depth $((DEPTH - 2)) \
+        > "$OUT/small-pr.log" 2>&1
+    stamp "small-pr: exit $? $(tail -1 "$OUT/small-pr.log")"
+fi
 
 stamp "== big: $POINTS points at depth $DEPTH"
 sample "$POINTS" "$W/big.ply"

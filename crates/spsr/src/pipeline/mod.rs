@@ -487,7 +487,10 @@ pub(crate) fn solve_implicit(
     warnings.extend(gpu_warning);
     if let Some(reason) = gpu.as_ref().and_then(|g| g.take_failure()) {
         warnings.push(Warning::GpuNotUsed {
-            reason: format!("{reason}; that depth and the rest were relaxed on the CPU"),
+            reason: format!(
+                "{reason}; that step, and any other the card could not do, ran on the CPU, \
+                 with the same result"
+            ),
         });
     }
     let solve_report = solution.report.take();
