@@ -48,6 +48,7 @@
 //! chosen per sample from one smoothing pass.)
 
 use rayon::prelude::*;
+
 use rustc_hash::FxHashMap;
 
 use crate::density::{cell_of, DepthAndArea, Sample};
@@ -203,17 +204,49 @@ fn dot_from(p: [f64; 3], o: [f64; 3], v: [f64; 3]) -> f64 {
     (0..3).map(|a| (p[a] - o[a]) * v[a]).sum()
 }
 
-fn pack(c: [i64; 3]) -> u64 {
-    (c[0] as u64) | ((c[1] as u64) << 21) | ((c[2] as u64) << 42)
+/// The Morton code of cell `c`.
+fn code_of_cell(c: [i64; 3]) -> u64 {
+    morton::encode(c.map(|v| v as u64))
 }
 
-fn unpack(k: u64) -> [i64; 3] {
-    let m = (1u64 << 21) - 1;
-    [
-        (k & m) as i64,
-        ((k >> 21) & m) as i64,
-        ((k >> 42) & m) as i64,
-    ]
+/// Bits of a cell's Morton code that pick its shard of a [`CodeIndex`]: 4,096 shards, the
+/// cells of depth 4, enough to share a depth's cells evenly among the threads.
+const SHARD_BITS: u32 = 12;
+
+/// The position of each of a depth's occupied cells by its Morton code. The codes are sorted,
+/// so each shard holds a run of consecutive cells and the shards are built in parallel: one
+/// map filled cell by cell was most of the noise stage's serial time.
+struct CodeIndex {
+    shift: u32,
+    shards: Vec<FxHashMap<u64, u32>>,
+}
+
+impl CodeIndex {
+    /// The index of the sorted `codes` of cells at `depth`.
+    fn new(codes: &[u64], depth: u32) -> Self {
+        let bits = (3 * depth).min(SHARD_BITS);
+        let shift = 3 * depth - bits;
+        let bounds: Vec<usize> = (0..=1u64 << bits)
+            .map(|s| codes.partition_point(|&c| c >> shift < s))
+            .collect();
+        let shards = bounds
+            .par_windows(2)
+            .map(|w| {
+                let mut m = FxHashMap::with_capacity_and_hasher(w[1] - w[0], Default::default());
+                m.extend((w[0]..w[1]).map(|k| (codes[k], k as u32)));
+                m
+            })
+            .collect();
+        CodeIndex { shift, shards }
+    }
+
+    /// The position of the cell with Morton code `code`, if occupied; codes of cells outside
+    /// the cube fall past the last shard.
+    #[inline]
+    fn get(&self, code: u64) -> Option<usize> {
+        let shard = self.shards.get((code >> self.shift) as usize)?;
+        shard.get(&code).map(|&k| k as usize)
+    }
 }
 
 /// The occupied cells of one depth, in Morton order: each cell's code, its moments and sample
@@ -223,7 +256,7 @@ struct Depth {
     codes: Vec<u64>,
     moments: Vec<(Moments, f64)>,
     ranges: Vec<(u32, u32)>,
-    index: FxHashMap<u64, u32>,
+    index: CodeIndex,
     /// Each cell's children as a range of the next finer depth's cells (empty at the finest).
     children: Vec<(u32, u32)>,
 }
@@ -231,7 +264,7 @@ struct Depth {
 impl Depth {
     /// The cells of the finest depth from the samples sorted by code, `(code, sample)`: a
     /// cell's moments are its samples' added in the samples' order.
-    fn finest(samples: &[Sample], sorted: &[(u64, u32)]) -> Self {
+    fn finest(samples: &[Sample], sorted: &[(u64, u32)], top: u32) -> Self {
         let runs = runs(sorted.len(), |k| sorted[k].0);
         let moments = runs
             .par_iter()
@@ -244,12 +277,12 @@ impl Depth {
             })
             .collect();
         let codes = runs.iter().map(|&(a, _)| sorted[a as usize].0).collect();
-        Depth::new(codes, moments, runs)
+        Depth::new(codes, moments, runs, top)
     }
 
     /// The cells of the next coarser depth: a cell's moments are its children's added in
-    /// Morton order.
-    fn parent(&self) -> Self {
+    /// Morton order. `depth` is the new cells' depth.
+    fn parent(&self, depth: u32) -> Self {
         let runs = runs(self.codes.len(), |k| self.codes[k] >> 3);
         let moments = runs
             .par_iter()
@@ -271,14 +304,18 @@ impl Depth {
             .iter()
             .map(|&(a, b)| (self.ranges[a as usize].0, self.ranges[b as usize - 1].1))
             .collect();
-        let mut up = Depth::new(codes, moments, ranges);
+        let mut up = Depth::new(codes, moments, ranges, depth);
         up.children = runs;
         up
     }
 
-    fn new(codes: Vec<u64>, moments: Vec<(Moments, f64)>, ranges: Vec<(u32, u32)>) -> Self {
-        let mut index = FxHashMap::with_capacity_and_hasher(codes.len(), Default::default());
-        index.extend(codes.iter().enumerate().map(|(k, &c)| (c, k as u32)));
+    fn new(
+        codes: Vec<u64>,
+        moments: Vec<(Moments, f64)>,
+        ranges: Vec<(u32, u32)>,
+        depth: u32,
+    ) -> Self {
+        let index = CodeIndex::new(&codes, depth);
         Depth {
             codes,
             moments,
@@ -291,8 +328,7 @@ impl Depth {
     /// The position of the cell at `c`, if occupied.
     #[inline]
     fn find(&self, c: [i64; 3]) -> Option<usize> {
-        let code = morton::encode(c.map(|v| v as u64));
-        self.index.get(&code).map(|&k| k as usize)
+        self.index.get(code_of_cell(c))
     }
 
     /// The cell coordinates of the cell at position `k`.
@@ -414,9 +450,9 @@ fn depths(samples: &[Sample], top: u32) -> (Vec<Depth>, Vec<(u64, u32)>) {
         })
         .collect();
     sorted.par_sort_unstable();
-    let mut out = vec![Depth::finest(samples, &sorted)];
-    for _ in 0..top {
-        let up = out.last().expect("the finest depth").parent();
+    let mut out = vec![Depth::finest(samples, &sorted, top)];
+    for d in (0..top).rev() {
+        let up = out.last().expect("the finest depth").parent(d);
         out.push(up);
     }
     out.reverse();
@@ -445,7 +481,10 @@ pub fn measure(samples: &[Sample], top: u32) -> Measured {
     // The position of sample `i`'s cell at depth `d`.
     let cell_at = |i: usize, d: u32| -> usize {
         let code = code_of[i] >> (3 * (top - d));
-        depths[d as usize].index[&code] as usize
+        depths[d as usize]
+            .index
+            .get(code)
+            .expect("an occupied cell")
     };
     // Each sample's finest flat depth and cell there.
     let home: Vec<Option<(u32, u32)>> = (0..samples.len())
@@ -613,34 +652,51 @@ const SECOND_SMOOTHING: u32 = 2;
 
 /// Smooths the noise: each sample takes the median noise of the measured samples (those
 /// not NaN) in the 3×3×3 cells around it at depth `d`; 0 where none was measured.
+///
+/// The samples are grouped by cell through one parallel sort of their cells' Morton codes
+/// (not a map filled sample by sample, which was serial); a median does not depend on the
+/// order of its values, so neither does the result.
 fn smooth(samples: &[Sample], sigma: &[f64], d: u32) -> Vec<f64> {
-    let mut by_cell: FxHashMap<u64, Vec<f64>> = FxHashMap::default();
-    for (s, &c) in samples.iter().zip(sigma) {
-        let e = by_cell.entry(pack(cell_of(s.pos, d))).or_default();
-        if !c.is_nan() {
-            e.push(c);
-        }
-    }
-    let keys: Vec<u64> = by_cell.keys().copied().collect();
-    let medians: FxHashMap<u64, f64> = keys
+    let mut sorted: Vec<(u64, u32)> = samples
         .par_iter()
-        .map_init(Vec::new, |buf: &mut Vec<f64>, &k| {
+        .enumerate()
+        .map(|(i, s)| (code_of_cell(cell_of(s.pos, d)), i as u32))
+        .collect();
+    sorted.par_sort_unstable();
+    let cells = runs(sorted.len(), |k| sorted[k].0);
+    let codes: Vec<u64> = cells
+        .par_iter()
+        .map(|&(a, _)| sorted[a as usize].0)
+        .collect();
+    let index = CodeIndex::new(&codes, d);
+    let medians: Vec<f64> = codes
+        .par_iter()
+        .map_init(Vec::new, |buf: &mut Vec<f64>, &code| {
             buf.clear();
-            for_each_neighbour(unpack(k), |q| {
-                if let Some(v) = by_cell.get(&pack(q)) {
-                    buf.extend_from_slice(v);
-                }
+            let c = morton::decode(code).map(|v| v as i64);
+            for_each_neighbour(c, |q| {
+                let Some(k) = index.get(code_of_cell(q)) else {
+                    return;
+                };
+                let (a, b) = cells[k];
+                let values = sorted[a as usize..b as usize]
+                    .iter()
+                    .map(|&(_, i)| sigma[i as usize]);
+                buf.extend(values.filter(|v| !v.is_nan()));
             });
             if buf.is_empty() {
-                return (k, 0.0);
+                return 0.0;
             }
             let m = buf.len() / 2;
-            (k, *buf.select_nth_unstable_by(m, f64::total_cmp).1)
+            *buf.select_nth_unstable_by(m, f64::total_cmp).1
         })
         .collect();
     samples
         .par_iter()
-        .map(|s| medians[&pack(cell_of(s.pos, d))])
+        .map(|s| {
+            let k = index.get(code_of_cell(cell_of(s.pos, d)));
+            medians[k.expect("a sample's cell")]
+        })
         .collect()
 }
 
