@@ -71,8 +71,9 @@ pub(super) struct CornerCache<H> {
     g: Vec<Option<[f64; 3]>>,
 }
 
-/// Most slots of the dense corner grid (1 MiB): a box of 64 finest cells per axis fits.
-const MAX_GRID: usize = 1 << 18;
+/// Most slots of the dense corner grid (16 MiB): a block of 128 finest cells per axis (129³
+/// corners) fits, which is a block of the base depth 5 at depth 12.
+const MAX_GRID: usize = 1 << 22;
 
 impl<H> Default for CornerCache<H> {
     fn default() -> Self {
