@@ -598,18 +598,29 @@ fn v_brood(v: &[[f32; 3]], b: u32) -> [[f64; 8]; 3] {
 }
 
 /// The broods of `next` with a nonzero V, in 125 colours by their parent's key modulo 5 per
-/// axis (see [`push_finer_v`]), each colour in brood order.
+/// axis (see [`push_finer_v`]), each colour in brood order. Runs of broods are sorted into
+/// colours in parallel, and each colour's runs joined in order.
 pub(crate) fn push_colours(level: &Level, next: &Level, v_finer: &[[f32; 3]]) -> Vec<Vec<u32>> {
-    let mut colours: Vec<Vec<u32>> = vec![Vec::new(); 125];
-    for b in 0..(next.len() / 8) as u32 {
-        let base = (b * 8) as usize;
-        if v_finer[base..base + 8].iter().all(|x| *x == [0.0; 3]) {
-            continue;
-        }
-        let k = level.key(next.brood_parent[b as usize]);
-        colours[(k[0] % 5 + 5 * (k[1] % 5) + 25 * (k[2] % 5)) as usize].push(b);
-    }
-    colours
+    const RUN: u32 = 1 << 14;
+    let broods = (next.len() / 8) as u32;
+    let runs: Vec<Vec<Vec<u32>>> = (0..broods.div_ceil(RUN))
+        .into_par_iter()
+        .map(|r| {
+            let mut colours: Vec<Vec<u32>> = vec![Vec::new(); 125];
+            for b in r * RUN..broods.min((r + 1) * RUN) {
+                let base = (b * 8) as usize;
+                if v_finer[base..base + 8].iter().all(|x| *x == [0.0; 3]) {
+                    continue;
+                }
+                let k = level.key(next.brood_parent[b as usize]);
+                colours[(k[0] % 5 + 5 * (k[1] % 5) + 25 * (k[2] % 5)) as usize].push(b);
+            }
+            colours
+        })
+        .collect();
+    (0..125)
+        .map(|c| runs.iter().flat_map(|run| &run[c]).copied().collect())
+        .collect()
 }
 
 /// `∫∇B_I · V_{d+1}` for every FEM function `I` of level `t` (depth `d`), pushed from each
