@@ -179,12 +179,15 @@ impl Device {
             ));
         }
         let clock = Instant::now();
-        let res = self
-            .upload_arrays(sys)
-            .map_err(|e| driver(&format!("copying depth {} to {}", sys.depth, self.name), e))?;
+        let res = self.upload_arrays(sys).map_err(|e| {
+            driver(
+                &format!("copying depth {} to {}", sys.shape.depth, self.name),
+                e,
+            )
+        })?;
         self.record(GpuRelaxation {
             kind: GpuKernel::Upload,
-            depth: sys.depth,
+            depth: sys.shape.depth,
             nodes: res.nodes,
             sweeps: 0,
             transfer: clock.elapsed(),
@@ -197,17 +200,17 @@ impl Device {
     fn upload_arrays(&self, sys: &LevelSystem) -> Result<Resident, DriverError> {
         let s = &self.stream;
         let res = Resident {
-            depth: sys.depth,
-            depth_arg: sys.depth as i32,
-            nodes: sys.nodes,
-            nodes_arg: sys.nodes as u32,
+            depth: sys.shape.depth,
+            depth_arg: sys.shape.depth as i32,
+            nodes: sys.shape.nodes,
+            nodes_arg: sys.shape.nodes as u32,
             clusters: sys.omega.len(),
             clusters_arg: sys.omega.len() as u32,
-            lo: sys.lo,
-            hi: sys.hi,
+            lo: sys.shape.lo,
+            hi: sys.shape.hi,
             words: sys.rank_bits.len() as u64,
-            nbrs: upload(s, sys.brood_nbrs.as_flattened())?,
-            keys: upload(s, sys.brood_key.as_flattened())?,
+            nbrs: upload(s, sys.shape.brood_nbrs.as_flattened())?,
+            keys: upload(s, sys.shape.brood_key.as_flattened())?,
             stencil: upload(s, &sys.stencil[..])?,
             brood_start: upload(s, &sys.brood_start)?,
             brood_slot: upload(s, &sys.brood_slot)?,
@@ -491,13 +494,13 @@ impl Device {
         sys: &ConstraintLevel,
         finer: Option<OnCard>,
     ) -> Result<(Vec<f32>, OnCard), String> {
-        let broods = sys.nodes / 8;
+        let broods = sys.shape.nodes / 8;
         let finer_g = finer
             .as_ref()
             .map_or(sys.g_finer.is_some(), |f| f.g.is_some());
-        if sys.brood_nbrs.len() != broods
-            || !(sys.v.is_empty() || sys.v.len() == sys.nodes)
-            || !(sys.children.is_empty() || sys.children.len() == sys.nodes)
+        if sys.shape.brood_nbrs.len() != broods
+            || !(sys.v.is_empty() || sys.v.len() == sys.shape.nodes)
+            || !(sys.children.is_empty() || sys.children.len() == sys.shape.nodes)
             || (sys.push && sys.v_finer.len() != 8 * sys.next_parent.len())
             || (finer_g && sys.children.is_empty())
         {
@@ -507,15 +510,15 @@ impl Device {
         let run = || -> Result<(Vec<f32>, OnCard), DriverError> {
             let s = &self.stream;
             let clock = Instant::now();
-            let nbrs = upload(s, sys.brood_nbrs.as_flattened())?;
-            let keys = upload(s, sys.brood_key.as_flattened())?;
+            let nbrs = upload(s, sys.shape.brood_nbrs.as_flattened())?;
+            let keys = upload(s, sys.shape.brood_key.as_flattened())?;
             let v = upload(s, sys.v.as_flattened())?;
             let (finer_v, finer_g) = match finer {
                 Some(f) => (Some(f.v), f.g),
                 None => (None, sys.g_finer.map(|g| upload(s, g)).transpose()?),
             };
-            let mut g = s.alloc_zeros::<f64>(if keep_g { sys.nodes.max(1) } else { 1 })?;
-            let mut b = s.alloc_zeros::<f32>(sys.nodes.max(1))?;
+            let mut g = s.alloc_zeros::<f64>(if keep_g { sys.shape.nodes.max(1) } else { 1 })?;
+            let mut b = s.alloc_zeros::<f32>(sys.shape.nodes.max(1))?;
             s.synchronize()?;
             let mut transfer = clock.elapsed();
             let mut kernels = Duration::ZERO;
@@ -532,7 +535,7 @@ impl Device {
                 s.synchronize()?;
                 transfer += clock.elapsed();
                 let clock = Instant::now();
-                let (depth, rows) = (sys.depth as i32, sys.cvmass.len() as u64);
+                let (depth, rows) = (sys.shape.depth as i32, sys.cvmass.len() as u64);
                 let mut start = 0usize;
                 for &end in &sys.push_ends {
                     let (first, count) = (start as u64, (end - start) as u32);
@@ -578,8 +581,8 @@ impl Device {
             let clock = Instant::now();
             let null = 0u64;
             let (count, depth, nchildren) = (
-                sys.nodes as u32,
-                sys.depth as i32,
+                sys.shape.nodes as u32,
+                sys.shape.depth as i32,
                 sys.children.len() as u64,
             );
             let mut launch = s.launch_builder(&self.constraint_rows);
@@ -588,8 +591,8 @@ impl Device {
                 .arg(&nbrs)
                 .arg(&keys)
                 .arg(&depth)
-                .arg(&sys.lo)
-                .arg(&sys.hi)
+                .arg(&sys.shape.lo)
+                .arg(&sys.shape.hi)
                 .arg(&vstart)
                 .arg(&vslot)
                 .arg(&vcoef)
@@ -629,12 +632,12 @@ impl Device {
             s.synchronize()?;
             kernels += clock.elapsed();
             let clock = Instant::now();
-            let b = download(s, &b, sys.nodes)?;
+            let b = download(s, &b, sys.shape.nodes)?;
             transfer += clock.elapsed();
             self.record(GpuRelaxation {
                 kind: GpuKernel::Constraints,
-                depth: sys.depth,
-                nodes: sys.nodes,
+                depth: sys.shape.depth,
+                nodes: sys.shape.nodes,
                 sweeps: 1,
                 transfer,
                 kernels,
@@ -645,7 +648,10 @@ impl Device {
         };
         run().map_err(|e| {
             driver(
-                &format!("the constraints of depth {} on {}", sys.depth, self.name),
+                &format!(
+                    "the constraints of depth {} on {}",
+                    sys.shape.depth, self.name
+                ),
                 e,
             )
         })

@@ -103,12 +103,10 @@ pub struct GpuRelaxation {
 }
 
 #[cfg(feature = "gpu")]
-/// One octree depth's system as the relaxation kernel reads it: the level's neighbour
-/// tables, the stiffness stencil and 1-D tables, the screening clusters, and the order in
-/// which its nodes are relaxed.
-pub struct LevelSystem<'a> {
-    /// Degree of the finite elements (1 or 2).
-    pub degree: u8,
+/// One octree depth's nodes as every kernel reads them: their depth and count, where they lie
+/// and who their neighbours are, and the range of their function indices.
+#[derive(Clone, Copy)]
+pub struct LevelShape<'a> {
     /// Unit-cube depth of the level (a node's function index is its key minus `2^depth`).
     pub depth: u32,
     /// Nodes of the level.
@@ -121,6 +119,17 @@ pub struct LevelSystem<'a> {
     pub lo: i64,
     /// Highest function index per axis.
     pub hi: i64,
+}
+
+#[cfg(feature = "gpu")]
+/// One octree depth's system as the relaxation kernel reads it: the level's neighbour
+/// tables, the stiffness stencil and 1-D tables, the screening clusters, and the order in
+/// which its nodes are relaxed.
+pub struct LevelSystem<'a> {
+    /// Degree of the finite elements (1 or 2).
+    pub degree: u8,
+    /// The level's nodes.
+    pub shape: LevelShape<'a>,
     /// The interior stiffness stencil, by window index.
     pub stencil: &'a [f64; 125],
     /// The same stencil by neighbouring brood (`system::BroodStencil`), as the CPU sums an
@@ -179,18 +188,8 @@ pub struct LevelSystem<'a> {
 /// `constraint_rows` read them (`system::divergence_constraints`): the depth's neighbour tables
 /// and 1-D tables, the V of the depth and of the next, and the next depth's `G`.
 pub struct ConstraintLevel<'a> {
-    /// Unit-cube depth of the level.
-    pub depth: u32,
-    /// Nodes of the level.
-    pub nodes: usize,
-    /// The 27 broods around each brood.
-    pub brood_nbrs: &'a [[u32; 27]],
-    /// The key of each brood's parent.
-    pub brood_key: &'a [[u32; 3]],
-    /// Lowest function index per axis.
-    pub lo: i64,
-    /// Highest function index per axis.
-    pub hi: i64,
+    /// The level's nodes.
+    pub shape: LevelShape<'a>,
     /// The interior V stencils by neighbouring brood (`system::BroodStencil<3>`): where each
     /// child position's entries start (nine values), each entry's brood slot, and its 3 × 8
     /// coefficients.
@@ -238,9 +237,9 @@ impl ConstraintLevel<'_> {
     /// The bytes the two kernels must read or write at least: per node its neighbours (per
     /// brood), key, children, V and results; per next node its V and `G`.
     pub fn bytes(&self) -> u64 {
-        let broods = self.nodes / 8;
+        let broods = self.shape.nodes / 8;
         (broods * (27 * 4 + 12)
-            + self.nodes * (4 + 12 + 8 + 4)
+            + self.shape.nodes * (4 + 12 + 8 + 4)
             + self.v_finer.len() * 12
             + self.g_finer.map_or(0, |g| g.len() * 8)) as u64
     }
@@ -256,7 +255,7 @@ impl LevelSystem<'_> {
         // written; per brood: neighbours and key; per cluster: ω, window, values, χ read and
         // written; the rank bitmap.
         size(nodes, 4 + 8 + 4 + 4)
-            + size(self.brood_nbrs.len(), 27 * 4 + 3 * 4)
+            + size(self.shape.brood_nbrs.len(), 27 * 4 + 3 * 4)
             + size(self.omega.len(), 8 + 12 + 36 + 8 + 8)
             + size(self.rank_bits.len(), 8 + 4)
     }

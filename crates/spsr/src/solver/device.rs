@@ -8,8 +8,8 @@ use rayon::prelude::*;
 
 use super::{Op, Problem};
 use crate::bspline::Table1D;
-use crate::gpu::{ConstraintLevel, Device, LevelSystem, Resident};
-use crate::octree::DEPTH_OFFSET;
+use crate::gpu::{ConstraintLevel, Device, LevelShape, LevelSystem, Resident};
+use crate::octree::{Level, DEPTH_OFFSET};
 use crate::system::{push_colours, BroodStencil};
 
 impl Op<'_> {
@@ -91,12 +91,7 @@ impl Op<'_> {
         }
         LevelSystem {
             degree: self.degree,
-            depth: self.d,
-            nodes: self.level.len(),
-            brood_nbrs: &self.level.brood_nbrs,
-            brood_key: self.level.brood_keys(),
-            lo,
-            hi,
+            shape: level_shape(self.level, self.d, lo, hi),
             stencil: &self.tab.stencil,
             brood_start,
             brood_slot,
@@ -167,6 +162,18 @@ impl Op<'_> {
             let m = i64::from(self.degree) + 1;
             (i[0].rem_euclid(m) + m * (i[1].rem_euclid(m) + m * i[2].rem_euclid(m))) as u32
         }
+    }
+}
+
+/// The nodes of `level` (unit depth `d`, function indices `lo..=hi`) as the kernels read them.
+fn level_shape(level: &Level, d: u32, lo: i64, hi: i64) -> LevelShape<'_> {
+    LevelShape {
+        depth: d,
+        nodes: level.len(),
+        brood_nbrs: &level.brood_nbrs,
+        brood_key: level.brood_keys(),
+        lo,
+        hi,
     }
 }
 
@@ -248,12 +255,7 @@ pub(super) fn constraint_level<'a>(
     }
     let (coarse_lo, cvmass) = tab.cvmass.rows();
     ConstraintLevel {
-        depth: d,
-        nodes: level.len(),
-        brood_nbrs: &level.brood_nbrs,
-        brood_key: level.brood_keys(),
-        lo,
-        hi,
+        shape: level_shape(level, d, lo, hi),
         v_start,
         v_slot,
         v_coef,

@@ -274,12 +274,12 @@ fn compile(src: &Path, lib: &Path) -> Result<(), String> {
 /// The shared arguments of the right-hand-side kernels for `sys`.
 fn level_args(sys: &LevelSystem) -> Level {
     (
-        sys.nodes as u32,
-        sys.brood_nbrs.as_flattened().as_ptr(),
-        sys.brood_key.as_flattened().as_ptr(),
-        sys.depth as i32,
-        sys.lo,
-        sys.hi,
+        sys.shape.nodes as u32,
+        sys.shape.brood_nbrs.as_flattened().as_ptr(),
+        sys.shape.brood_key.as_flattened().as_ptr(),
+        sys.shape.depth as i32,
+        sys.shape.lo,
+        sys.shape.hi,
         sys.rank_bits.as_ptr(),
         sys.rank_before.as_ptr(),
         sys.rank_bits.len() as u64,
@@ -310,10 +310,10 @@ fn first_right_hand_sides(
 ) -> (Vec<f32>, Vec<f32>) {
     let f: FirstRhs = k.get("first_right_hand_sides");
     let a = level_args(sys);
-    let mut r = vec![f32::NAN; sys.nodes];
-    let mut b = vec![f32::NAN; sys.nodes];
+    let mut r = vec![f32::NAN; sys.shape.nodes];
+    let mut b = vec![f32::NAN; sys.shape.nodes];
     let (rp, bp) = (r.as_mut_ptr(), b.as_mut_ptr());
-    k.threads(sys.nodes, || {
+    k.threads(sys.shape.nodes, || {
         // SAFETY: the arguments are the kernel's, over arrays of the sizes it indexes.
         unsafe {
             f(
@@ -362,14 +362,14 @@ fn cycle_right_hand_side(
 ) -> Vec<f32> {
     let f: CycleRhs = k.get("cycle_right_hand_side");
     let a = level_args(sys);
-    let mut r = vec![f32::NAN; sys.nodes];
+    let mut r = vec![f32::NAN; sys.shape.nodes];
     let rp = r.as_mut_ptr();
     let up = if u.is_empty() {
         std::ptr::null()
     } else {
         u.as_ptr()
     };
-    k.threads(sys.nodes, || {
+    k.threads(sys.shape.nodes, || {
         // SAFETY: as in `first_right_hand_sides`; a null `u` is checked by the kernel.
         unsafe {
             f(
@@ -412,8 +412,8 @@ fn gauss_seidel(k: &Kernels, sys: &LevelSystem, rhs: &[f32], x: &mut [f32], iter
     let relax: Relax = k.get("relax");
     let mut chi = vec![f64::NAN; sys.omega.len()];
     let (xp, cp) = (x.as_mut_ptr(), chi.as_mut_ptr());
-    let nbrs = sys.brood_nbrs.as_flattened().as_ptr();
-    let keys = sys.brood_key.as_flattened().as_ptr();
+    let nbrs = sys.shape.brood_nbrs.as_flattened().as_ptr();
+    let keys = sys.shape.brood_key.as_flattened().as_ptr();
     let (first, vals) = (
         sys.first.as_flattened().as_ptr(),
         sys.vals.as_flattened().as_flattened().as_ptr(),
@@ -428,7 +428,7 @@ fn gauss_seidel(k: &Kernels, sys: &LevelSystem, rhs: &[f32], x: &mut [f32], iter
                 vals,
                 nbrs,
                 keys,
-                sys.depth as i32,
+                sys.shape.depth as i32,
                 xp,
                 cp,
             )
@@ -447,9 +447,9 @@ fn gauss_seidel(k: &Kernels, sys: &LevelSystem, rhs: &[f32], x: &mut [f32], iter
                         count as u32,
                         nbrs,
                         keys,
-                        sys.depth as i32,
-                        sys.lo,
-                        sys.hi,
+                        sys.shape.depth as i32,
+                        sys.shape.lo,
+                        sys.shape.hi,
                         sys.stencil.as_ptr(),
                         sys.brood_start.as_ptr(),
                         sys.brood_slot.as_ptr(),
@@ -478,15 +478,15 @@ fn constraints(k: &Kernels, sys: &ConstraintLevel) -> (Vec<f64>, Vec<f32>) {
     let push: PushFinerV = k.get("push_finer_v");
     let rows: ConstraintRows = k.get("constraint_rows");
     let keep_g = sys.push || sys.g_finer.is_some();
-    let mut g = vec![0.0f64; if keep_g { sys.nodes } else { 0 }];
-    let mut b = vec![f32::NAN; sys.nodes];
+    let mut g = vec![0.0f64; if keep_g { sys.shape.nodes } else { 0 }];
+    let mut b = vec![f32::NAN; sys.shape.nodes];
     let gp = if keep_g {
         g.as_mut_ptr()
     } else {
         std::ptr::null_mut()
     };
-    let nbrs = sys.brood_nbrs.as_flattened().as_ptr();
-    let keys = sys.brood_key.as_flattened().as_ptr();
+    let nbrs = sys.shape.brood_nbrs.as_flattened().as_ptr();
+    let keys = sys.shape.brood_key.as_flattened().as_ptr();
     if sys.push {
         let mut start = 0usize;
         for &end in &sys.push_ends {
@@ -501,7 +501,7 @@ fn constraints(k: &Kernels, sys: &ConstraintLevel) -> (Vec<f64>, Vec<f32>) {
                         sys.next_parent.as_ptr(),
                         nbrs,
                         keys,
-                        sys.depth as i32,
+                        sys.shape.depth as i32,
                         sys.coarse_lo,
                         sys.cvmass.len() as u64,
                         sys.cvmass.as_flattened().as_ptr(),
@@ -518,17 +518,17 @@ fn constraints(k: &Kernels, sys: &ConstraintLevel) -> (Vec<f64>, Vec<f32>) {
     let vp = or_null(sys.v.is_empty(), sys.v.as_flattened().as_ptr());
     let gf = sys.g_finer.map_or(std::ptr::null(), |g| g.as_ptr());
     let bp = b.as_mut_ptr();
-    k.threads(sys.nodes, || {
+    k.threads(sys.shape.nodes, || {
         // SAFETY: the kernel's arguments (null for the arrays the CPU has empty); each thread
         // writes its own node's values.
         unsafe {
             rows(
-                sys.nodes as u32,
+                sys.shape.nodes as u32,
                 nbrs,
                 keys,
-                sys.depth as i32,
-                sys.lo,
-                sys.hi,
+                sys.shape.depth as i32,
+                sys.shape.lo,
+                sys.shape.hi,
                 sys.v_start.as_ptr(),
                 sys.v_slot.as_ptr(),
                 sys.v_coef.as_ptr(),
