@@ -5,12 +5,14 @@
 # (../shared/data/gt) and, for the reference's column, `PoissonRecon` (PoissonRecon 18.74's
 # command line, built from the sources pypoisson2 vendors; bench/gpu/README.md). Writes its
 # logs to $OUT.
-#   bash bench/gpu/device_check.sh [POINTS] [DEPTH]
+#   [THREADS="1 4 16"] [BIG=0] [SMALL_V=1] bash bench/gpu/device_check.sh [POINTS] [DEPTH]
 # 1. the GPU unit tests (right-hand sides, sweeps and solves against the CPU's, bit for bit);
 #    on a failure it stops there, to leave device time for a fix;
 # 2. a small cloud (POINTS/10, DEPTH-2) on the CPU and twice on the GPU: the same bytes? Then
 #    PoissonRecon on every core, on the same cloud and depth;
-# 3. POINTS points at DEPTH: the CPU on every core, then --gpu, then PoissonRecon on every
+#    With THREADS, the small cloud also on the CPU with each of those thread counts (-v, for
+#    the stages' speed-ups); with SMALL_V=1 the small runs print their profiles (-v);
+# 3. unless BIG=0: POINTS points at DEPTH: the CPU on every core, then --gpu, then PoissonRecon on every
 #    core (each -v); the CPU's and the GPU's meshes compared byte for byte.
 set -u
 POINTS=${1:-20000000}
@@ -31,7 +33,7 @@ NV=$(python3 -c 'import nvidia, os; print(os.pathsep.join(os.path.join(p, d, "li
 export LD_LIBRARY_PATH=/usr/local/cuda/lib64:${NV}:${LD_LIBRARY_PATH:-}
 
 stamp "== unit tests"
-"$B/spsr-tests" --test-threads 1 --nocapture the_gpu_gives the_kernels_compile > "$OUT/unit.txt" 2>&1
+"$B/spsr-tests" --test-threads 1 --nocapture the_gpu_gives the_kernels_compile copies_through_the_staging > "$OUT/unit.txt" 2>&1
 rc=$?
 tail -15 "$OUT/unit.txt"
 if [ $rc -ne 0 ] || grep -q skipped "$OUT/unit.txt"; then
@@ -58,8 +60,9 @@ run() {  # cloud, depth, name, flags...
 
 stamp "== small: $((POINTS / 10)) points at depth $((DEPTH - 2))"
 sample $((POINTS / 10)) "$W/small.ply"
-run "$W/small.ply" $((DEPTH - 2)) small-cpu
-run "$W/small.ply" $((DEPTH - 2)) small-gpu --gpu
+V=$([ "${SMALL_V:-0}" = 1 ] && echo -v)
+run "$W/small.ply" $((DEPTH - 2)) small-cpu $V
+run "$W/small.ply" $((DEPTH - 2)) small-gpu --gpu $V
 run "$W/small.ply" $((DEPTH - 2)) small-gpu2 --gpu
 cmp "$W/small-cpu.ply" "$W/small-gpu.ply" && echo "small: GPU bytes == CPU bytes"
 cmp "$W/small-gpu.ply" "$W/small-gpu2.ply" && echo "small: GPU bytes == GPU bytes"
@@ -69,6 +72,15 @@ if [ -x "$B/PoissonRecon" ]; then
         "$B/PoissonRecon" --in "$W/small.ply" --out "$W/small-pr.ply" --depth $((DEPTH - 2)) \
         > "$OUT/small-pr.log" 2>&1
     stamp "small-pr: exit $? $(tail -1 "$OUT/small-pr.log")"
+fi
+
+for t in ${THREADS:-}; do
+    run "$W/small.ply" $((DEPTH - 2)) "small-cpu-t$t" --threads "$t" -v
+    rm -f "$W/small-cpu-t$t.ply"
+done
+if [ "${BIG:-1}" = 0 ]; then
+    rm -rf "$W"
+    exit 0
 fi
 
 stamp "== big: $POINTS points at depth $DEPTH"

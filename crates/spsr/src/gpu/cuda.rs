@@ -5,12 +5,13 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use cudarc::driver::{
-    CudaContext, CudaFunction, CudaSlice, CudaStream, DeviceRepr, DriverError, LaunchArgs,
-    LaunchConfig, PushKernelArg,
+    CudaContext, CudaFunction, CudaSlice, CudaStream, DriverError, LaunchArgs, LaunchConfig,
+    PushKernelArg,
 };
 use cudarc::nvrtc::{compile_ptx_with_opts, CompileOptions};
 
-use super::{kernel_source, ConstraintLevel, GpuKernel, GpuRelaxation, LevelSystem};
+use super::staging::Staging;
+use super::{kernel_source, ConstraintLevel, GpuKernel, GpuRelaxation, LevelShape, LevelSystem};
 
 /// Threads per block of every kernel.
 const BLOCK: u32 = 256;
@@ -31,6 +32,18 @@ pub struct Device {
     failure: Mutex<Option<String>>,
     /// The steps run so far.
     timings: Mutex<Vec<GpuRelaxation>>,
+    /// The page-locked buffers large copies pass through.
+    staging: Staging,
+    /// The neighbour tables and keys copied so far, by depth (see [`Device::tables`]).
+    tables: Mutex<Vec<OnCardTable>>,
+}
+
+/// A level's table on the card, and the host array it is a copy of.
+struct OnCardTable {
+    depth: u32,
+    /// Address and length of the host array.
+    host: (usize, usize),
+    dev: Arc<CudaSlice<u32>>,
 }
 
 impl std::fmt::Debug for Device {
@@ -51,8 +64,8 @@ pub struct Resident {
     lo: i64,
     hi: i64,
     words: u64,
-    nbrs: CudaSlice<u32>,
-    keys: CudaSlice<u32>,
+    nbrs: Arc<CudaSlice<u32>>,
+    keys: Arc<CudaSlice<u32>>,
     stencil: CudaSlice<f64>,
     brood_start: CudaSlice<u32>,
     brood_slot: CudaSlice<u32>,
@@ -68,7 +81,7 @@ pub struct Resident {
     order: CudaSlice<u32>,
     class_ends: Vec<usize>,
     brood_parent: CudaSlice<u32>,
-    parent_nbrs: CudaSlice<u32>,
+    parent_nbrs: Arc<CudaSlice<u32>>,
     pstencil: CudaSlice<f64>,
     pvstencil: CudaSlice<f64>,
     nonzero_start: CudaSlice<u32>,
@@ -93,6 +106,7 @@ impl Device {
             return Err("the NVIDIA driver reports no CUDA device".into());
         }
         let ctx = CudaContext::new(0).map_err(|e| driver("opening CUDA device 0", e))?;
+        keep_freed_memory(&ctx);
         let name = ctx.name().unwrap_or_else(|_| "CUDA device 0".into());
         let (major, minor) = ctx
             .compute_capability()
@@ -135,6 +149,8 @@ impl Device {
             name,
             failure: Mutex::new(None),
             timings: Mutex::new(Vec::new()),
+            staging: Staging::default(),
+            tables: Mutex::new(Vec::new()),
         })
     }
 
@@ -155,6 +171,57 @@ impl Device {
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .take()
+    }
+
+    /// Forgets the tables kept on the card ([`Device::tables`]): called before the constraints,
+    /// which copy the tree's tables anew.
+    pub fn forget_tables(&self) {
+        self.tables
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clear();
+    }
+
+    /// The neighbour table of depth `depth`, a copy of `host`: copied by `copy` the first
+    /// time, then the same array on the card. The constraints copy each level's neighbour
+    /// tables and keys, and the solve reads them again (and each level's as its children's
+    /// parent table), so that they cross the bus once. The host array is known by its address
+    /// and length, which cannot change while the tree that holds them lives; the record is
+    /// cleared before each run's constraints, so that a later tree cannot match.
+    fn tables<T>(
+        &self,
+        depth: u32,
+        host: &[T],
+        copy: impl FnOnce() -> Result<CudaSlice<u32>, DriverError>,
+    ) -> Result<Arc<CudaSlice<u32>>, DriverError> {
+        let id = (host.as_ptr() as usize, host.len());
+        let mut tables = self.tables.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(t) = tables.iter().find(|t| t.depth == depth && t.host == id) {
+            return Ok(t.dev.clone());
+        }
+        let dev = Arc::new(copy()?);
+        tables.push(OnCardTable {
+            depth,
+            host: id,
+            dev: dev.clone(),
+        });
+        Ok(dev)
+    }
+
+    /// The neighbour table and keys of the level `shape` on the card ([`Device::tables`]).
+    #[allow(clippy::type_complexity)]
+    fn shape_tables(
+        &self,
+        shape: &LevelShape,
+    ) -> Result<(Arc<CudaSlice<u32>>, Arc<CudaSlice<u32>>), DriverError> {
+        let s = &self.stream;
+        let nbrs = self.tables(shape.depth, shape.brood_nbrs, || {
+            self.staging.upload(s, shape.brood_nbrs.as_flattened())
+        })?;
+        let keys = self.tables(shape.depth, shape.brood_key, || {
+            self.staging.upload(s, shape.brood_key.as_flattened())
+        })?;
+        Ok((nbrs, keys))
     }
 
     /// The steps run so far, in order; clears the record.
@@ -199,6 +266,11 @@ impl Device {
 
     fn upload_arrays(&self, sys: &LevelSystem) -> Result<Resident, DriverError> {
         let s = &self.stream;
+        let (nbrs, keys) = self.shape_tables(&sys.shape)?;
+        let parent_nbrs =
+            self.tables(sys.shape.depth.saturating_sub(1), sys.parent_nbrs, || {
+                self.staging.upload(s, sys.parent_nbrs.as_flattened())
+            })?;
         let res = Resident {
             depth: sys.shape.depth,
             depth_arg: sys.shape.depth as i32,
@@ -209,32 +281,36 @@ impl Device {
             lo: sys.shape.lo,
             hi: sys.shape.hi,
             words: sys.rank_bits.len() as u64,
-            nbrs: upload(s, sys.shape.brood_nbrs.as_flattened())?,
-            keys: upload(s, sys.shape.brood_key.as_flattened())?,
-            stencil: upload(s, &sys.stencil[..])?,
-            brood_start: upload(s, &sys.brood_start)?,
-            brood_slot: upload(s, &sys.brood_slot)?,
-            brood_coef: upload(s, &sys.brood_coef)?,
-            mass: upload(s, &sys.mass)?,
-            stiff: upload(s, &sys.stiff)?,
-            rank_bits: upload(s, sys.rank_bits)?,
-            rank_before: upload(s, sys.rank_before)?,
-            omega: upload(s, sys.omega)?,
-            first: upload(s, sys.first.as_flattened())?,
-            vals: upload(s, sys.vals.as_flattened().as_flattened())?,
-            cl_node: upload(s, sys.cl_node)?,
-            order: upload(s, &sys.order)?,
+            nbrs,
+            keys,
+            stencil: self.staging.upload(s, &sys.stencil[..])?,
+            brood_start: self.staging.upload(s, &sys.brood_start)?,
+            brood_slot: self.staging.upload(s, &sys.brood_slot)?,
+            brood_coef: self.staging.upload(s, &sys.brood_coef)?,
+            mass: self.staging.upload(s, &sys.mass)?,
+            stiff: self.staging.upload(s, &sys.stiff)?,
+            rank_bits: self.staging.upload(s, sys.rank_bits)?,
+            rank_before: self.staging.upload(s, sys.rank_before)?,
+            omega: self.staging.upload(s, sys.omega)?,
+            first: self.staging.upload(s, sys.first.as_flattened())?,
+            vals: self
+                .staging
+                .upload(s, sys.vals.as_flattened().as_flattened())?,
+            cl_node: self.staging.upload(s, sys.cl_node)?,
+            order: self.staging.upload(s, &sys.order)?,
             class_ends: sys.class_ends.clone(),
-            brood_parent: upload(s, sys.brood_parent)?,
-            parent_nbrs: upload(s, sys.parent_nbrs.as_flattened())?,
-            pstencil: upload(s, sys.pstencil.as_flattened())?,
-            pvstencil: upload(s, sys.pvstencil.as_flattened().as_flattened())?,
-            nonzero_start: upload(s, &sys.nonzero_start)?,
-            nonzero: upload(s, &sys.nonzero)?,
-            pmass: upload(s, &sys.pmass)?,
-            pstiff: upload(s, &sys.pstiff)?,
-            pvmass: upload(s, &sys.pvmass)?,
-            pvderiv: upload(s, &sys.pvderiv)?,
+            brood_parent: self.staging.upload(s, sys.brood_parent)?,
+            parent_nbrs,
+            pstencil: self.staging.upload(s, sys.pstencil.as_flattened())?,
+            pvstencil: self
+                .staging
+                .upload(s, sys.pvstencil.as_flattened().as_flattened())?,
+            nonzero_start: self.staging.upload(s, &sys.nonzero_start)?,
+            nonzero: self.staging.upload(s, &sys.nonzero)?,
+            pmass: self.staging.upload(s, &sys.pmass)?,
+            pstiff: self.staging.upload(s, &sys.pstiff)?,
+            pvmass: self.staging.upload(s, &sys.pvmass)?,
+            pvderiv: self.staging.upload(s, &sys.pvderiv)?,
             bytes_per_sweep: sys.bytes_per_sweep(),
         };
         s.synchronize()?;
@@ -266,8 +342,8 @@ impl Device {
         }
         let s = &self.stream;
         let clock = Instant::now();
-        let rhs_d = upload(s, rhs)?;
-        let mut x_d = upload(s, x)?;
+        let rhs_d = self.staging.upload(s, rhs)?;
+        let mut x_d = self.staging.upload(s, x)?;
         let mut chi_d = s.alloc_zeros::<f64>(lvl.clusters.max(1))?;
         s.synchronize()?;
         let uploaded = clock.elapsed();
@@ -280,8 +356,8 @@ impl Device {
                 .arg(&lvl.cl_node)
                 .arg(&lvl.first)
                 .arg(&lvl.vals)
-                .arg(&lvl.nbrs)
-                .arg(&lvl.keys)
+                .arg(&*lvl.nbrs)
+                .arg(&*lvl.keys)
                 .arg(&lvl.depth_arg)
                 .arg(&x_d)
                 .arg(&mut chi_d);
@@ -304,8 +380,8 @@ impl Device {
                     .arg(&lvl.order)
                     .arg(&first_node)
                     .arg(&count)
-                    .arg(&lvl.nbrs)
-                    .arg(&lvl.keys)
+                    .arg(&*lvl.nbrs)
+                    .arg(&*lvl.keys)
                     .arg(&lvl.depth_arg)
                     .arg(&lvl.lo)
                     .arg(&lvl.hi)
@@ -334,8 +410,7 @@ impl Device {
         s.synchronize()?;
         let relaxed = clock.elapsed();
         let clock = Instant::now();
-        s.memcpy_dtoh(&x_d, &mut x[..])?;
-        s.synchronize()?;
+        self.staging.download_into(s, &x_d, x)?;
         self.record(GpuRelaxation {
             kind: GpuKernel::Relaxation,
             depth: lvl.depth,
@@ -367,10 +442,10 @@ impl Device {
         let run = || -> Result<(Vec<f32>, Vec<f32>), DriverError> {
             let s = &self.stream;
             let clock = Instant::now();
-            let tcons_d = upload(s, tcons)?;
-            let pc_d = upload(s, pc)?;
-            let vc_d = upload(s, vc.as_flattened())?;
-            let cchi_d = upload(s, cchi)?;
+            let tcons_d = self.staging.upload(s, tcons)?;
+            let pc_d = self.staging.upload(s, pc)?;
+            let vc_d = self.staging.upload(s, vc.as_flattened())?;
+            let cchi_d = self.staging.upload(s, cchi)?;
             let mut r_d = s.alloc_zeros::<f32>(lvl.nodes.max(1))?;
             let mut b_d = s.alloc_zeros::<f32>(if fixed { lvl.nodes.max(1) } else { 1 })?;
             s.synchronize()?;
@@ -398,9 +473,9 @@ impl Device {
             s.synchronize()?;
             let kernels = clock.elapsed();
             let clock = Instant::now();
-            let r = download(s, &r_d, lvl.nodes)?;
+            let r = self.staging.download(s, &r_d, lvl.nodes)?;
             let b = if fixed {
-                download(s, &b_d, lvl.nodes)?
+                self.staging.download(s, &b_d, lvl.nodes)?
             } else {
                 Vec::new()
             };
@@ -446,10 +521,10 @@ impl Device {
         let run = || -> Result<Vec<f32>, DriverError> {
             let s = &self.stream;
             let clock = Instant::now();
-            let b_d = upload(s, b)?;
-            let pc_d = upload(s, pc)?;
-            let cchi_d = upload(s, cchi)?;
-            let u_d = upload(s, u)?;
+            let b_d = self.staging.upload(s, b)?;
+            let pc_d = self.staging.upload(s, pc)?;
+            let cchi_d = self.staging.upload(s, cchi)?;
+            let u_d = self.staging.upload(s, u)?;
             let mut r_d = s.alloc_zeros::<f32>(lvl.nodes.max(1))?;
             s.synchronize()?;
             let mut transfer = clock.elapsed();
@@ -469,7 +544,7 @@ impl Device {
             s.synchronize()?;
             let kernels = clock.elapsed();
             let clock = Instant::now();
-            let r = download(s, &r_d, lvl.nodes)?;
+            let r = self.staging.download(s, &r_d, lvl.nodes)?;
             transfer += clock.elapsed();
             self.record_rhs(lvl, transfer, kernels, pc.len());
             Ok(r)
@@ -510,12 +585,14 @@ impl Device {
         let run = || -> Result<(Vec<f32>, OnCard), DriverError> {
             let s = &self.stream;
             let clock = Instant::now();
-            let nbrs = upload(s, sys.shape.brood_nbrs.as_flattened())?;
-            let keys = upload(s, sys.shape.brood_key.as_flattened())?;
-            let v = upload(s, sys.v.as_flattened())?;
+            let (nbrs, keys) = self.shape_tables(&sys.shape)?;
+            let v = self.staging.upload(s, sys.v.as_flattened())?;
             let (finer_v, finer_g) = match finer {
                 Some(f) => (Some(f.v), f.g),
-                None => (None, sys.g_finer.map(|g| upload(s, g)).transpose()?),
+                None => (
+                    None,
+                    sys.g_finer.map(|g| self.staging.upload(s, g)).transpose()?,
+                ),
             };
             let mut g = s.alloc_zeros::<f64>(if keep_g { sys.shape.nodes.max(1) } else { 1 })?;
             let mut b = s.alloc_zeros::<f32>(sys.shape.nodes.max(1))?;
@@ -524,14 +601,14 @@ impl Device {
             let mut kernels = Duration::ZERO;
             if sys.push {
                 let clock = Instant::now();
-                let list = upload(s, &sys.push_order)?;
-                let parent = upload(s, sys.next_parent)?;
+                let list = self.staging.upload(s, &sys.push_order)?;
+                let parent = self.staging.upload(s, sys.next_parent)?;
                 let v_finer = match finer_v {
                     Some(v) => v,
-                    None => upload(s, sys.v_finer.as_flattened())?,
+                    None => self.staging.upload(s, sys.v_finer.as_flattened())?,
                 };
-                let cvmass = upload(s, sys.cvmass.as_flattened())?;
-                let cvderiv = upload(s, sys.cvderiv.as_flattened())?;
+                let cvmass = self.staging.upload(s, sys.cvmass.as_flattened())?;
+                let cvderiv = self.staging.upload(s, sys.cvderiv.as_flattened())?;
                 s.synchronize()?;
                 transfer += clock.elapsed();
                 let clock = Instant::now();
@@ -549,8 +626,8 @@ impl Device {
                         .arg(&first)
                         .arg(&count)
                         .arg(&parent)
-                        .arg(&nbrs)
-                        .arg(&keys)
+                        .arg(&*nbrs)
+                        .arg(&*keys)
                         .arg(&depth)
                         .arg(&sys.coarse_lo)
                         .arg(&rows)
@@ -567,15 +644,15 @@ impl Device {
                 kernels += clock.elapsed();
             }
             let clock = Instant::now();
-            let vstart = upload(s, &sys.v_start)?;
-            let vslot = upload(s, &sys.v_slot)?;
-            let vcoef = upload(s, &sys.v_coef)?;
-            let vmass = upload(s, &sys.vmass)?;
-            let vderiv = upload(s, &sys.vderiv)?;
-            let children = upload(s, sys.children)?;
-            let ch_count = upload(s, &sys.child_count)?;
-            let ch_j = upload(s, &sys.child_index)?;
-            let ch_w = upload(s, &sys.child_weight)?;
+            let vstart = self.staging.upload(s, &sys.v_start)?;
+            let vslot = self.staging.upload(s, &sys.v_slot)?;
+            let vcoef = self.staging.upload(s, &sys.v_coef)?;
+            let vmass = self.staging.upload(s, &sys.vmass)?;
+            let vderiv = self.staging.upload(s, &sys.vderiv)?;
+            let children = self.staging.upload(s, sys.children)?;
+            let ch_count = self.staging.upload(s, &sys.child_count)?;
+            let ch_j = self.staging.upload(s, &sys.child_index)?;
+            let ch_w = self.staging.upload(s, &sys.child_weight)?;
             s.synchronize()?;
             transfer += clock.elapsed();
             let clock = Instant::now();
@@ -588,8 +665,8 @@ impl Device {
             let mut launch = s.launch_builder(&self.constraint_rows);
             launch
                 .arg(&count)
-                .arg(&nbrs)
-                .arg(&keys)
+                .arg(&*nbrs)
+                .arg(&*keys)
                 .arg(&depth)
                 .arg(&sys.shape.lo)
                 .arg(&sys.shape.hi)
@@ -632,7 +709,7 @@ impl Device {
             s.synchronize()?;
             kernels += clock.elapsed();
             let clock = Instant::now();
-            let b = download(s, &b, sys.shape.nodes)?;
+            let b = self.staging.download(s, &b, sys.shape.nodes)?;
             transfer += clock.elapsed();
             self.record(GpuRelaxation {
                 kind: GpuKernel::Constraints,
@@ -691,8 +768,8 @@ pub struct OnCard {
 fn push_level<'a>(launch: &mut LaunchArgs<'a>, lvl: &'a Resident) {
     launch
         .arg(&lvl.nodes_arg)
-        .arg(&lvl.nbrs)
-        .arg(&lvl.keys)
+        .arg(&*lvl.nbrs)
+        .arg(&*lvl.keys)
         .arg(&lvl.depth_arg)
         .arg(&lvl.lo)
         .arg(&lvl.hi)
@@ -703,7 +780,7 @@ fn push_level<'a>(launch: &mut LaunchArgs<'a>, lvl: &'a Resident) {
         .arg(&lvl.first)
         .arg(&lvl.vals)
         .arg(&lvl.brood_parent)
-        .arg(&lvl.parent_nbrs)
+        .arg(&*lvl.parent_nbrs)
         .arg(&lvl.pstencil)
         .arg(&lvl.pvstencil)
         .arg(&lvl.nonzero_start)
@@ -723,31 +800,28 @@ fn config(count: u32) -> LaunchConfig {
     }
 }
 
-/// Copies `host` to a new device array (one element when empty: CUDA allocates no zero-size
-/// arrays, and the kernels never read an empty one).
-fn upload<T: DeviceRepr + Default + Clone>(
-    s: &Arc<CudaStream>,
-    host: &[T],
-) -> Result<CudaSlice<T>, DriverError> {
-    if host.is_empty() {
-        s.clone_htod(&[T::default()][..])
-    } else {
-        s.clone_htod(host)
+/// Lets the card's memory pool keep the memory of freed arrays for the next allocation,
+/// instead of handing it back to the driver at every synchronisation (the default): each
+/// depth allocates and frees arrays of the same sizes over and over. Without a pool (old
+/// drivers) nothing changes, so a failure here is ignored.
+fn keep_freed_memory(ctx: &Arc<CudaContext>) {
+    use cudarc::driver::sys;
+    let mut pool = std::mem::MaybeUninit::<sys::CUmemoryPool>::uninit();
+    // SAFETY: the driver writes the device's default pool into `pool` on success, and only
+    // then is it read; the attribute's value is a u64, as the driver expects.
+    unsafe {
+        if sys::cuDeviceGetDefaultMemPool(pool.as_mut_ptr(), ctx.cu_device())
+            .result()
+            .is_ok()
+        {
+            let mut threshold = u64::MAX;
+            let _ = sys::cuMemPoolSetAttribute(
+                pool.assume_init(),
+                sys::CUmemPool_attribute::CU_MEMPOOL_ATTR_RELEASE_THRESHOLD,
+                (&mut threshold as *mut u64).cast(),
+            );
+        }
     }
-}
-
-/// The first `len` values of a device array.
-fn download<T: DeviceRepr + Default + Clone>(
-    s: &Arc<CudaStream>,
-    dev: &CudaSlice<T>,
-    len: usize,
-) -> Result<Vec<T>, DriverError> {
-    let mut out = vec![T::default(); len];
-    if len > 0 {
-        s.memcpy_dtoh(&dev.slice(0..len), &mut out[..])?;
-        s.synchronize()?;
-    }
-    Ok(out)
 }
 
 fn driver(what: &str, e: DriverError) -> String {

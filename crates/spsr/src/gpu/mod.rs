@@ -21,6 +21,8 @@ use crate::octree::WINDOW;
 #[cfg(feature = "gpu")]
 mod cuda;
 #[cfg(feature = "gpu")]
+mod staging;
+#[cfg(feature = "gpu")]
 pub use cuda::{Device, Resident};
 
 /// A GPU that cannot be opened in a build without the cargo feature `gpu`.

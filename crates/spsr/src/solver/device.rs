@@ -195,6 +195,7 @@ pub(super) fn constraints_gpu(
     lowest: u32,
 ) -> Option<Vec<Vec<f32>>> {
     let dev = p.gpu?;
+    dev.forget_tables();
     let nlev = p.tree.levels.len();
     let mut tcons: Vec<Vec<f32>> = vec![Vec::new(); nlev];
     let mut finer = None;
