@@ -607,7 +607,7 @@ mod tests {
     use super::*;
 
     /// Points on a sphere by the golden-angle spiral, with exact outward normals.
-    fn sphere(n: usize, c: [f64; 3], r: f64) -> PointCloud {
+    pub(super) fn sphere(n: usize, c: [f64; 3], r: f64) -> PointCloud {
         let mut pos = Vec::with_capacity(n);
         let mut nor = Vec::with_capacity(n);
         let ga = std::f64::consts::PI * (3.0 - 5f64.sqrt());
