@@ -4,6 +4,8 @@
 
 use std::io::Write;
 
+use rayon::prelude::*;
+
 use crate::attributes::{AttributeData, ScalarType};
 use crate::mesh::Mesh;
 use crate::points::PointCloud;
@@ -205,21 +207,52 @@ fn write_vertices<W: Write>(
     cols: &[Column],
     ascii: bool,
 ) -> std::io::Result<()> {
-    for i in 0..n {
-        if ascii {
-            for (k, c) in cols.iter().enumerate() {
-                if k > 0 {
-                    enc.buf.push(b' ');
-                }
-                put_ascii(&mut enc.buf, c.ty, c.value(i))?;
-            }
-            enc.buf.push(b'\n');
-        } else {
+    if !ascii {
+        return write_rows(enc, n, |buf, i| {
             for c in cols {
-                put_binary(&mut enc.buf, c.ty, c.value(i));
+                put_binary(buf, c.ty, c.value(i));
             }
+        });
+    }
+    for i in 0..n {
+        for (k, c) in cols.iter().enumerate() {
+            if k > 0 {
+                enc.buf.push(b' ');
+            }
+            put_ascii(&mut enc.buf, c.ty, c.value(i))?;
         }
+        enc.buf.push(b'\n');
         enc.maybe_flush()?;
+    }
+    Ok(())
+}
+
+/// Writes the binary rows `0..n`, each encoded by `row`: a batch at a time, its rows encoded
+/// in parts by every thread and the parts written in order (the same bytes as one loop).
+fn write_rows<W: Write>(
+    enc: &mut Encoder<W>,
+    n: usize,
+    row: impl Fn(&mut Vec<u8>, usize) + Sync,
+) -> std::io::Result<()> {
+    const BATCH: usize = 1 << 20;
+    const PART: usize = 1 << 14;
+    for start in (0..n).step_by(BATCH) {
+        let end = (start + BATCH).min(n);
+        let parts: Vec<Vec<u8>> = (start..end)
+            .into_par_iter()
+            .step_by(PART)
+            .map(|first| {
+                let mut buf = Vec::new();
+                for i in first..(first + PART).min(end) {
+                    row(&mut buf, i);
+                }
+                buf
+            })
+            .collect();
+        for part in parts {
+            enc.buf.extend_from_slice(&part);
+            enc.maybe_flush()?;
+        }
     }
     Ok(())
 }
@@ -236,15 +269,17 @@ pub(crate) fn write_mesh<W: Write>(out: &mut W, mesh: &Mesh, ascii: bool) -> std
     out.write_all(h.as_bytes())?;
     let mut enc = Encoder::new(out);
     write_vertices(&mut enc, mesh.vertices.len(), &cols, ascii)?;
-    for t in &mesh.triangles {
-        if ascii {
-            writeln!(enc.buf, "3 {} {} {}", t[0], t[1], t[2])?;
-        } else {
-            enc.buf.push(3);
-            for &i in t {
-                enc.buf.extend_from_slice(&(i as i32).to_le_bytes());
+    if !ascii {
+        write_rows(&mut enc, mesh.triangles.len(), |buf, k| {
+            buf.push(3);
+            for &i in &mesh.triangles[k] {
+                buf.extend_from_slice(&(i as i32).to_le_bytes());
             }
-        }
+        })?;
+        return enc.finish();
+    }
+    for t in &mesh.triangles {
+        writeln!(enc.buf, "3 {} {} {}", t[0], t[1], t[2])?;
         enc.maybe_flush()?;
     }
     enc.finish()
