@@ -20,7 +20,6 @@
 //! - the level of tree depth 0 is the virtual root alone; level 1 is its single brood.
 
 use rayon::prelude::*;
-use rustc_hash::FxHashSet;
 
 /// Tree depth of the unit cube.
 pub const DEPTH_OFFSET: u32 = 2;
@@ -194,18 +193,84 @@ fn morton(k: [u32; 3]) -> u64 {
     crate::morton::encode(k.map(u64::from))
 }
 
-/// Requests gathered before building: nodes that must exist, by tree depth.
+/// Requests gathered before building: nodes that must have children, by tree depth.
 #[derive(Debug, Default)]
 pub struct TreeRequest {
-    /// `refined[t]`: keys (packed) of nodes at tree depth `t` that must have children.
-    refined: Vec<FxHashSet<u64>>,
+    /// `refined[t]`: Morton codes of the nodes at tree depth `t` that must have children, in
+    /// any order and with repeats until [`TreeRequest::close`] sorts them. Sorted lists, unlike
+    /// a hash set, can be built by threads in parts and joined, and sorted by code they are
+    /// already in the order of the levels' nodes.
+    refined: Vec<Vec<u64>>,
+}
+
+/// Items per piece of work in the parallel passes over keys and codes.
+const CHUNK: usize = 1 << 14;
+
+/// The Morton code of a key.
+#[inline]
+fn code(k: [i64; 3]) -> u64 {
+    crate::morton::encode(k.map(|c| c as u64))
+}
+
+/// The key of a Morton code.
+#[inline]
+fn key_of(m: u64) -> [u32; 3] {
+    crate::morton::decode(m).map(|c| c as u32)
+}
+
+/// Sorts `v` and drops repeats: a set as a sorted list. `par_sort` (a merge sort) is fast on
+/// the concatenated sorted runs that the passes below produce.
+fn sort_set(v: &mut Vec<u64>) {
+    v.par_sort();
+    *v = dedup_sorted(v);
+}
+
+/// The distinct values of the sorted `v`, in order: each run of values keeps its first,
+/// found in parallel pieces and joined.
+fn dedup_sorted(v: &[u64]) -> Vec<u64> {
+    let parts = v
+        .par_chunks(CHUNK)
+        .enumerate()
+        .map(|(i, chunk)| {
+            let before = (i * CHUNK).checked_sub(1).map(|j| v[j]);
+            let mut out = Vec::with_capacity(chunk.len());
+            for &x in chunk {
+                if out.last().or(before.as_ref()) != Some(&x) {
+                    out.push(x);
+                }
+            }
+            out
+        })
+        .collect();
+    concat(parts)
+}
+
+/// Joins sorted lists, in order, into one vector (the pieces of a parallel pass).
+fn concat<T: Copy + Default + Send + Sync>(parts: Vec<Vec<T>>) -> Vec<T> {
+    let mut all = Vec::new();
+    all.par_extend(rayon::iter::repeat_n(
+        T::default(),
+        parts.iter().map(Vec::len).sum(),
+    ));
+    let mut rest = all.as_mut_slice();
+    let mut slots = Vec::with_capacity(parts.len());
+    for p in &parts {
+        let (slot, tail) = std::mem::take(&mut rest).split_at_mut(p.len());
+        slots.push(slot);
+        rest = tail;
+    }
+    slots
+        .into_par_iter()
+        .zip(&parts)
+        .for_each(|(slot, p)| slot.copy_from_slice(p));
+    all
 }
 
 impl TreeRequest {
     /// An empty request for a tree of maximal tree depth `max_t`.
     pub fn new(max_t: u32) -> Self {
         Self {
-            refined: (0..=max_t).map(|_| FxHashSet::default()).collect(),
+            refined: vec![Vec::new(); max_t as usize + 1],
         }
     }
 
@@ -221,10 +286,39 @@ impl TreeRequest {
         for z in lo3[2]..=hi3[2] {
             for y in lo3[1]..=hi3[1] {
                 for x in lo3[0]..=hi3[0] {
-                    set.insert(pack([x, y, z]));
+                    set.push(code([x, y, z]));
                 }
             }
         }
+    }
+
+    /// Sorts each depth's codes and drops repeats, so that a request made over part of the
+    /// samples is small before [`TreeRequest::union`] joins it with the others.
+    pub fn compact(&mut self) {
+        for level in &mut self.refined {
+            level.sort_unstable();
+            level.dedup();
+        }
+    }
+
+    /// One request holding every node of `parts` (requests made in parallel over parts of the
+    /// samples), for a tree of maximal tree depth `max_t`.
+    pub fn union(parts: Vec<TreeRequest>, max_t: u32) -> TreeRequest {
+        let mut refined: Vec<Vec<Vec<u64>>> = vec![Vec::new(); max_t as usize + 1];
+        for part in parts {
+            for (all, level) in refined.iter_mut().zip(part.refined) {
+                all.push(level);
+            }
+        }
+        let refined = refined
+            .into_par_iter()
+            .map(|parts| {
+                let mut level = concat(parts);
+                sort_set(&mut level);
+                level
+            })
+            .collect();
+        TreeRequest { refined }
     }
 }
 
@@ -248,21 +342,56 @@ impl ClosedRequest {
     /// [`TreeRequest::refine_keys`], how slabs gather the coarse levels of one tree from the
     /// closed requests of their samples (closing distributes over the union of requests).
     pub fn refined_keys(&self, t: u32) -> Vec<u64> {
-        let mut keys: Vec<u64> = self
-            .0
-            .refined
-            .get(t as usize)
-            .map_or_else(Vec::new, |s| s.iter().copied().collect());
-        keys.sort_unstable();
+        let mut keys: Vec<u64> = self.0.refined.get(t as usize).map_or_else(Vec::new, |s| {
+            s.par_iter().map(|&m| pack_u(key_of(m))).collect()
+        });
+        keys.par_sort_unstable();
         keys
     }
+}
+
+/// The Morton codes of every ring node at tree depth `t`.
+fn ring_codes(t: u32) -> Vec<u64> {
+    let (lo, hi) = ring(t);
+    (lo..=hi)
+        .into_par_iter()
+        .flat_map_iter(|z| (lo..=hi).flat_map(move |y| (lo..=hi).map(move |x| code([x, y, z]))))
+        .collect()
+}
+
+/// The nodes one depth up that must have children because the nodes `refined` (sorted codes)
+/// do: their parents, and with `ring` (the ring of the parents' depth, for the conforming
+/// rule) the ring nodes among the parents' 3×3×3 neighbours. Sorted runs, with repeats.
+fn required_above(refined: &[u64], ring: Option<(i64, i64)>) -> Vec<u64> {
+    let parts = refined
+        .par_chunks(CHUNK)
+        .map(|chunk| {
+            let mut up: Vec<u64> = chunk.iter().map(|&m| m >> 3).collect();
+            up.dedup();
+            if let Some((lo, hi)) = ring {
+                up = up.iter().flat_map(|&p| neighbours_in(p, lo, hi)).collect();
+                up.sort_unstable();
+                up.dedup();
+            }
+            up
+        })
+        .collect();
+    concat(parts)
+}
+
+/// The codes of the nodes in the 3×3×3 window around the node of code `p` whose every
+/// coordinate lies in `lo..=hi`.
+fn neighbours_in(p: u64, lo: i64, hi: i64) -> impl Iterator<Item = u64> {
+    let k = key_of(p).map(i64::from);
+    let axis = move |a: usize| (k[a] - 1).max(lo)..=(k[a] + 1).min(hi);
+    axis(2).flat_map(move |z| axis(1).flat_map(move |y| axis(0).map(move |x| code([x, y, z]))))
 }
 
 impl TreeRequest {
     /// Requires the nodes with packed keys `keys` at tree depth `t` to have children.
     pub fn refine_keys(&mut self, t: u32, keys: impl IntoIterator<Item = u64>) {
         if let Some(set) = self.refined.get_mut(t as usize) {
-            set.extend(keys);
+            set.extend(keys.into_iter().map(|p| code(unpack(p).map(i64::from))));
         }
     }
 
@@ -270,71 +399,110 @@ impl TreeRequest {
     /// and enforces the conforming property at unit depths `≥ conform_from` (ALGORITHM.md §4.2
     /// steps 3 and 5).
     pub fn close(mut self, full_depth: u32, conform_from: u32) -> ClosedRequest {
-        let req = &mut self;
-        let max_t = req.refined.len() as u32 - 1;
+        let max_t = self.refined.len() as u32 - 1;
         // Complete levels: every ring node at unit depth < full_depth has children.
         for t in 0..(full_depth + DEPTH_OFFSET).min(max_t) {
-            let (lo, hi) = ring(t);
-            let set = &mut req.refined[t as usize];
-            for z in lo..=hi {
-                for y in lo..=hi {
-                    for x in lo..=hi {
-                        set.insert(pack([x, y, z]));
-                    }
-                }
-            }
+            let level = &mut self.refined[t as usize];
+            *level = concat(vec![std::mem::take(level), ring_codes(t)]);
         }
+        self.refined.iter_mut().for_each(sort_set);
         // Fine to coarse: every refined node needs its parent refined; with conforming, the
         // 5×5×5 window around a refined node must exist, which means the 3×3×3 parents around
         // its parent must be refined.
         for t in (1..max_t).rev() {
-            let cur: Vec<u64> = {
-                let mut v: Vec<u64> = req.refined[t as usize].iter().copied().collect();
-                v.sort_unstable();
-                v
-            };
-            let mut parents: Vec<u64> = cur
-                .iter()
-                .map(|&p| {
-                    let k = unpack(p);
-                    pack([
-                        i64::from(k[0] >> 1),
-                        i64::from(k[1] >> 1),
-                        i64::from(k[2] >> 1),
-                    ])
-                })
-                .collect();
-            parents.sort_unstable();
-            parents.dedup();
             let conform = t >= conform_from + DEPTH_OFFSET;
-            let (lo, hi) = ring(t - 1);
-            let up = &mut req.refined[t as usize - 1];
-            for p in parents {
-                if conform {
-                    let k = unpack(p);
-                    for dz in -1..=1i64 {
-                        for dy in -1..=1i64 {
-                            for dx in -1..=1i64 {
-                                let q = [
-                                    i64::from(k[0]) + dx,
-                                    i64::from(k[1]) + dy,
-                                    i64::from(k[2]) + dz,
-                                ];
-                                if q.iter().all(|&c| c >= lo && c <= hi) {
-                                    up.insert(pack(q));
-                                }
-                            }
-                        }
-                    }
-                } else {
-                    up.insert(p);
-                }
-            }
+            let up = required_above(&self.refined[t as usize], conform.then(|| ring(t - 1)));
+            let level = &mut self.refined[t as usize - 1];
+            *level = concat(vec![std::mem::take(level), up]);
+            sort_set(level);
         }
         // The root always exists and has children.
-        req.refined[0].insert(0);
+        let root = &mut self.refined[0];
+        if root.first() != Some(&0) {
+            root.insert(0, 0);
+        }
         ClosedRequest(self)
     }
+}
+
+/// The nodes of a level that have children, and their codes: the codes `refined` (sorted)
+/// that are nodes of the level whose broods' parents have the sorted codes `broods` (a node's
+/// code is its brood's parent's code and its child bits). Codes of no node are skipped.
+fn locate(refined: &[u64], broods: &[u64]) -> (Vec<u32>, Vec<u64>) {
+    let parts: Vec<(Vec<u32>, Vec<u64>)> = refined
+        .par_chunks(CHUNK)
+        .map(|chunk| {
+            let mut b = broods.partition_point(|&c| c < chunk[0] >> 3);
+            let mut out = (
+                Vec::with_capacity(chunk.len()),
+                Vec::with_capacity(chunk.len()),
+            );
+            for &m in chunk {
+                while b < broods.len() && broods[b] < m >> 3 {
+                    b += 1;
+                }
+                if broods.get(b) == Some(&(m >> 3)) {
+                    out.0.push(8 * b as u32 + (m & 7) as u32);
+                    out.1.push(m);
+                }
+            }
+            out
+        })
+        .collect();
+    let (nodes, codes): (Vec<_>, Vec<_>) = parts.into_iter().unzip();
+    rayon::join(|| concat(nodes), || concat(codes))
+}
+
+/// The child array of a level of `len` nodes whose nodes `parents` (increasing) have the
+/// broods `0, 1, …` of the next level: filled in blocks of nodes, in parallel.
+fn child_array(len: usize, parents: &[u32]) -> Vec<u32> {
+    let mut child = Vec::with_capacity(len);
+    child.par_extend(rayon::iter::repeat_n(NONE, len));
+    child
+        .par_chunks_mut(CHUNK)
+        .enumerate()
+        .for_each(|(i, block)| {
+            let lo = (i * CHUNK) as u32;
+            let first = parents.partition_point(|&p| p < lo);
+            for (b, &p) in parents.iter().enumerate().skip(first) {
+                match block.get_mut((p - lo) as usize) {
+                    Some(c) => *c = b as u32,
+                    None => break,
+                }
+            }
+        });
+    child
+}
+
+/// The 27 broods around each brood of a new level: the children of its parent's 3×3×3
+/// neighbours in `prev` (whose child array is set), for parents at tree depth `t - 1`.
+fn brood_neighbours(prev: &Level, parents: &[u32], t: u32) -> Vec<[u32; 27]> {
+    parents
+        .par_iter()
+        .map(|&p| {
+            let mut out = [NONE; 27];
+            for (s, o) in out.iter_mut().enumerate() {
+                let d = [
+                    (s % 3) as i64 - 1,
+                    ((s / 3) % 3) as i64 - 1,
+                    (s / 9) as i64 - 1,
+                ];
+                let q = if t == 1 {
+                    if d == [0, 0, 0] {
+                        0
+                    } else {
+                        NONE
+                    }
+                } else {
+                    prev_neighbor(prev, p, d)
+                };
+                if q != NONE {
+                    *o = prev.child(q);
+                }
+            }
+            out
+        })
+        .collect()
 }
 
 impl Octree {
@@ -346,75 +514,45 @@ impl Octree {
         Octree::materialize(req.close(full_depth, conform_from))
     }
 
-    /// Builds the levels of a closed request (see [`TreeRequest::close`]).
+    /// Builds the levels of a closed request (see [`TreeRequest::close`]), top-down; each
+    /// level's broods are its refined codes that are nodes, in code (Morton) order.
     pub fn materialize(req: ClosedRequest) -> Octree {
         let req = req.0;
         let max_t = req.refined.len() as u32 - 1;
-        // Materialise levels top-down.
         let mut levels: Vec<Level> = Vec::with_capacity(max_t as usize + 1);
         levels.push(Level {
             len: 1,
-            brood_key: Vec::new(),
-            child: vec![NONE],
-            brood_parent: Vec::new(),
-            brood_nbrs: Vec::new(),
+            ..Level::default()
         });
+        // The codes of the current level's broods' parents (the root's code for level 1).
+        let mut broods: Vec<u64> = Vec::new();
         for t in 1..=max_t {
-            let prev = &levels[t as usize - 1];
-            // Refined nodes of the previous level, in its (Morton) order.
             let refined = &req.refined[t as usize - 1];
-            let parents: Vec<u32> = (0..prev.len() as u32)
-                .into_par_iter()
-                .filter(|&n| refined.contains(&pack_u(prev.key(n))))
-                .collect();
+            let (parents, codes) = if t == 1 {
+                let root = refined.binary_search(&0).is_ok();
+                (
+                    if root { vec![0] } else { vec![] },
+                    if root { vec![0] } else { vec![] },
+                )
+            } else {
+                locate(refined, &broods)
+            };
             if parents.is_empty() {
                 break;
             }
-            let brood_key: Vec<[u32; 3]> = parents.par_iter().map(|&p| prev.key(p)).collect();
             let prev = &mut levels[t as usize - 1];
-            for (b, &p) in parents.iter().enumerate() {
-                prev.child[p as usize] = b as u32;
-            }
-            let n = brood_key.len() * 8;
-            // Brood neighbours: the broods of the parent's 3×3×3 neighbours.
+            prev.child = child_array(prev.len, &parents);
             let prev = &levels[t as usize - 1];
-            let brood_nbrs: Vec<[u32; 27]> = parents
-                .par_iter()
-                .map(|&p| {
-                    let mut out = [NONE; 27];
-                    for (s, o) in out.iter_mut().enumerate() {
-                        let d = [
-                            (s % 3) as i64 - 1,
-                            ((s / 3) % 3) as i64 - 1,
-                            (s / 9) as i64 - 1,
-                        ];
-                        let q = if t == 1 {
-                            if d == [0, 0, 0] {
-                                0
-                            } else {
-                                NONE
-                            }
-                        } else {
-                            prev_neighbor(prev, p, d)
-                        };
-                        if q != NONE {
-                            *o = prev.child(q);
-                        }
-                    }
-                    out
-                })
-                .collect();
+            let brood_nbrs = brood_neighbours(prev, &parents, t);
+            let brood_key: Vec<[u32; 3]> = codes.par_iter().map(|&m| key_of(m)).collect();
             levels.push(Level {
-                len: n,
+                len: brood_key.len() * 8,
                 brood_key,
-                child: vec![NONE; n],
+                child: Vec::new(),
                 brood_parent: parents,
                 brood_nbrs,
             });
-        }
-        // The deepest level has no children: drop its (all-NONE) child array.
-        if let Some(last) = levels.last_mut() {
-            last.child = Vec::new();
+            broods = codes;
         }
         Octree { levels }
     }
@@ -585,6 +723,7 @@ impl NodeRank {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rustc_hash::FxHashSet;
 
     fn splitmix(s: &mut u64) -> u64 {
         *s = s.wrapping_add(0x9e37_79b9_7f4a_7c15);
@@ -700,6 +839,25 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    #[test]
+    fn parallel_set_helpers_agree_with_serial_ones() {
+        // Runs of equal values that cross the pieces' boundaries.
+        let v: Vec<u64> = (0..3 * CHUNK as u64 + 5).map(|i| i / 3).collect();
+        let mut serial = v.clone();
+        serial.dedup();
+        assert_eq!(dedup_sorted(&v), serial);
+        assert_eq!(concat(vec![vec![1u64, 2], vec![], vec![3]]), vec![1, 2, 3]);
+        let len = 3 * CHUNK + 7;
+        let parents: Vec<u32> = (0..len as u32).filter(|n| n % 5 == 0).collect();
+        let child = child_array(len, &parents);
+        for (n, &c) in child.iter().enumerate() {
+            let expect = parents
+                .binary_search(&(n as u32))
+                .map_or(NONE, |b| b as u32);
+            assert_eq!(c, expect);
         }
     }
 

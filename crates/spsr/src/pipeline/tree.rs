@@ -7,6 +7,7 @@ use crate::density::{cell_of, Sample};
 use crate::error::{MemoryLimit, MemoryShortfall};
 use crate::octree::{Octree, TreeRequest, DEPTH_OFFSET};
 use crate::{resources, Error, Params, Result};
+use rayon::prelude::*;
 
 /// Where one sample's normal is splatted: `(depth, fraction)` at two depths.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -61,27 +62,47 @@ pub fn splats_of(sampled: &Sampled, params: &Params) -> Vec<Option<Splat>> {
     let base = params.base_depth().max(1).min(depth);
     sampled
         .samples
-        .iter()
+        .par_iter()
         .zip(&sampled.depths)
         .map(|(s, q)| (s.normal != [0.0; 3]).then(|| splat_depths(q.depth, base, depth, params)))
         .collect()
 }
 
 /// The nodes the samples' splats need (the B-spline windows around their cells), before the
-/// tree is closed.
+/// tree is closed: requested over runs of samples in parallel, each run's request compacted
+/// (neighbouring samples, in Morton order, share most nodes), then joined.
 pub fn request(samples: &[Sample], splats: &[Option<Splat>], params: &Params) -> TreeRequest {
-    let mut req = TreeRequest::new(params.depth + DEPTH_OFFSET);
-    for (s, sp) in samples.iter().zip(splats) {
-        let Some(sp) = sp else { continue };
-        for &(d, f) in &sp.levels {
-            if f > 0.0 {
-                let c = cell_of(s.pos, d);
-                let n = 1i64 << d;
-                req.require_window(d + DEPTH_OFFSET, [c[0] + n, c[1] + n, c[2] + n], 1);
+    let max_t = params.depth + DEPTH_OFFSET;
+    let parts = samples
+        .par_chunks(REQUEST_RUN)
+        .zip(splats.par_chunks(REQUEST_RUN))
+        .map(|(samples, splats)| {
+            let mut req = TreeRequest::new(max_t);
+            for (s, sp) in samples.iter().zip(splats) {
+                if let Some(sp) = sp {
+                    require_splat(&mut req, s, sp);
+                }
             }
+            req.compact();
+            req
+        })
+        .collect();
+    TreeRequest::union(parts, max_t)
+}
+
+/// Samples per run of [`request`].
+const REQUEST_RUN: usize = 1 << 14;
+
+/// Requires the nodes of one sample's splat: the window around its cell at each depth that
+/// receives a part of it.
+fn require_splat(req: &mut TreeRequest, s: &Sample, sp: &Splat) {
+    for &(d, f) in &sp.levels {
+        if f > 0.0 {
+            let c = cell_of(s.pos, d);
+            let n = 1i64 << d;
+            req.require_window(d + DEPTH_OFFSET, [c[0] + n, c[1] + n, c[2] + n], 1);
         }
     }
-    req
 }
 
 /// The two depths around a sample's estimated depth `ds` (§3.6), clamped to `base..=depth`.
