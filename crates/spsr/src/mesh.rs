@@ -1,5 +1,8 @@
 //! Triangle meshes produced by the reconstruction, and their topological checks.
 
+use std::borrow::Cow;
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering::Relaxed};
+
 use rayon::prelude::*;
 
 use crate::attributes::{self, Attribute, Colors};
@@ -93,46 +96,43 @@ impl EdgeCounts {
     /// vertex's short list is then sorted and grouped, vertices in parallel, the counts summed
     /// (so they do not depend on the thread count).
     fn of(nv: usize, tris: &[[u32; 3]]) -> Self {
-        let (start, list) = per_vertex(nv, tris, |_, t| {
-            (0..3).map(move |k| {
-                let (a, b) = (t[k], t[(k + 1) % 3]);
-                (a.min(b), (a.max(b), a < b))
-            })
-        });
         let zero = || EdgeCounts {
             edges: 0,
             boundary: 0,
             non_manifold: 0,
             oriented: true,
         };
-        (0..nv)
-            .into_par_iter()
-            .fold(
-                || (zero(), Vec::new()),
-                |(mut c, mut sides): (EdgeCounts, Vec<(u32, bool)>), v| {
-                    sides.clear();
-                    sides.extend_from_slice(&list[start[v] as usize..start[v + 1] as usize]);
-                    sides.sort_unstable();
-                    for group in sides.chunk_by(|x, y| x.0 == y.0) {
-                        let forward = group.iter().filter(|s| s.1).count();
-                        c.edges += 1;
-                        match group.len() {
-                            1 => c.boundary += 1,
-                            2 => {}
-                            _ => c.non_manifold += 1,
-                        }
-                        c.oriented &= forward <= 1 && group.len() - forward <= 1;
+        fold_vertex_lists(
+            nv,
+            tris,
+            |_, t| {
+                (0..3).map(move |k| {
+                    let (a, b) = (t[k], t[(k + 1) % 3]);
+                    (a.min(b), u64::from(a.max(b)) << 1 | u64::from(a < b))
+                })
+            },
+            zero,
+            |mut c, _, sides| {
+                sides.sort_unstable();
+                for group in sides.chunk_by(|x, y| x >> 1 == y >> 1) {
+                    let forward = group.iter().filter(|&&s| s & 1 == 1).count();
+                    c.edges += 1;
+                    match group.len() {
+                        1 => c.boundary += 1,
+                        2 => {}
+                        _ => c.non_manifold += 1,
                     }
-                    (c, sides)
-                },
-            )
-            .map(|(c, _)| c)
-            .reduce(zero, |a, b| EdgeCounts {
+                    c.oriented &= forward <= 1 && group.len() - forward <= 1;
+                }
+                c
+            },
+            |a, b| EdgeCounts {
                 edges: a.edges + b.edges,
                 boundary: a.boundary + b.boundary,
                 non_manifold: a.non_manifold + b.non_manifold,
                 oriented: a.oriented && b.oriented,
-            })
+            },
+        )
     }
 
     /// Every edge is used by exactly two triangles.
@@ -141,47 +141,229 @@ impl EdgeCounts {
     }
 }
 
-/// A list per vertex: `entries[start[v]..start[v + 1]]` are the entries of vertex `v`, in
-/// triangle order; `each(f, t)` gives the (vertex, entry) pairs of triangle `f`.
-fn per_vertex<T: Copy + Default, I: Iterator<Item = (u32, T)>>(
+/// Vertices per block of [`fold_vertex_lists`]: a block's lists are sorted out in cache.
+const BLOCK_BITS: u32 = 14;
+
+/// Entries carry their vertex within its block above this bit, their payload below it.
+const PAYLOAD_BITS: u32 = 48;
+
+/// Folds `visit(acc, v, list)` over every vertex `v`, where `list` holds the payloads
+/// (below 2^48) of the `(vertex, payload)` pairs that `each(f, t)` gives for every triangle
+/// `f`, in triangle order; `reduce` combines the folds of the blocks of vertices, which run
+/// in parallel. Chunks of triangles first write their pairs into the blocks' stretches of one
+/// buffer (counted, then placed by prefix sums, chunks in order), then each block sorts its
+/// stretch by vertex, all without atomics; the lists do not depend on the thread count.
+fn fold_vertex_lists<A: Send, I: Iterator<Item = (u32, u64)>>(
     nv: usize,
     tris: &[[u32; 3]],
-    each: impl Fn(u32, [u32; 3]) -> I,
-) -> (Vec<u32>, Vec<T>) {
-    let mut start = vec![0u32; nv + 1];
-    for (f, t) in tris.iter().enumerate() {
-        for (v, _) in each(f as u32, *t) {
-            start[v as usize + 1] += 1;
+    each: impl Fn(u32, [u32; 3]) -> I + Sync,
+    init: impl Fn() -> A + Sync + Send,
+    visit: impl Fn(A, usize, &mut [u64]) -> A + Sync + Send,
+    reduce: impl Fn(A, A) -> A + Sync + Send,
+) -> A {
+    let blocks = nv.div_ceil(1 << BLOCK_BITS);
+    let chunk = tris.len().div_ceil(256).max(1 << 16);
+    // Pairs per (chunk, block).
+    let counts: Vec<Vec<usize>> = tris
+        .par_chunks(chunk)
+        .enumerate()
+        .map(|(c, part)| {
+            let mut count = vec![0; blocks];
+            for_chunk_pairs(&each, part, c * chunk, |v, _| {
+                count[(v >> BLOCK_BITS) as usize] += 1;
+            });
+            count
+        })
+        .collect();
+    let mut block_start = vec![0; blocks + 1];
+    for b in 0..blocks {
+        block_start[b + 1] = block_start[b] + counts.iter().map(|c| c[b]).sum::<usize>();
+    }
+    let mut buffer = vec![0u64; block_start[blocks]];
+    // Each chunk's stretch of every block, block-major so that a block's stretch is whole.
+    let mut stretches: Vec<Vec<&mut [u64]>> = counts.iter().map(|_| Vec::new()).collect();
+    let mut rest = buffer.as_mut_slice();
+    for b in 0..blocks {
+        for (c, own) in stretches.iter_mut().enumerate() {
+            let (mine, tail) = std::mem::take(&mut rest).split_at_mut(counts[c][b]);
+            own.push(mine);
+            rest = tail;
         }
     }
-    for v in 0..nv {
-        start[v + 1] += start[v];
-    }
-    let mut fill = start.clone();
-    let mut entries = vec![T::default(); start[nv] as usize];
-    for (f, t) in tris.iter().enumerate() {
-        for (v, e) in each(f as u32, *t) {
-            entries[fill[v as usize] as usize] = e;
-            fill[v as usize] += 1;
-        }
-    }
-    (start, entries)
+    stretches
+        .into_par_iter()
+        .zip(tris.par_chunks(chunk))
+        .enumerate()
+        .for_each(|(c, (mut own, part))| {
+            let mut fill = vec![0; blocks];
+            for_chunk_pairs(&each, part, c * chunk, |v, e| {
+                let b = (v >> BLOCK_BITS) as usize;
+                let local = u64::from(v & ((1 << BLOCK_BITS) - 1));
+                own[b][fill[b]] = local << PAYLOAD_BITS | e;
+                fill[b] += 1;
+            });
+        });
+    (0..blocks)
+        .into_par_iter()
+        .fold(
+            || (init(), Vec::new(), Vec::new()),
+            |(mut acc, mut start, mut sorted): (A, Vec<usize>, Vec<u64>), b| {
+                let first = b << BLOCK_BITS;
+                let local_count = (nv - first).min(1 << BLOCK_BITS);
+                let stretch = &buffer[block_start[b]..block_start[b + 1]];
+                sort_by_vertex(stretch, local_count, &mut start, &mut sorted);
+                for l in 0..local_count {
+                    acc = visit(acc, first + l, &mut sorted[start[l]..start[l + 1]]);
+                }
+                (acc, start, sorted)
+            },
+        )
+        .map(|(acc, _, _)| acc)
+        .reduce(&init, &reduce)
 }
 
-/// Connected components of triangles through shared vertices.
-fn components(nv: usize, tris: &[[u32; 3]]) -> usize {
-    let mut parent: Vec<u32> = (0..nv as u32).collect();
-    let mut referenced = vec![false; nv];
-    for t in tris {
-        uf_union(&mut parent, t[0], t[1]);
-        uf_union(&mut parent, t[0], t[2]);
-        for &v in t {
-            referenced[v as usize] = true;
+/// Calls `f` on the pairs of the triangles of `part`, the first of which is triangle `first`.
+fn for_chunk_pairs<I: Iterator<Item = (u32, u64)>>(
+    each: &impl Fn(u32, [u32; 3]) -> I,
+    part: &[[u32; 3]],
+    first: usize,
+    mut f: impl FnMut(u32, u64),
+) {
+    for (i, t) in part.iter().enumerate() {
+        for (v, e) in each((first + i) as u32, *t) {
+            f(v, e);
         }
     }
-    (0..nv)
-        .filter(|&v| referenced[v] && uf_find(&mut parent, v as u32) == v as u32)
-        .count()
+}
+
+/// A block's entries sorted by their vertex within the block (a counting sort, stable):
+/// `sorted[start[l]..start[l + 1]]` are the payloads of vertex `l`.
+fn sort_by_vertex(
+    stretch: &[u64],
+    local_count: usize,
+    start: &mut Vec<usize>,
+    sorted: &mut Vec<u64>,
+) {
+    start.clear();
+    start.resize(local_count + 1, 0);
+    for e in stretch {
+        start[(e >> PAYLOAD_BITS) as usize + 1] += 1;
+    }
+    for l in 0..local_count {
+        start[l + 1] += start[l];
+    }
+    sorted.clear();
+    sorted.resize(stretch.len(), 0);
+    let mut fill = start[..local_count].to_vec();
+    for e in stretch {
+        let l = (e >> PAYLOAD_BITS) as usize;
+        sorted[fill[l]] = e & ((1 << PAYLOAD_BITS) - 1);
+        fill[l] += 1;
+    }
+}
+
+/// Replaces each value by the sum of those before it (wrapping, as `u32`), in parallel by
+/// chunks; returns the total.
+fn exclusive_prefix_sums(values: &mut [u32]) -> u32 {
+    const CHUNK: usize = 1 << 16;
+    let totals: Vec<u32> = values
+        .par_chunks(CHUNK)
+        .map(|c| c.iter().fold(0u32, |a, &x| a.wrapping_add(x)))
+        .collect();
+    let mut offsets = Vec::with_capacity(totals.len());
+    let mut total = 0u32;
+    for t in totals {
+        offsets.push(total);
+        total = total.wrapping_add(t);
+    }
+    values
+        .par_chunks_mut(CHUNK)
+        .zip(offsets)
+        .for_each(|(chunk, mut acc)| {
+            for x in chunk {
+                let v = *x;
+                *x = acc;
+                acc = acc.wrapping_add(v);
+            }
+        });
+    total
+}
+
+/// Vertices joined into sets by many threads at once (a lock-free union-find). A root is
+/// only ever linked under a smaller one, so each set's root is its smallest vertex: the sets
+/// and their roots do not depend on the order of the joins or on the thread count.
+struct VertexSets {
+    parent: Vec<AtomicU32>,
+}
+
+impl VertexSets {
+    /// The sets of `nv` vertices where the vertices of each triangle of `tris` that
+    /// `valid` accepts are joined.
+    fn of(nv: usize, tris: &[[u32; 3]], valid: impl Fn(&[u32; 3]) -> bool + Sync) -> Self {
+        let sets = VertexSets {
+            parent: (0..nv as u32).into_par_iter().map(AtomicU32::new).collect(),
+        };
+        tris.par_iter().filter(|t| valid(t)).for_each(|t| {
+            sets.join(t[0], t[1]);
+            sets.join(t[0], t[2]);
+        });
+        sets
+    }
+
+    /// The root of `x`'s set, halving the path on the way (parents only ever decrease, so
+    /// any parent read, however stale, is in the same set).
+    fn root(&self, mut x: u32) -> u32 {
+        loop {
+            let p = self.parent[x as usize].load(Relaxed);
+            if p == x {
+                return x;
+            }
+            let up = self.parent[p as usize].load(Relaxed);
+            if up != p {
+                // A plain store: racing halvings store ancestors too, and links only ever
+                // change roots, which `x` is not.
+                self.parent[x as usize].store(up, Relaxed);
+            }
+            x = up;
+        }
+    }
+
+    /// Joins the sets of `a` and `b`: the larger root is linked under the smaller one,
+    /// retried when another thread linked it first.
+    fn join(&self, a: u32, b: u32) {
+        let (mut a, mut b) = (a, b);
+        loop {
+            (a, b) = (self.root(a), self.root(b));
+            if a == b {
+                return;
+            }
+            let (lo, hi) = (a.min(b), a.max(b));
+            if self.parent[hi as usize]
+                .compare_exchange(hi, lo, Relaxed, Relaxed)
+                .is_ok()
+            {
+                return;
+            }
+        }
+    }
+}
+
+/// Connected components of triangles through shared vertices: the sets that hold the first
+/// vertex of some triangle.
+fn components(nv: usize, tris: &[[u32; 3]]) -> usize {
+    let sets = VertexSets::of(nv, tris, |_| true);
+    let used: Vec<AtomicBool> = (0..nv)
+        .into_par_iter()
+        .map(|_| AtomicBool::new(false))
+        .collect();
+    tris.par_iter().for_each(|t| {
+        let r = sets.root(t[0]) as usize;
+        // Read first: a store to a root every thread shares would bounce its cache line.
+        if !used[r].load(Relaxed) {
+            used[r].store(true, Relaxed);
+        }
+    });
+    used.par_iter().filter(|u| u.load(Relaxed)).count()
 }
 
 /// Scratch space for checking one vertex's link ([`Mesh::topology`]).
@@ -196,7 +378,12 @@ struct LinkScratch {
 impl LinkScratch {
     /// Whether the link of vertex `v` (the opposite edges of its incident `faces`) is one
     /// path or one cycle, with no degenerate triangle: the vertex is manifold.
-    fn is_disk_or_fan(&mut self, v: usize, faces: &[u32], tris: &[[u32; 3]]) -> bool {
+    fn is_disk_or_fan(
+        &mut self,
+        v: usize,
+        faces: impl Iterator<Item = u32>,
+        tris: &[[u32; 3]],
+    ) -> bool {
         let LinkScratch {
             link,
             ids,
@@ -205,7 +392,7 @@ impl LinkScratch {
         } = self;
         link.clear();
         ids.clear();
-        for &f in faces {
+        for f in faces {
             let t = tris[f as usize];
             let k = t.iter().position(|&x| x as usize == v).unwrap_or(0);
             let (a, b) = (t[(k + 1) % 3], t[(k + 2) % 3]);
@@ -257,19 +444,22 @@ impl Mesh {
         let nv = self.vertices.len();
         let tris = self.valid_triangles();
         let edges = EdgeCounts::of(nv, &tris);
-        let (start, inc) = per_vertex(nv, &tris, |f, t| t.into_iter().map(move |v| (v, f)));
-        // Each vertex's link checked in parallel (a count, so the result does not depend on
+        // Each vertex's link checked in parallel (counts, so the result does not depend on
         // the thread count), with scratch space per task.
-        let incident = |v: usize| &inc[start[v] as usize..start[v + 1] as usize];
-        let referenced = (0..nv).filter(|&v| !incident(v).is_empty()).count();
-        let non_manifold_vertices = (0..nv)
-            .into_par_iter()
-            .map_init(LinkScratch::default, |scratch, v| {
-                let faces = incident(v);
-                !faces.is_empty() && !scratch.is_disk_or_fan(v, faces, &tris)
-            })
-            .filter(|&bad| bad)
-            .count();
+        let (referenced, non_manifold_vertices, _) = fold_vertex_lists(
+            nv,
+            &tris,
+            |f, t| t.into_iter().map(move |v| (v, u64::from(f))),
+            || (0, 0, LinkScratch::default()),
+            |(used, bad, mut scratch), v, faces| {
+                if faces.is_empty() {
+                    return (used, bad, scratch);
+                }
+                let fan = scratch.is_disk_or_fan(v, faces.iter().map(|&f| f as u32), &tris);
+                (used + 1, bad + usize::from(!fan), scratch)
+            },
+            |a, b| (a.0 + b.0, a.1 + b.1, a.2),
+        );
         Topology {
             vertices: referenced,
             faces: tris.len(),
@@ -298,97 +488,100 @@ impl Mesh {
         }
     }
 
-    /// The triangles whose indices are all in range.
-    fn valid_triangles(&self) -> Vec<[u32; 3]> {
+    /// The triangles whose indices are all in range: borrowed when they all are (the
+    /// usual case, which spares a copy of the triangles).
+    fn valid_triangles(&self) -> Cow<'_, [[u32; 3]]> {
         let nv = self.vertices.len();
-        self.triangles
-            .par_iter()
-            .copied()
-            .filter(|t| t.iter().all(|&v| (v as usize) < nv))
-            .collect()
+        let valid = |t: &[u32; 3]| t.iter().all(|&v| (v as usize) < nv);
+        if self.triangles.par_iter().all(valid) {
+            return Cow::Borrowed(&self.triangles);
+        }
+        Cow::Owned(self.triangles.par_iter().copied().filter(valid).collect())
     }
 
     /// The pieces of the mesh: for each triangle the piece it belongs to (triangles sharing
     /// a vertex are in one piece, as [`Topology::components`] counts them), numbered in order
     /// of their first triangle, and each piece's area. A triangle with an index out of range
     /// is in no piece (`u32::MAX`); one with a non-finite vertex adds no area to its piece.
+    ///
+    /// The vertices are joined in parallel; then, a block of triangles at a time, each
+    /// triangle's root and area are found in parallel and numbered and added in triangle
+    /// order, as a serial loop would (so the areas do not depend on the thread count).
     pub fn pieces(&self) -> (Vec<u32>, Vec<f64>) {
+        const BLOCK: usize = 1 << 20;
         let nv = self.vertices.len();
-        let mut parent: Vec<u32> = (0..nv as u32).collect();
-        fn root(parent: &mut [u32], mut x: u32) -> u32 {
-            while parent[x as usize] != x {
-                let up = parent[parent[x as usize] as usize];
-                parent[x as usize] = up;
-                x = up;
-            }
-            x
-        }
         let valid = |t: &[u32; 3]| t.iter().all(|&v| (v as usize) < nv);
-        for t in self.triangles.iter().filter(|t| valid(t)) {
-            let a = root(&mut parent, t[0]);
-            for &v in &t[1..] {
-                let b = root(&mut parent, v);
-                if a != b {
-                    parent[b as usize] = a;
-                }
-            }
-        }
+        let sets = VertexSets::of(nv, &self.triangles, valid);
         let mut number = vec![u32::MAX; nv];
         let mut areas: Vec<f64> = Vec::new();
-        let piece_of = self
-            .triangles
-            .iter()
-            .map(|t| {
+        let mut piece_of = Vec::with_capacity(self.triangles.len());
+        let mut block = Vec::with_capacity(BLOCK.min(self.triangles.len()));
+        for tris in self.triangles.chunks(BLOCK) {
+            block.clear();
+            block.par_extend(tris.par_iter().map(|t| {
                 if !valid(t) {
-                    return u32::MAX;
-                }
-                let r = root(&mut parent, t[0]) as usize;
-                if number[r] == u32::MAX {
-                    number[r] = areas.len() as u32;
-                    areas.push(0.0);
+                    return (u32::MAX, 0.0);
                 }
                 let [a, b, c] = t.map(|i| self.vertices[i as usize]);
-                let area = 0.5 * norm(cross(sub(b, a), sub(c, a)));
-                if area.is_finite() {
-                    areas[number[r] as usize] += area;
+                (sets.root(t[0]), 0.5 * norm(cross(sub(b, a), sub(c, a))))
+            }));
+            piece_of.extend(block.iter().map(|&(r, area)| {
+                let Some(n) = number.get_mut(r as usize) else {
+                    return u32::MAX;
+                };
+                if *n == u32::MAX {
+                    *n = areas.len() as u32;
+                    areas.push(0.0);
                 }
-                number[r]
-            })
-            .collect();
+                if area.is_finite() {
+                    areas[*n as usize] += area;
+                }
+                *n
+            }));
+        }
         (piece_of, areas)
     }
 
     /// The mesh with only the triangles where `keep` is true, and only the vertices they use
-    /// (in their original order), every per-vertex value carried along.
+    /// (in their original order), every per-vertex value carried along. Built in parallel:
+    /// the used vertices are marked, then numbered by prefix sums.
     pub fn keep_triangles(&self, keep: &[bool]) -> Mesh {
         let nv = self.vertices.len();
-        let mut new_index = vec![u32::MAX; nv];
-        for (t, _) in self.triangles.iter().zip(keep).filter(|(_, &k)| k) {
-            for &v in t {
-                if (v as usize) < nv {
-                    new_index[v as usize] = 0;
+        let kept = || {
+            self.triangles
+                .par_iter()
+                .zip(keep)
+                .filter(|(_, &k)| k)
+                .map(|(t, _)| t)
+        };
+        let marked: Vec<AtomicBool> = (0..nv)
+            .into_par_iter()
+            .map(|_| AtomicBool::new(false))
+            .collect();
+        kept().for_each(|t| {
+            for &v in t.iter().filter(|&&v| (v as usize) < nv) {
+                if !marked[v as usize].load(Relaxed) {
+                    marked[v as usize].store(true, Relaxed);
                 }
             }
-        }
-        let used: Vec<usize> = (0..nv).filter(|&v| new_index[v] == 0).collect();
-        for (i, &v) in used.iter().enumerate() {
-            new_index[v] = i as u32;
-        }
-        let pick = |col: &[f32]| used.iter().map(|&v| col[v]).collect::<Vec<f32>>();
+        });
+        let is_used: Vec<bool> = marked.into_par_iter().map(AtomicBool::into_inner).collect();
+        let used: Vec<usize> = (0..nv).into_par_iter().filter(|&v| is_used[v]).collect();
+        // A used vertex's new index is the number of used vertices before it.
+        let mut new_index: Vec<u32> = is_used.par_iter().map(|&u| u32::from(u)).collect();
+        exclusive_prefix_sums(&mut new_index);
+        let pick = |col: &[f32]| used.par_iter().map(|&v| col[v]).collect::<Vec<f32>>();
         Mesh {
-            vertices: used.iter().map(|&v| self.vertices[v]).collect(),
-            triangles: self
-                .triangles
-                .iter()
-                .zip(keep)
-                .filter(|(t, &k)| k && t.iter().all(|&v| (v as usize) < nv))
-                .map(|(t, _)| t.map(|v| new_index[v as usize]))
+            vertices: used.par_iter().map(|&v| self.vertices[v]).collect(),
+            triangles: kept()
+                .filter(|t| t.iter().all(|&v| (v as usize) < nv))
+                .map(|t| t.map(|v| new_index[v as usize]))
                 .collect(),
             density: self.density.as_deref().map(pick),
             normals: self
                 .normals
                 .as_ref()
-                .map(|n| used.iter().map(|&v| n[v]).collect()),
+                .map(|n| used.par_iter().map(|&v| n[v]).collect()),
             attributes: self
                 .attributes
                 .iter()

@@ -428,40 +428,107 @@ pub fn for_each_cluster_sum(
 ) {
     let nlev = tree.levels.len();
     // Entries (node, W, W·p) per level, filled from the samples, merged, then pushed up.
-    let mut pending: Vec<Vec<ClusterSum>> = (0..nlev).map(|_| Vec::new()).collect();
-    for (s, &(t, n)) in leaf_of.iter().enumerate() {
-        let w = weights[s];
-        let p = positions[s];
-        pending[t as usize].push((n, w, [w * p[0], w * p[1], w * p[2]]));
-    }
+    let mut pending = sample_sums_per_level(nlev, leaf_of, positions, weights);
     for t in (base_level as usize..nlev).rev() {
         let merged = merge_cluster_sums(std::mem::take(&mut pending[t]));
         if t > base_level as usize {
-            for &(n, w, wp) in &merged {
-                let p = tree.parent(t as u32, n);
-                pending[t - 1].push((p, w, wp));
-            }
+            let up = merged
+                .par_iter()
+                .map(|&(n, w, wp)| (tree.parent(t as u32, n), w, wp));
+            pending[t - 1].par_extend(up);
         }
         f(t as u32, &merged);
     }
 }
 
-/// The sums of each node, added in the order given (the sort is stable), sorted by node.
-pub fn merge_cluster_sums(mut entries: Vec<ClusterSum>) -> Vec<ClusterSum> {
-    entries.sort_by_key(|e| e.0);
-    let mut merged: Vec<ClusterSum> = Vec::new();
-    for (n, w, wp) in entries {
-        match merged.last_mut() {
-            Some(last) if last.0 == n => {
-                last.1 += w;
-                for a in 0..3 {
-                    last.2[a] += wp[a];
-                }
+/// Samples per task when they are sorted into levels.
+const SAMPLE_CHUNK: usize = 1 << 16;
+
+/// Each sample's `(node, W, W·p)` in the list of its deepest node's level, in sample order.
+/// Chunks of samples are counted per level, then each fills its own stretch of every list
+/// (stretches in chunk order, so the order, which fixes the order of the later sums, is the
+/// serial one), in parallel and without a second copy of the lists.
+fn sample_sums_per_level(
+    nlev: usize,
+    leaf_of: &[(u32, u32)],
+    positions: &[[f64; 3]],
+    weights: &[f64],
+) -> Vec<Vec<ClusterSum>> {
+    let counts: Vec<Vec<usize>> = leaf_of
+        .par_chunks(SAMPLE_CHUNK)
+        .map(|chunk| {
+            let mut count = vec![0; nlev];
+            for &(t, _) in chunk {
+                count[t as usize] += 1;
             }
-            _ => merged.push((n, w, wp)),
+            count
+        })
+        .collect();
+    let mut out: Vec<Vec<ClusterSum>> = (0..nlev)
+        .map(|t| {
+            let len = counts.iter().map(|c| c[t]).sum();
+            let mut list = Vec::with_capacity(len);
+            list.par_extend(rayon::iter::repeat_n((0, 0.0, [0.0; 3]), len));
+            list
+        })
+        .collect();
+    // The stretches of chunk `c`: one slice per level.
+    let mut stretches: Vec<Vec<&mut [ClusterSum]>> = counts.iter().map(|_| Vec::new()).collect();
+    for (t, list) in out.iter_mut().enumerate() {
+        let mut rest = list.as_mut_slice();
+        for (c, own) in stretches.iter_mut().enumerate() {
+            let (mine, tail) = std::mem::take(&mut rest).split_at_mut(counts[c][t]);
+            own.push(mine);
+            rest = tail;
         }
     }
-    merged
+    stretches
+        .into_par_iter()
+        .zip(leaf_of.par_chunks(SAMPLE_CHUNK))
+        .enumerate()
+        .for_each(|(c, (mut own, chunk))| {
+            let mut fill = vec![0; nlev];
+            for (i, &(t, n)) in chunk.iter().enumerate() {
+                let s = c * SAMPLE_CHUNK + i;
+                let (w, p) = (weights[s], positions[s]);
+                let t = t as usize;
+                own[t][fill[t]] = (n, w, [w * p[0], w * p[1], w * p[2]]);
+                fill[t] += 1;
+            }
+        });
+    out
+}
+
+/// The sums of each node, added in the order given (the sort is stable), sorted by node.
+/// The sort and the sums run in parallel: each node's entries are added in the given order
+/// by one task, so the sums do not depend on the thread count. On one thread the standard
+/// sort, quicker on the few long sorted runs these lists hold, gives the same order (both
+/// sorts are stable).
+pub fn merge_cluster_sums(mut entries: Vec<ClusterSum>) -> Vec<ClusterSum> {
+    if rayon::current_num_threads() > 1 {
+        entries.par_sort_by_key(|e| e.0);
+    } else {
+        entries.sort_by_key(|e| e.0);
+    }
+    let starts: Vec<usize> = (0..entries.len())
+        .into_par_iter()
+        .filter(|&k| k == 0 || entries[k].0 != entries[k - 1].0)
+        .collect();
+    starts
+        .par_iter()
+        .enumerate()
+        .map(|(g, &s)| {
+            let end = starts.get(g + 1).copied().unwrap_or(entries.len());
+            let mut sum = entries[s];
+            for &(_, w, wp) in &entries[s + 1..end] {
+                sum.1 += w;
+                for a in 0..3 {
+                    sum.2[a] += wp[a];
+                }
+            }
+            sum
+        })
+        .collect()
 }
 
 /// One cluster's sums before it is finished: `(node, W, W·p)`.
@@ -478,27 +545,37 @@ pub fn level_clusters(
 ) -> Clusters {
     let d = t - DEPTH_OFFSET;
     let scale = omega_scale * (1i64 << d) as f64;
-    let mut cl = Clusters {
+    // Each cluster is finished on its own, in parallel; `unzip` keeps the order.
+    let ((node, pos), (omega, (first, vals))) = merged
+        .par_iter()
+        .map(|&(n, w, wp)| {
+            let p = [wp[0] / w, wp[1] / w, wp[2] / w];
+            let (first, vals) = basis_window(fem, d, p);
+            ((n, p), (scale * w, (first, vals)))
+        })
+        .unzip();
+    Clusters {
         of_node: NodeRank::new(tree.levels[t as usize].len(), merged.iter().map(|e| e.0)),
-        ..Default::default()
-    };
-    for &(n, w, wp) in merged {
-        let p = [wp[0] / w, wp[1] / w, wp[2] / w];
-        let mut first = [0i32; 3];
-        let mut vals = [[0.0f32; 3]; 3];
-        for a in 0..3 {
-            let win = fem.window(d, p[a]);
-            // Indices fit in i32 (depth ≤ MAX_DEPTH); values are stored in single precision.
-            first[a] = win.first as i32;
-            vals[a] = win.values.map(|v| v as f32);
-        }
-        cl.node.push(n);
-        cl.pos.push(p);
-        cl.omega.push(scale * w);
-        cl.first.push(first);
-        cl.vals.push(vals);
+        node,
+        pos,
+        omega,
+        first,
+        vals,
     }
-    cl
+}
+
+/// Per axis, the first FEM index at depth `d` whose support contains `p`, and the values of
+/// the functions from there ([`Clusters::first`], [`Clusters::vals`]).
+fn basis_window(fem: Basis, d: u32, p: [f64; 3]) -> ([i32; 3], [[f32; 3]; 3]) {
+    let mut first = [0i32; 3];
+    let mut vals = [[0.0f32; 3]; 3];
+    for a in 0..3 {
+        let win = fem.window(d, p[a]);
+        // Indices fit in i32 (depth ≤ MAX_DEPTH); values are stored in single precision.
+        first[a] = win.first as i32;
+        vals[a] = win.values.map(|v| v as f32);
+    }
+    (first, vals)
 }
 
 /// Per-axis offsets (relative to a function's own cell) of the cells whose cluster can touch
