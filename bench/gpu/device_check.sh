@@ -5,7 +5,9 @@
 # (../shared/data/gt) and, for the reference's column, `PoissonRecon` (PoissonRecon 18.74's
 # command line, built from the sources pypoisson2 vendors; bench/gpu/README.md). Writes its
 # logs to $OUT.
-#   [THREADS="1 4 16"] [BIG=0] [SMALL_V=1] bash bench/gpu/device_check.sh [POINTS] [DEPTH]
+#   [THREADS="1 4 16"] [BIG=0] [SMALL_V=1] [UNIT=0] [PR=0] [SMALL="POINTS DEPTH"] \
+#       bash bench/gpu/device_check.sh [POINTS] [DEPTH]
+# (UNIT=0 skips step 1, PR=0 skips PoissonRecon, SMALL sets the small cloud.)
 # 1. the GPU unit tests (right-hand sides, sweeps and solves against the CPU's, bit for bit);
 #    on a failure it stops there, to leave device time for a fix;
 # 2. a small cloud (POINTS/10, DEPTH-2) on the CPU and twice on the GPU: the same bytes? Then
@@ -32,6 +34,12 @@ echo "cores: $(nproc)"
 NV=$(python3 -c 'import nvidia, os; print(os.pathsep.join(os.path.join(p, d, "lib") for p in nvidia.__path__ for d in ("cu13", "cuda_nvrtc")))' 2>/dev/null)
 export LD_LIBRARY_PATH=/usr/local/cuda/lib64:${NV}:${LD_LIBRARY_PATH:-}
 
+SMALL_POINTS=$((POINTS / 10))
+SMALL_DEPTH=$((DEPTH - 2))
+[ -n "${SMALL:-}" ] && read -r SMALL_POINTS SMALL_DEPTH <<< "$SMALL"
+PRBIN=$B/PoissonRecon
+[ "${PR:-1}" = 0 ] && PRBIN=/nonexistent
+if [ "${UNIT:-1}" = 1 ]; then
 stamp "== unit tests"
 "$B/spsr-tests" --test-threads 1 --nocapture the_gpu_gives the_kernels_compile copies_through_the_staging > "$OUT/unit.txt" 2>&1
 rc=$?
@@ -39,6 +47,7 @@ tail -15 "$OUT/unit.txt"
 if [ $rc -ne 0 ] || grep -q skipped "$OUT/unit.txt"; then
     stamp "unit tests failed or were skipped: stopping"
     exit 1
+fi
 fi
 
 sample() {  # count, path
@@ -58,24 +67,24 @@ run() {  # cloud, depth, name, flags...
     stamp "$name: exit $? $(tail -1 "$OUT/$name.log")"
 }
 
-stamp "== small: $((POINTS / 10)) points at depth $((DEPTH - 2))"
-sample $((POINTS / 10)) "$W/small.ply"
+stamp "== small: $SMALL_POINTS points at depth $SMALL_DEPTH"
+sample $SMALL_POINTS "$W/small.ply"
 V=$([ "${SMALL_V:-0}" = 1 ] && echo -v)
-run "$W/small.ply" $((DEPTH - 2)) small-cpu $V
-run "$W/small.ply" $((DEPTH - 2)) small-gpu --gpu $V
-run "$W/small.ply" $((DEPTH - 2)) small-gpu2 --gpu
+run "$W/small.ply" $SMALL_DEPTH small-cpu $V
+run "$W/small.ply" $SMALL_DEPTH small-gpu --gpu $V
+run "$W/small.ply" $SMALL_DEPTH small-gpu2 --gpu
 cmp "$W/small-cpu.ply" "$W/small-gpu.ply" && echo "small: GPU bytes == CPU bytes"
 cmp "$W/small-gpu.ply" "$W/small-gpu2.ply" && echo "small: GPU bytes == GPU bytes"
 sha256sum "$W"/small-*.ply | sed "s|$W/||"
-if [ -x "$B/PoissonRecon" ]; then
+if [ -x "$PRBIN" ]; then
     OMP_NUM_THREADS=$(nproc) timeout 90 /usr/bin/time -f "%e s wall, %M KiB peak" \
-        "$B/PoissonRecon" --in "$W/small.ply" --out "$W/small-pr.ply" --depth $((DEPTH - 2)) \
+        "$PRBIN" --in "$W/small.ply" --out "$W/small-pr.ply" --depth $SMALL_DEPTH \
         > "$OUT/small-pr.log" 2>&1
     stamp "small-pr: exit $? $(tail -1 "$OUT/small-pr.log")"
 fi
 
 for t in ${THREADS:-}; do
-    run "$W/small.ply" $((DEPTH - 2)) "small-cpu-t$t" --threads "$t" -v
+    run "$W/small.ply" $SMALL_DEPTH "small-cpu-t$t" --threads "$t" -v
     rm -f "$W/small-cpu-t$t.ply"
 done
 if [ "${BIG:-1}" = 0 ]; then
@@ -91,10 +100,10 @@ cmp "$W/big-cpu.ply" "$W/big-gpu.ply" && echo "big: GPU bytes == CPU bytes"
 rm -f "$W/big-cpu.ply" "$W/big-gpu.ply"
 # The reference gets what is left of a 10-minute call (it is the last step).
 LEFT=$((575 - $(date +%s) + T0))
-if [ -x "$B/PoissonRecon" ] && [ $LEFT -gt 30 ]; then
+if [ -x "$PRBIN" ] && [ $LEFT -gt 30 ]; then
     stamp "PoissonRecon, at most $LEFT s"
     OMP_NUM_THREADS=$(nproc) timeout $LEFT /usr/bin/time -f "%e s wall, %M KiB peak" \
-        "$B/PoissonRecon" --in "$W/big.ply" --out "$W/big-pr.ply" --depth "$DEPTH" \
+        "$PRBIN" --in "$W/big.ply" --out "$W/big-pr.ply" --depth "$DEPTH" \
         --verbose > "$OUT/big-pr.log" 2>&1
     stamp "big-pr: exit $? $(tail -1 "$OUT/big-pr.log")"
 fi
