@@ -5,6 +5,8 @@ use std::sync::atomic::{AtomicBool, AtomicU32, Ordering::Relaxed};
 
 use rayon::prelude::*;
 
+use crate::shared_slice::split_into;
+
 use crate::attributes::{self, Attribute, Colors};
 use crate::vec3::{cross, dot, norm, sub};
 
@@ -182,13 +184,9 @@ fn fold_vertex_lists<A: Send, I: Iterator<Item = (u32, u64)>>(
     let mut buffer = vec![0u64; block_start[blocks]];
     // Each chunk's stretch of every block, block-major so that a block's stretch is whole.
     let mut stretches: Vec<Vec<&mut [u64]>> = counts.iter().map(|_| Vec::new()).collect();
-    let mut rest = buffer.as_mut_slice();
-    for b in 0..blocks {
-        for (c, own) in stretches.iter_mut().enumerate() {
-            let (mine, tail) = std::mem::take(&mut rest).split_at_mut(counts[c][b]);
-            own.push(mine);
-            rest = tail;
-        }
+    let lens = (0..blocks).flat_map(|b| counts.iter().map(move |c| c[b]));
+    for (i, mine) in split_into(&mut buffer, lens).into_iter().enumerate() {
+        stretches[i % counts.len()].push(mine);
     }
     stretches
         .into_par_iter()

@@ -21,6 +21,8 @@
 
 use rayon::prelude::*;
 
+use crate::shared_slice::split_into;
+
 /// Tree depth of the unit cube.
 pub const DEPTH_OFFSET: u32 = 2;
 
@@ -252,14 +254,7 @@ fn concat<T: Copy + Default + Send + Sync>(parts: Vec<Vec<T>>) -> Vec<T> {
         T::default(),
         parts.iter().map(Vec::len).sum(),
     ));
-    let mut rest = all.as_mut_slice();
-    let mut slots = Vec::with_capacity(parts.len());
-    for p in &parts {
-        let (slot, tail) = std::mem::take(&mut rest).split_at_mut(p.len());
-        slots.push(slot);
-        rest = tail;
-    }
-    slots
+    split_into(&mut all, parts.iter().map(Vec::len))
         .into_par_iter()
         .zip(&parts)
         .for_each(|(slot, p)| slot.copy_from_slice(p));

@@ -45,3 +45,14 @@ impl<T: Copy> SharedSlice<T> {
         *self.ptr.add(i) = v;
     }
 }
+
+/// `v` cut into consecutive slices of the given lengths (which must sum to at most its
+/// length): the parts that threads fill each on their own.
+pub fn split_into<T>(mut v: &mut [T], lens: impl Iterator<Item = usize>) -> Vec<&mut [T]> {
+    lens.map(|n| {
+        let (head, tail) = std::mem::take(&mut v).split_at_mut(n);
+        v = tail;
+        head
+    })
+    .collect()
+}

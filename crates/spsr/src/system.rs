@@ -7,6 +7,8 @@
 
 use rayon::prelude::*;
 
+use crate::shared_slice::split_into;
+
 use crate::bspline::{table, Basis, Integrand, Table1D};
 use crate::octree::{
     brood_offset, func_index, neighbor_in, window_index, Level, NodeRank, Octree, DEPTH_OFFSET,
@@ -475,11 +477,11 @@ fn sample_sums_per_level(
     // The stretches of chunk `c`: one slice per level.
     let mut stretches: Vec<Vec<&mut [ClusterSum]>> = counts.iter().map(|_| Vec::new()).collect();
     for (t, list) in out.iter_mut().enumerate() {
-        let mut rest = list.as_mut_slice();
-        for (c, own) in stretches.iter_mut().enumerate() {
-            let (mine, tail) = std::mem::take(&mut rest).split_at_mut(counts[c][t]);
+        for (own, mine) in stretches
+            .iter_mut()
+            .zip(split_into(list, counts.iter().map(|c| c[t])))
+        {
             own.push(mine);
-            rest = tail;
         }
     }
     stretches

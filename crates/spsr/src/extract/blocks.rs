@@ -14,6 +14,7 @@ use super::triangulate::triangulate_loops;
 use super::vertex::{place_vertices, Crossing};
 use super::{pack, Cells, Field, Leaf, BARY};
 use crate::mesh::Mesh;
+use crate::shared_slice::split_into;
 
 /// Options of [`extract`].
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -504,16 +505,6 @@ impl Blocks {
             is_edge,
         ))
     }
-}
-
-/// `v` cut into consecutive slices of the given lengths (which must sum to at most its length).
-fn split_into<T>(mut v: &mut [T], lens: impl Iterator<Item = usize>) -> Vec<&mut [T]> {
-    lens.map(|n| {
-        let (head, tail) = std::mem::take(&mut v).split_at_mut(n);
-        v = tail;
-        head
-    })
-    .collect()
 }
 
 /// Drops the vertices no triangle uses (possible only next to dropped two-vertex loops), with
