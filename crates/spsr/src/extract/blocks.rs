@@ -224,6 +224,20 @@ pub(super) struct ChunkOut {
     bad: bool,
 }
 
+impl ChunkOut {
+    /// Gives back the spare capacity the vectors grew into: the blocks of a whole run are
+    /// held together until they are assembled, and doubling leaves up to half of each
+    /// block's arrays unused (about 90 MiB at a million points, depth 10; issue 20).
+    fn shrink_to_fit(&mut self) {
+        self.owned_keys.shrink_to_fit();
+        self.owned_pos.shrink_to_fit();
+        self.owned_nrm.shrink_to_fit();
+        self.bary.shrink_to_fit();
+        self.bary_nrm.shrink_to_fit();
+        self.tris.shrink_to_fit();
+    }
+}
+
 /// The per-block output of [`extract_blocks`], before vertices are numbered globally.
 pub struct Blocks {
     chunks: Vec<ChunkOut>,
@@ -281,6 +295,7 @@ pub fn extract_blocks<C: Cells>(
                 }
             }
             sc.leaves = leaves;
+            out.shrink_to_fit();
             out
         })
         .collect();
