@@ -567,8 +567,9 @@ fn for_each_neighbour(c: [i64; 3], mut f: impl FnMut([i64; 3])) {
 
 /// The sums a least-squares fit of the samples' offsets `r` from a plane by a quadratic
 /// height field over the plane, `r ≈ βᵀx` with `x = [1, u, v, u², uv, v²]`, needs.
+/// (Also the curvature estimate of `--depth auto`, `super::resolution`.)
 #[derive(Debug, Clone, Copy, Default)]
-struct QuadricFit {
+pub(crate) struct QuadricFit {
     /// `Σ xxᵀ`.
     xx: [[f64; 6]; 6],
     /// `Σ x r`.
@@ -579,7 +580,8 @@ struct QuadricFit {
 }
 
 impl QuadricFit {
-    fn add(&mut self, u: f64, v: f64, r: f64) {
+    /// Adds a sample at `(u, v)` over the plane, `r` off it.
+    pub(crate) fn add(&mut self, u: f64, v: f64, r: f64) {
         let x = [1.0, u, v, u * u, u * v, v * v];
         for i in 0..6 {
             for j in i..6 {
@@ -595,6 +597,14 @@ impl QuadricFit {
     /// once the surface's position, slope and curvature are taken out. `None` with too few
     /// samples or samples that do not span the plane.
     fn residual(&self) -> Option<f64> {
+        let beta = self.coefficients()?;
+        let rss = self.rr - (0..6).map(|i| beta[i] * self.xr[i]).sum::<f64>();
+        Some((rss.max(0.0) / (self.n - 6.0)).sqrt())
+    }
+
+    /// The fitted height field's coefficients `β` (`r ≈ βᵀ[1, u, v, u², uv, v²]`); `None`
+    /// as for [`QuadricFit::residual`].
+    pub(crate) fn coefficients(&self) -> Option<[f64; 6]> {
         if self.n < MIN_SAMPLES {
             return None;
         }
@@ -604,9 +614,7 @@ impl QuadricFit {
                 a[i][j] = a[j][i];
             }
         }
-        let beta = cholesky_solve(a, self.xr)?;
-        let rss = self.rr - (0..6).map(|i| beta[i] * self.xr[i]).sum::<f64>();
-        Some((rss.max(0.0) / (self.n - 6.0)).sqrt())
+        cholesky_solve(a, self.xr)
     }
 }
 

@@ -11,8 +11,14 @@
 //!   sample of [`SPACING_SAMPLES`] points to their nearest other point (a k-d tree over all
 //!   usable points); the depth is `ceil(log2(cube / s))`: the shallowest whose finest cells
 //!   are no wider than the spacing, which the Chamfer sweep of `bench/depth-auto` places
-//!   within one depth of the most accurate one on 11 of the 16 shared sets, and within one
-//!   of a depth within 2 % of it on 14 (the misses: `docs/design.md`). It is then lowered until
+//!   within one depth of the most accurate one on 12 of the 16 shared sets, and within one
+//!   of a depth within 2 % of it on 15 (the misses: `docs/design.md`). A smooth surface gets
+//!   less: the same sample's curvature (a quadratic height field fitted to each point's
+//!   [`CURVATURE_NEIGHBOURS`] nearest) bounds the depth where the finest cells reach
+//!   1/[`CELLS_PER_RADIUS`] of the radius of curvature that all but 1 % of the points stay
+//!   above; deeper cells only follow the sampling there (the analytic sphere's Chamfer
+//!   distance grows by 40 % from depth 8 to 10). The bound lowers the spacing's depth by at
+//!   most [`MAX_SMOOTH_LOWERING`]. The depth is then lowered until
 //!   the memory model of `tree.rs` fits the limit, with the octree's nodes predicted from the
 //!   cells the points occupy at each depth.
 //!
@@ -20,15 +26,36 @@
 
 use rayon::prelude::*;
 
+use super::noise::QuadricFit;
 use super::prepare::{self, Frame, Selection};
 use super::tree;
 use crate::error::MemoryLimit;
+use crate::normals::estimate::eigen_sym3;
 use crate::normals::knn;
 use crate::octree::DEPTH_OFFSET;
 use crate::{Error, Params, PointCloud, Resolution, Result, MAX_DEPTH};
 
 /// Points whose nearest-neighbour distance is measured for the spacing.
 pub const SPACING_SAMPLES: usize = 4096;
+
+/// Neighbours (the point itself included) of each sampled point in the quadratic fit that
+/// reads the surface's curvature there.
+pub const CURVATURE_NEIGHBOURS: usize = 24;
+
+/// The share of the sampled points whose curvature the depth must resolve: the rest (edges,
+/// corners, the tips of small features) may be sharper. With 99 %, the fandisk's creases and
+/// a box's edges keep their depth; only shapes smooth nearly everywhere are lowered.
+const CURVATURE_SHARE: f64 = 0.99;
+
+/// Finest cells of at most `1 / CELLS_PER_RADIUS` of the radius of curvature resolve a smooth
+/// surface: on the analytic sphere (`bench/depth-auto`, Chamfer to the exact sphere) cells of
+/// 1/116 of the radius (depth 8 of `sphere_200k`) were the most accurate, and deeper ones only
+/// followed the sampling (depth 10: 40 % farther from the sphere).
+pub const CELLS_PER_RADIUS: f64 = 64.0;
+
+/// The most depths the curvature may take off the spacing's depth: a flat surface has no
+/// curvature to resolve, but its outline and holes still need cells near the spacing.
+pub const MAX_SMOOTH_LOWERING: u32 = 2;
 
 /// Octree nodes per occupied cell of a depth above the base depth, in the memory prediction
 /// of `--depth auto`: measured 7.9–10.3 at the depths where the shared clean sets splat
@@ -58,8 +85,9 @@ pub enum DepthReason {
         /// The width asked for.
         width: f64,
     },
-    /// The shallowest depth whose cells are no wider than the point spacing; `limited` when
-    /// the memory limit (or [`MAX_DEPTH`]) held it lower.
+    /// The shallowest depth whose cells are no wider than the point spacing, or shallower
+    /// on a smooth surface (`smooth`); `limited` when the memory limit (or [`MAX_DEPTH`])
+    /// held it lower.
     Spacing {
         /// The median nearest-neighbour distance, in the input's units.
         spacing: f64,
@@ -67,6 +95,10 @@ pub enum DepthReason {
         sampled: usize,
         /// The depth the spacing asked for.
         wanted: u32,
+        /// When the surface is smooth enough to need fewer depths: the radius of curvature
+        /// all but 1 % of the sampled points stay above (input units), and the depth it
+        /// allowed (at least `wanted − MAX_SMOOTH_LOWERING`).
+        smooth: Option<(f64, u32)>,
         /// What held the depth below `wanted`, if anything.
         limited: Option<DepthLimit>,
     },
@@ -108,6 +140,7 @@ impl DepthChoice {
                 spacing,
                 sampled,
                 wanted,
+                smooth,
                 limited,
             } => {
                 let mut s = format!(
@@ -121,6 +154,16 @@ impl DepthChoice {
                     num(self.cube / f64::from(1u32 << *wanted)),
                     num(self.cube),
                 );
+                if let Some((radius, smooth)) = smooth {
+                    s = format!(
+                        "{s}; but the surface is smooth (99 % of the points lie where its \
+                         radius of curvature is {} or more), and cells of {} at {} {smooth} \
+                         resolve it: deeper cells would only follow the sampling",
+                        num(*radius),
+                        num(self.cube / f64::from(1u32 << *smooth)),
+                        spell("depth"),
+                    );
+                }
                 match limited {
                     Some(DepthLimit::Memory {
                         estimate,
@@ -260,7 +303,8 @@ fn auto_depth(
     frame: Frame,
     params: &Params,
 ) -> (u32, DepthReason) {
-    let (spacing, sampled) = spacing(&points.positions, valid);
+    let survey = survey(&points.positions, valid);
+    let (spacing, sampled) = (survey.spacing, survey.sampled);
     let ratio = frame.width / spacing;
     let wanted = if ratio.is_finite() && ratio > 1.0 {
         ratio.log2().ceil().min(f64::from(MAX_DEPTH) + 1.0) as u32
@@ -270,7 +314,11 @@ fn auto_depth(
         // Every sampled point has a twin: no spacing to go by.
         MAX_DEPTH + 1
     };
-    let mut depth = wanted.clamp(1, MAX_DEPTH);
+    let smooth = survey
+        .curvature
+        .map(|k| (1.0 / k, smooth_depth(frame.width * k, wanted)))
+        .filter(|&(_, d)| d < wanted);
+    let mut depth = smooth.map_or(wanted, |s| s.1).clamp(1, MAX_DEPTH);
     let mut limited = (wanted > MAX_DEPTH).then_some(DepthLimit::MaxDepth);
     if let Some((limit, source)) = tree::memory_limit(params) {
         let nodes = predicted_nodes(&points.positions, valid, frame, depth, params);
@@ -292,31 +340,107 @@ fn auto_depth(
             spacing,
             sampled,
             wanted,
+            smooth,
             limited,
         },
     )
 }
 
-/// The median distance from [`SPACING_SAMPLES`] of the points (every `n / samples`-th) to
-/// their nearest other point at a positive distance (twins do not count), and how many were
-/// measured. Infinite when every sampled point has only twins nearby.
-fn spacing(positions: &[[f64; 3]], valid: &[usize]) -> (f64, usize) {
+/// The depth a surface of curvature `k_cube` (per cube side) needs, given the spacing's
+/// depth `wanted`: the first whose cells are at most 1/[`CELLS_PER_RADIUS`] of the radius of
+/// curvature, and no more than [`MAX_SMOOTH_LOWERING`] below `wanted`.
+fn smooth_depth(k_cube: f64, wanted: u32) -> u32 {
+    let floor = wanted.saturating_sub(MAX_SMOOTH_LOWERING).max(1);
+    let need = k_cube * CELLS_PER_RADIUS;
+    if !need.is_finite() {
+        return wanted;
+    }
+    let d = if need > 1.0 { need.log2().ceil() } else { 0.0 };
+    (d.min(f64::from(u32::MAX)) as u32).max(floor)
+}
+
+/// What `--depth auto` reads from a sample of the points.
+struct Survey {
+    /// The median nearest-neighbour distance (infinite when every sampled point has only
+    /// twins nearby).
+    spacing: f64,
+    /// Points sampled.
+    sampled: usize,
+    /// The curvature (1 / input units) that [`CURVATURE_SHARE`] of the sampled points stay
+    /// at or below; `None` when too few could be measured.
+    curvature: Option<f64>,
+}
+
+/// [`SPACING_SAMPLES`] of the points (every `n / samples`-th): the median distance to their
+/// nearest other point at a positive distance (twins do not count), and their curvature.
+fn survey(positions: &[[f64; 3]], valid: &[usize]) -> Survey {
     let tree = knn::Tree::new(positions, valid.iter().map(|&i| i as u32).collect());
     let m = SPACING_SAMPLES.min(valid.len());
-    let mut d: Vec<f64> = (0..m)
+    let (mut d, k): (Vec<f64>, Vec<Option<f64>>) = (0..m)
         .into_par_iter()
-        .map_init(Vec::new, |buf, k| {
-            let i = valid[k * valid.len() / m];
-            // A few neighbours, so that a duplicate or two does not hide the spacing.
-            tree.nearest(positions[i], 8, buf);
-            buf.iter()
+        .map_init(Vec::new, |buf, s| {
+            let i = valid[s * valid.len() / m];
+            tree.nearest(positions[i], CURVATURE_NEIGHBOURS, buf);
+            // The first positive distance, so that a duplicate or two does not hide the
+            // spacing.
+            let near = buf
+                .iter()
                 .map(|&(_, d2)| d2)
                 .find(|&d2| d2 > 0.0)
-                .map_or(f64::INFINITY, f64::sqrt)
+                .map_or(f64::INFINITY, f64::sqrt);
+            (near, curvature(positions, positions[i], buf))
         })
-        .collect();
+        .unzip();
     d.sort_unstable_by(f64::total_cmp);
-    (d[m / 2], m)
+    let mut k: Vec<f64> = k.into_iter().flatten().collect();
+    k.sort_unstable_by(f64::total_cmp);
+    // A quantile of a few hundred values at least.
+    let curvature = (k.len() >= 256 && k.len() * 2 >= m).then(|| {
+        let at = ((k.len() - 1) as f64 * CURVATURE_SHARE).round() as usize;
+        k[at]
+    });
+    Survey {
+        spacing: d[m / 2],
+        sampled: m,
+        curvature,
+    }
+}
+
+/// The larger principal curvature (in absolute value, 1 / input units) at `p` of the
+/// quadratic height field fitted over the plane of its neighbours `near` (cloud indices and
+/// squared distances, from the tree); `None` when they are too few, coincide or do not span
+/// a plane.
+fn curvature(positions: &[[f64; 3]], p: [f64; 3], near: &[(u32, f64)]) -> Option<f64> {
+    let reach = near.last()?.1.sqrt();
+    if near.len() < CURVATURE_NEIGHBOURS || reach <= 0.0 {
+        return None;
+    }
+    // Offsets in units of the neighbourhood's reach, so that the fit is conditioned alike
+    // at every scale.
+    let q: Vec<[f64; 3]> = near
+        .iter()
+        .map(|&(j, _)| std::array::from_fn(|a| (positions[j as usize][a] - p[a]) / reach))
+        .collect();
+    let n = q.len() as f64;
+    let mean: [f64; 3] = std::array::from_fn(|a| q.iter().map(|x| x[a]).sum::<f64>() / n);
+    let idx = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)];
+    let cov = idx.map(|(a, b)| {
+        q.iter()
+            .map(|x| (x[a] - mean[a]) * (x[b] - mean[b]))
+            .sum::<f64>()
+            / n
+    });
+    let (_, v) = eigen_sym3(&cov);
+    let dot = |x: &[f64; 3], y: &[f64; 3]| x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
+    let mut fit = QuadricFit::default();
+    for x in &q {
+        fit.add(dot(x, &v[1]), dot(x, &v[2]), dot(x, &v[0]));
+    }
+    let b = fit.coefficients()?;
+    // The height field's Hessian [[2 b3, b4], [b4, 2 b5]]: its larger eigenvalue in size.
+    let (mid, half) = (b[3] + b[5], ((b[3] - b[5]).powi(2) + b[4] * b[4]).sqrt());
+    let k = (mid.abs() + half) / reach;
+    k.is_finite().then_some(k)
 }
 
 /// The octree nodes predicted at each unit depth `0..=depth`: complete levels down to the
@@ -402,6 +526,54 @@ mod tests {
         let p = [[0.1, 0.1, 0.1], [0.2, 0.1, 0.1], [0.9, 0.9, 0.9]];
         let c = occupied_cells(&p, &[0, 1, 2], frame, 3);
         assert_eq!(c, vec![1, 2, 2, 3]);
+    }
+
+    /// `n` points spread evenly over a sphere of radius `r` (a Fibonacci lattice).
+    fn fibonacci_sphere(n: usize, r: f64) -> Vec<[f64; 3]> {
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        (0..n)
+            .map(|i| {
+                let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+                let rho = (1.0 - z * z).sqrt();
+                let a = golden * i as f64;
+                [r * rho * a.cos(), r * rho * a.sin(), r * z]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_survey_reads_a_spheres_curvature_and_a_planes_absence_of_it() {
+        for r in [0.5, 2.0, 300.0] {
+            let p = fibonacci_sphere(20_000, r);
+            let all: Vec<usize> = (0..p.len()).collect();
+            let s = survey(&p, &all);
+            let k = s.curvature.expect("a sphere's curvature");
+            assert!((k * r - 1.0).abs() < 0.03, "radius {r}: curvature {k}");
+            // The spacing of n points on the area 4πr²: about √(4πr²/n) · 0.95.
+            let even = (4.0 * std::f64::consts::PI * r * r / p.len() as f64).sqrt();
+            assert!((s.spacing / even - 1.0).abs() < 0.2, "{} {even}", s.spacing);
+        }
+        let plane: Vec<[f64; 3]> = (0..10_000)
+            .map(|i| [(i % 100) as f64 * 0.01, (i / 100) as f64 * 0.01, 0.5])
+            .collect();
+        let all: Vec<usize> = (0..plane.len()).collect();
+        let k = survey(&plane, &all).curvature.expect("a plane's curvature");
+        assert!(k < 1e-6, "{k}");
+    }
+
+    #[test]
+    fn a_smooth_surface_takes_the_depth_its_curvature_needs_and_at_most_two_less() {
+        // The unit sphere in a cube of 2.2: cells of a 64th of the radius need depth 8.
+        assert_eq!(smooth_depth(2.2, 10), 8);
+        assert_eq!(smooth_depth(2.2, 9), 8);
+        assert_eq!(smooth_depth(2.2, 8), 8);
+        // Never more than two below the spacing's depth (a plane has no curvature at all).
+        assert_eq!(smooth_depth(2.2, 12), 10);
+        assert_eq!(smooth_depth(0.0, 9), 7);
+        assert_eq!(smooth_depth(0.0, 2), 1);
+        // A curvature the spacing's depth cannot resolve leaves it alone.
+        assert_eq!(smooth_depth(1000.0, 9), 16);
+        assert_eq!(smooth_depth(f64::INFINITY, 9), 9);
     }
 
     #[test]

@@ -91,6 +91,64 @@ fn depth_auto_goes_deeper_for_a_denser_sampling_of_the_same_shape() {
     assert!((dense - sparse).abs_diff(2) <= 1, "{sparse} {dense}");
 }
 
+/// `side²` points on a grid over [−1, 1]², lifted to a bowl of radius of curvature 4 at
+/// its centre, `z = (x² + y²) / 8`, plus ripples of amplitude `ripple` and wavelength π/10.
+fn bowl(side: usize, ripple: f64) -> spsr::PointCloud {
+    let mut pos = Vec::new();
+    let mut nor = Vec::new();
+    for i in 0..side * side {
+        let x = -1.0 + 2.0 * (i % side) as f64 / (side - 1) as f64;
+        let y = -1.0 + 2.0 * (i / side) as f64 / (side - 1) as f64;
+        let (sx, sy) = ((20.0 * x).sin(), (20.0 * y).sin());
+        let z = (x * x + y * y) / 8.0 + ripple * sx * sy;
+        let zx = x / 4.0 + 20.0 * ripple * (20.0 * x).cos() * sy;
+        let zy = y / 4.0 + 20.0 * ripple * sx * (20.0 * y).cos();
+        let l = (zx * zx + zy * zy + 1.0).sqrt();
+        pos.push([x, y, z]);
+        nor.push([-zx / l, -zy / l, 1.0 / l]);
+    }
+    spsr::PointCloud::new(pos, nor).unwrap()
+}
+
+#[test]
+fn depth_auto_takes_fewer_depths_on_a_smooth_surface_than_on_a_rough_one_sampled_alike() {
+    let auto = Params {
+        resolution: Resolution::Auto,
+        max_memory: Some(1 << 40),
+        ..Params::default()
+    };
+    let choose = |cloud: &spsr::PointCloud| {
+        let c = spsr::resolve(cloud, &auto).unwrap().choice.unwrap();
+        let DepthReason::Spacing {
+            wanted,
+            smooth,
+            limited,
+            ..
+        } = c.reason
+        else {
+            panic!("{:?}", c.reason)
+        };
+        assert_eq!(limited, None);
+        (c.clone(), wanted, smooth)
+    };
+    // 250 × 250 points 0.008 apart in a cube of 2.2: the spacing asks for depth 9.
+    let (smooth, wanted, bound) = choose(&bowl(250, 0.0));
+    assert_eq!(wanted, 9);
+    // The bowl's radius of curvature, 4 at the centre and more outside, is read as such; cells
+    // of a 64th of it would be depth 6, and the depth goes at most two below the spacing's.
+    let (radius, depth) = bound.expect("the bowl is smooth");
+    assert!((3.6..4.4).contains(&radius), "{radius}");
+    assert_eq!((smooth.depth, depth), (7, 7));
+    let note = smooth.message(&|f| format!("--{f}"));
+    assert!(
+        note.contains("smooth") && note.contains("--depth 7"),
+        "{note}"
+    );
+    // Ripples of curvature ~4 (a radius of a quarter) need every depth the spacing gives.
+    let (rough, wanted, bound) = choose(&bowl(250, 0.01));
+    assert_eq!((rough.depth, wanted, bound), (9, 9, None));
+}
+
 #[test]
 fn depth_auto_stays_within_the_memory_limit_and_says_so() {
     let cloud = sphere(32_000, [0.0; 3], 1.0, 3);
