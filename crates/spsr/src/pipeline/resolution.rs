@@ -11,13 +11,13 @@
 //!   sample of [`SPACING_SAMPLES`] points to their nearest other point (a k-d tree over all
 //!   usable points); the depth is `ceil(log2(cube / s))`: the shallowest whose finest cells
 //!   are no wider than the spacing, which the Chamfer sweep of `bench/depth-auto` places
-//!   within one depth of the most accurate one on 12 of the 16 shared sets, and within one
-//!   of a depth within 2 % of it on 15 (the misses: `docs/design.md`). A smooth surface gets
+//!   within one depth of the most accurate one on 13 of the 16 shared sets, and within one
+//!   of a depth within 2 % of it on all 16 (`docs/design.md`). A smooth surface gets
 //!   less: the same sample's curvature (a quadratic height field fitted to each point's
 //!   [`CURVATURE_NEIGHBOURS`] nearest) bounds the depth where the finest cells reach
 //!   1/[`CELLS_PER_RADIUS`] of the radius of curvature that all but 1 % of the points stay
 //!   above; deeper cells only follow the sampling there (the analytic sphere's Chamfer
-//!   distance grows by 40 % from depth 8 to 10). The bound lowers the spacing's depth by at
+//!   distance grows by 50 % from depth 8 to 10). The bound lowers the spacing's depth by at
 //!   most [`MAX_SMOOTH_LOWERING`]. The depth is then lowered until
 //!   the memory model of `tree.rs` fits the limit, with the octree's nodes predicted from the
 //!   cells the points occupy at each depth.
@@ -48,10 +48,12 @@ pub const CURVATURE_NEIGHBOURS: usize = 24;
 const CURVATURE_SHARE: f64 = 0.99;
 
 /// Finest cells of at most `1 / CELLS_PER_RADIUS` of the radius of curvature resolve a smooth
-/// surface: on the analytic sphere (`bench/depth-auto`, Chamfer to the exact sphere) cells of
-/// 1/116 of the radius (depth 8 of `sphere_200k`) were the most accurate, and deeper ones only
-/// followed the sampling (depth 10: 40 % farther from the sphere).
-pub const CELLS_PER_RADIUS: f64 = 64.0;
+/// surface: on the analytic shapes (`bench/depth-auto`, Chamfer to the exact surface) the
+/// most accurate cells were 1/116 of the radius on the sphere (depth 8 of `sphere_200k`; depth
+/// 10, the spacing's, is 50 % farther from the sphere) and 1/30 of the tube's on the torus
+/// (depth 8 of `torus_200k`); deeper ones only followed the sampling. 32, the coarser end,
+/// keeps every depth a surface as curved as the torus can use.
+pub const CELLS_PER_RADIUS: f64 = 32.0;
 
 /// The most depths the curvature may take off the spacing's depth: a flat surface has no
 /// curvature to resolve, but its outline and holes still need cells near the spacing.
@@ -563,16 +565,16 @@ mod tests {
 
     #[test]
     fn a_smooth_surface_takes_the_depth_its_curvature_needs_and_at_most_two_less() {
-        // The unit sphere in a cube of 2.2: cells of a 64th of the radius need depth 8.
-        assert_eq!(smooth_depth(2.2, 10), 8);
-        assert_eq!(smooth_depth(2.2, 9), 8);
-        assert_eq!(smooth_depth(2.2, 8), 8);
+        // The unit sphere in a cube of 2.2: cells of a 32nd of the radius need depth 7.
+        assert_eq!(smooth_depth(2.2, 9), 7);
+        assert_eq!(smooth_depth(2.2, 8), 7);
+        assert_eq!(smooth_depth(2.2, 7), 7);
         // Never more than two below the spacing's depth (a plane has no curvature at all).
-        assert_eq!(smooth_depth(2.2, 12), 10);
+        assert_eq!(smooth_depth(2.2, 10), 8);
         assert_eq!(smooth_depth(0.0, 9), 7);
         assert_eq!(smooth_depth(0.0, 2), 1);
         // A curvature the spacing's depth cannot resolve leaves it alone.
-        assert_eq!(smooth_depth(1000.0, 9), 16);
+        assert_eq!(smooth_depth(1000.0, 9), 15);
         assert_eq!(smooth_depth(f64::INFINITY, 9), 9);
     }
 

@@ -68,6 +68,26 @@ fn noisy_points_give_a_smoother_single_surface() {
 }
 
 #[test]
+fn noise_too_thin_to_bend_the_sparse_finer_neighbourhoods_is_still_measured() {
+    // Noise of 0.01 on 40,000 points of the unit sphere: the neighbourhoods one depth finer
+    // than the planes hold too few samples to show it, and it read 0 before the thick rule;
+    // it is about a third of the planes' cells (depth 6 or finer), so it counts.
+    let sigma = 0.01;
+    let cloud = noisy_sphere(40_000, sigma, 0.0, 11);
+    let off = spsr::reconstruct(&cloud, &params(Noise::Off)).unwrap();
+    let on = spsr::reconstruct(&cloud, &params(Noise::Adaptive)).unwrap();
+    let summary = on.stats.noise.expect("the noise stage ran");
+    let measured = summary.median;
+    assert!(
+        (0.8 * sigma..1.2 * sigma).contains(&measured),
+        "measured noise {measured}, put in {sigma}: {summary:?}"
+    );
+    assert!(summary.adapted > 0.5, "{summary:?}");
+    let (e_off, e_on) = (radial_error(&off.mesh), radial_error(&on.mesh));
+    assert!(e_on < e_off, "adaptive {e_on} against off {e_off}");
+}
+
+#[test]
 fn clean_points_keep_their_detail() {
     let cloud = sphere(40_000, [0.0; 3], 1.0, 3);
     let off = spsr::reconstruct(&cloud, &params(Noise::Off)).unwrap();

@@ -69,16 +69,21 @@ fn depth_auto_goes_deeper_for_a_denser_sampling_of_the_same_shape() {
         max_memory: Some(1 << 40),
         ..Params::default()
     };
+    // A thin torus: curved enough everywhere (a tube of radius 0.15) that the spacing, not
+    // the curvature, sets the depth.
     let depth_of = |n: usize| {
-        let r = spsr::resolve(&sphere(n, [0.0; 3], 1.0, 3), &auto).unwrap();
+        let r = spsr::resolve(&crate::common::torus(n, 1.0, 0.15, 3), &auto).unwrap();
         let c = r.choice.unwrap();
         let DepthReason::Spacing {
-            spacing, limited, ..
+            spacing,
+            smooth,
+            limited,
+            ..
         } = c.reason
         else {
             panic!("{:?}", c.reason)
         };
-        assert_eq!(limited, None);
+        assert_eq!((smooth, limited), (None, None));
         // The finest cells are no wider than the spacing, and one depth coarser would be.
         assert!(c.cell <= spacing && 2.0 * c.cell > spacing, "{c:?}");
         (c.depth, spacing)
@@ -135,7 +140,7 @@ fn depth_auto_takes_fewer_depths_on_a_smooth_surface_than_on_a_rough_one_sampled
     let (smooth, wanted, bound) = choose(&bowl(250, 0.0));
     assert_eq!(wanted, 9);
     // The bowl's radius of curvature, 4 at the centre and more outside, is read as such; cells
-    // of a 64th of it would be depth 6, and the depth goes at most two below the spacing's.
+    // of a 32nd of it would be depth 5, and the depth goes at most two below the spacing's.
     let (radius, depth) = bound.expect("the bowl is smooth");
     assert!((3.6..4.4).contains(&radius), "{radius}");
     assert_eq!((smooth.depth, depth), (7, 7));
