@@ -530,23 +530,10 @@ mod tests {
         assert_eq!(c, vec![1, 2, 2, 3]);
     }
 
-    /// `n` points spread evenly over a sphere of radius `r` (a Fibonacci lattice).
-    fn fibonacci_sphere(n: usize, r: f64) -> Vec<[f64; 3]> {
-        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-        (0..n)
-            .map(|i| {
-                let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
-                let rho = (1.0 - z * z).sqrt();
-                let a = golden * i as f64;
-                [r * rho * a.cos(), r * rho * a.sin(), r * z]
-            })
-            .collect()
-    }
-
     #[test]
     fn the_survey_reads_a_spheres_curvature_and_a_planes_absence_of_it() {
         for r in [0.5, 2.0, 300.0] {
-            let p = fibonacci_sphere(20_000, r);
+            let p = crate::pipeline::tests::sphere(20_000, [0.5, -1.0, 2.0], r).positions;
             let all: Vec<usize> = (0..p.len()).collect();
             let s = survey(&p, &all);
             let k = s.curvature.expect("a sphere's curvature");
