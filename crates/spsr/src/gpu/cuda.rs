@@ -11,7 +11,10 @@ use cudarc::driver::{
 use cudarc::nvrtc::{compile_ptx_with_opts, CompileOptions};
 
 use super::staging::Staging;
-use super::{kernel_source, ConstraintLevel, GpuKernel, GpuRelaxation, LevelShape, LevelSystem};
+use super::{
+    kernel_source, ConstraintLevel, CouplingLevel, GpuKernel, GpuRelaxation, LevelShape,
+    LevelSystem,
+};
 
 /// Threads per block of every kernel.
 const BLOCK: u32 = 256;
@@ -25,6 +28,8 @@ pub struct Device {
     cycle_right_hand_side: CudaFunction,
     push_finer_v: CudaFunction,
     constraint_rows: CudaFunction,
+    push_to_parents: CudaFunction,
+    coupling_rows: CudaFunction,
     /// Degree of the elements the kernels were compiled for.
     degree: u8,
     name: String,
@@ -145,6 +150,8 @@ impl Device {
             cycle_right_hand_side: function("cycle_right_hand_side")?,
             push_finer_v: function("push_finer_v")?,
             constraint_rows: function("constraint_rows")?,
+            push_to_parents: function("push_to_parents")?,
+            coupling_rows: function("coupling_rows")?,
             degree,
             name,
             failure: Mutex::new(None),
@@ -729,6 +736,122 @@ impl Device {
                     "the constraints of depth {} on {}",
                     sys.shape.depth, self.name
                 ),
+                e,
+            )
+        })
+    }
+
+    /// The finer depths' coupling of the parent depth of the resident depth `lvl`
+    /// (`solver::cycles::coupling_below_of`): `sys.x` pushed into the parents' windows, tile by
+    /// tile in the CPU's colours, plus `sys.u` restricted. One value per parent node.
+    pub fn coupling(&self, lvl: &Resident, sys: &CouplingLevel) -> Result<Vec<f64>, String> {
+        if sys.x.len() != lvl.nodes
+            || !(sys.u.is_empty() || sys.u.len() == lvl.nodes)
+            || (!sys.u.is_empty() && sys.children.len() != sys.parent.nodes)
+            || sys.parent.brood_nbrs.len() != sys.parent.nodes / 8
+        {
+            return Err("the coupling's inputs do not match the depth".into());
+        }
+        let run = || -> Result<Vec<f64>, DriverError> {
+            let s = &self.stream;
+            let clock = Instant::now();
+            let (pnbrs, pkeys) = self.shape_tables(&sys.parent)?;
+            let x = self.staging.upload(s, sys.x)?;
+            let runs = self.staging.upload(s, sys.runs.as_flattened())?;
+            let mut g = s.alloc_zeros::<f64>(sys.parent.nodes.max(1))?;
+            s.synchronize()?;
+            let mut transfer = clock.elapsed();
+            let clock = Instant::now();
+            let mut start = 0usize;
+            for &end in &sys.run_ends {
+                let (first, count) = (start as u64, (end - start) as u32);
+                start = end;
+                if count == 0 {
+                    continue;
+                }
+                let mut launch = s.launch_builder(&self.push_to_parents);
+                launch
+                    .arg(&runs)
+                    .arg(&first)
+                    .arg(&count)
+                    .arg(&x)
+                    .arg(&*lvl.keys)
+                    .arg(&lvl.depth_arg)
+                    .arg(&lvl.lo)
+                    .arg(&lvl.hi)
+                    .arg(&lvl.brood_parent)
+                    .arg(&*pnbrs)
+                    .arg(&lvl.pstencil)
+                    .arg(&lvl.nonzero_start)
+                    .arg(&lvl.nonzero)
+                    .arg(&lvl.pmass)
+                    .arg(&lvl.pstiff)
+                    .arg(&mut g);
+                // SAFETY: the arguments match the kernel's parameters in order and type; the
+                // tiles name broods of the depth, whose parents' windows name nodes of the
+                // parent depth, and the tiles of one colour write disjoint entries of `g`.
+                unsafe { launch.launch(config(count)) }?;
+            }
+            s.synchronize()?;
+            let mut kernels = clock.elapsed();
+            if !sys.u.is_empty() {
+                let clock = Instant::now();
+                let u = self.staging.upload(s, sys.u)?;
+                let children = self.tables(sys.parent.depth, sys.children, || {
+                    self.staging.upload(s, sys.children)
+                })?;
+                let ch_count = self.staging.upload(s, &sys.child_count)?;
+                let ch_j = self.staging.upload(s, &sys.child_index)?;
+                let ch_w = self.staging.upload(s, &sys.child_weight)?;
+                s.synchronize()?;
+                transfer += clock.elapsed();
+                let clock = Instant::now();
+                let (count, depth, nchildren) = (
+                    sys.parent.nodes as u32,
+                    sys.parent.depth as i32,
+                    sys.children.len() as u64,
+                );
+                let mut launch = s.launch_builder(&self.coupling_rows);
+                launch
+                    .arg(&count)
+                    .arg(&*pnbrs)
+                    .arg(&*pkeys)
+                    .arg(&depth)
+                    .arg(&sys.parent.lo)
+                    .arg(&sys.parent.hi)
+                    .arg(&*children)
+                    .arg(&nchildren)
+                    .arg(&ch_count)
+                    .arg(&ch_j)
+                    .arg(&ch_w)
+                    .arg(&u)
+                    .arg(&mut g);
+                // SAFETY: the arguments match the kernel's parameters in order and type; each
+                // thread writes its own node's `g`, and children index the depth's nodes, which
+                // `u` holds.
+                if count > 0 {
+                    unsafe { launch.launch(config(count)) }?;
+                }
+                s.synchronize()?;
+                kernels += clock.elapsed();
+            }
+            let clock = Instant::now();
+            let g = self.staging.download(s, &g, sys.parent.nodes)?;
+            transfer += clock.elapsed();
+            self.record(GpuRelaxation {
+                kind: GpuKernel::Coupling,
+                depth: lvl.depth,
+                nodes: lvl.nodes,
+                sweeps: 1,
+                transfer,
+                kernels,
+                bytes_per_sweep: sys.bytes(),
+            });
+            Ok(g)
+        };
+        run().map_err(|e| {
+            driver(
+                &format!("the coupling below depth {} on {}", lvl.depth, self.name),
                 e,
             )
         })

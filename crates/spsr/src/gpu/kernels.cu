@@ -572,3 +572,77 @@ extern "C" __global__ void constraint_rows(
     if (g) g[n] = gg;
     b[n] = (float)bb;
 }
+
+// The finer depths' gradient coupling of the parent depth (cycles.rs `coupling_below_of`),
+// in two kernels: `push_to_parents` pushes a depth's coefficients into its parents' windows,
+// colour by colour, and `coupling_rows` adds the restriction of the next finer coupling.
+
+// One launch per colour of cycles.rs `push_tiles`: each thread pushes the broods of one tile
+// (runs[2·(first + thread)] up to runs[2·(first + thread) + 1]) in order, each brood's
+// children in order, through the parent stiffness stencils into `g` (cycles.rs
+// `push_to_parents` and `Op::for_each_parent_stiffness`). Tiles of one colour push into
+// disjoint windows, so every entry receives its terms in the CPU's order.
+extern "C" __global__ void push_to_parents(
+    const u32* __restrict__ runs, u64 first, u32 count, const float* __restrict__ x,
+    const u32* __restrict__ brood_key, int depth, i64 lo, i64 hi,
+    const u32* __restrict__ brood_parent, const u32* __restrict__ pnbrs,
+    const double* __restrict__ pstencil, const u32* __restrict__ nonzero_start,
+    const u32* __restrict__ nonzero, const double* __restrict__ pmass,
+    const double* __restrict__ pstiff, double* g) {
+    u32 t = blockIdx.x * blockDim.x + threadIdx.x;
+    if (t >= count) return;
+    u32 b0 = runs[(first + t) * 2u], b1 = runs[(first + t) * 2u + 1u];
+    for (u32 b = b0; b < b1; b++) {
+        u32 par = brood_parent[b];
+        for (u32 c = 0; c < 8u; c++) {
+            u32 n = b * 8u + c;
+            double xn = (double)x[n];
+            if (xn == 0.0) continue;
+            i64 i[3];
+            func_index(brood_key, depth, n, i);
+            if (!in_range(i, lo, hi)) continue;
+            if (interior(i, lo, hi, 4)) {
+                u32 cc = (u32)((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2));
+                const double* ps = pstencil + cc * 125u;
+                for (u32 k = nonzero_start[cc]; k < nonzero_start[cc + 1]; k++) {
+                    int w = (int)nonzero[k];
+                    if (ps[w] == 0.0) continue;
+                    u32 q = neighbour(pnbrs, par, w);
+                    if (q != NONE) g[q] = g[q] + ps[w] * xn;
+                }
+                continue;
+            }
+            double pm[3][5], pk[3][5];
+            for (int a = 0; a < 3; a++) {
+                for (int o = 0; o < 5; o++) {
+                    pm[a][o] = table(pmass, lo, hi, i[a], o - 2);
+                    pk[a][o] = table(pstiff, lo, hi, i[a], o - 2);
+                }
+            }
+            for (int w = 0; w < 125; w++) {
+                int ox = w % 5, oy = (w / 5) % 5, oz = w / 25;
+                double k = pk[0][ox] * pm[1][oy] * pm[2][oz] + pm[0][ox] * pk[1][oy] * pm[2][oz] +
+                           pm[0][ox] * pm[1][oy] * pk[2][oz];
+                if (k == 0.0) continue;
+                u32 q = neighbour(pnbrs, par, w);
+                if (q != NONE) g[q] = g[q] + k * xn;
+            }
+        }
+    }
+}
+
+// Adds to each parent-depth node's `g` the restriction of the finer coupling `u` (one value
+// per node of the depth below it), for the nodes whose function is in `lo..=hi` (cycles.rs
+// `coupling_below_of`; the rows as in `constraint_rows`). Each thread writes its own node.
+extern "C" __global__ void coupling_rows(
+    u32 count, const u32* __restrict__ nbrs, const u32* __restrict__ brood_key, int depth,
+    i64 lo, i64 hi, const u32* __restrict__ children, u64 nchildren,
+    const u32* __restrict__ ch_count, const i64* __restrict__ ch_j,
+    const double* __restrict__ ch_w, const double* __restrict__ u, double* g) {
+    u32 n = blockIdx.x * blockDim.x + threadIdx.x;
+    if (n >= count) return;
+    i64 i[3];
+    func_index(brood_key, depth, n, i);
+    if (!in_range(i, lo, hi)) return;
+    g[n] = g[n] + restrict_one(nbrs, children, nchildren, n, i, lo, ch_count, ch_j, ch_w, u);
+}

@@ -69,6 +69,8 @@ pub enum GpuKernel {
     Relaxation,
     /// A depth's divergence constraints.
     Constraints,
+    /// The finer depths' coupling of a depth's parent depth (cycles after the first).
+    Coupling,
 }
 
 impl GpuKernel {
@@ -79,6 +81,7 @@ impl GpuKernel {
             GpuKernel::RightHandSide => "right-hand side",
             GpuKernel::Relaxation => "relaxation",
             GpuKernel::Constraints => "constraints",
+            GpuKernel::Coupling => "finer coupling",
         }
     }
 }
@@ -232,6 +235,47 @@ pub struct ConstraintLevel<'a> {
     pub v_finer: &'a [[f32; 3]],
     /// `G` of the next level (`None`: none).
     pub g_finer: Option<&'a [f64]>,
+}
+
+#[cfg(feature = "gpu")]
+/// The finer depths' gradient coupling of a depth's parent depth as the kernels
+/// `push_to_parents` and `coupling_rows` read it (`solver::cycles::coupling_below_of`): the
+/// depth's coefficients and its tiles, and the parent depth's nodes, children and two-scale
+/// tables, with the coupling of the depths below.
+pub struct CouplingLevel<'a> {
+    /// The depth's broods in tiles, colour after colour (`solver::cycles::push_tiles`): each
+    /// tile's first brood and the one after its last.
+    pub runs: Vec<[u32; 2]>,
+    /// Where each colour of `runs` ends.
+    pub run_ends: Vec<usize>,
+    /// The depth's coefficients.
+    pub x: &'a [f32],
+    /// The parent depth's nodes.
+    pub parent: LevelShape<'a>,
+    /// The parent depth's nodes' children broods (empty: none has children).
+    pub children: &'a [u32],
+    /// Per parent index, its two-scale children: how many (`Basis::children`) ...
+    pub child_count: Vec<u32>,
+    /// ... their indices, four slots per index ...
+    pub child_index: Vec<i64>,
+    /// ... and their weights, laid out as `child_index`.
+    pub child_weight: Vec<f64>,
+    /// The coupling of the depths finer than this one, per node of this depth (empty: none).
+    pub u: &'a [f64],
+}
+
+#[cfg(feature = "gpu")]
+impl CouplingLevel<'_> {
+    /// The bytes the two kernels must read or write at least: per node its coefficient and
+    /// finer coupling, per brood its key and parent, per parent node its coupling read and
+    /// written and its children, per parent brood its neighbours and key.
+    pub fn bytes(&self) -> u64 {
+        (self.x.len() * 4
+            + self.u.len() * 8
+            + self.x.len() / 8 * (12 + 4)
+            + self.parent.nodes * (16 + 4)
+            + self.parent.nodes / 8 * (27 * 4 + 12)) as u64
+    }
 }
 
 #[cfg(feature = "gpu")]

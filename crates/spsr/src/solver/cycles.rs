@@ -454,6 +454,10 @@ impl<'a> Cycles<'a> {
 /// of level `t − 1`: level `t`'s coefficients `x_t` pushed through the parent stencils, plus
 /// `u_t` (the coupling of the levels finer than `t`; empty for none) restricted.
 pub(super) fn coupling_below_of(p: &Problem, op: &Op, x_t: &[f32], u_t: &[f64]) -> Vec<f64> {
+    #[cfg(feature = "gpu")]
+    if let Some(g) = op.coupling_below_gpu(p, x_t, u_t) {
+        return g;
+    }
     let mut g = push_to_parents(op, x_t);
     if !u_t.is_empty() {
         let tree = p.tree;
@@ -784,33 +788,13 @@ fn norm2(a: &[f64]) -> f64 {
 /// order that does not depend on the thread count, and a task's reads and writes stay within
 /// one neighbourhood of the tree.
 fn push_to_parents(op: &Op, x: &[f32]) -> Vec<f64> {
-    const TILE: u32 = 8;
-    let parent_level = &op.tree.levels[op.t as usize - 1];
-    let level = op.level;
-    let mut g = vec![0.0f64; parent_level.len()];
-    let mut colours: Vec<Vec<std::ops::Range<u32>>> = vec![Vec::new(); 8];
-    let broods = (level.len() / 8) as u32;
-    let tile_of = |b: u32| {
-        parent_level
-            .key(level.brood_parent[b as usize])
-            .map(|k| k / TILE)
-    };
-    let mut b = 0;
-    while b < broods {
-        let tile = tile_of(b);
-        let mut e = b + 1;
-        while e < broods && tile_of(e) == tile {
-            e += 1;
-        }
-        let colour = (tile[0] % 2 + 2 * (tile[1] % 2) + 4 * (tile[2] % 2)) as usize;
-        colours[colour].push(b..e);
-        b = e;
-    }
+    let mut g = vec![0.0f64; op.tree.levels[op.t as usize - 1].len()];
+    let colours = push_tiles(op);
     let gs = SharedSlice::new(&mut g);
     for tiles in &colours {
         tiles.par_iter().for_each(|range| {
             for b in range.clone() {
-                let par = level.brood_parent[b as usize];
+                let par = op.level.brood_parent[b as usize];
                 for c in 0..8u32 {
                     let n = b * 8 + c;
                     let xn = f64::from(x[n as usize]);
@@ -831,6 +815,34 @@ fn push_to_parents(op: &Op, x: &[f32]) -> Vec<f64> {
         });
     }
     g
+}
+
+/// The tiles of [`push_to_parents`] in its eight colours: per colour, the brood ranges of its
+/// tiles, in the level's order. The GPU pushes the same tiles in the same order
+/// (`super::device`).
+pub(super) fn push_tiles(op: &Op) -> Vec<Vec<std::ops::Range<u32>>> {
+    const TILE: u32 = 8;
+    let parent_level = &op.tree.levels[op.t as usize - 1];
+    let level = op.level;
+    let mut colours: Vec<Vec<std::ops::Range<u32>>> = vec![Vec::new(); 8];
+    let broods = (level.len() / 8) as u32;
+    let tile_of = |b: u32| {
+        parent_level
+            .key(level.brood_parent[b as usize])
+            .map(|k| k / TILE)
+    };
+    let mut b = 0;
+    while b < broods {
+        let tile = tile_of(b);
+        let mut e = b + 1;
+        while e < broods && tile_of(e) == tile {
+            e += 1;
+        }
+        let colour = (tile[0] % 2 + 2 * (tile[1] % 2) + 4 * (tile[2] % 2)) as usize;
+        colours[colour].push(b..e);
+        b = e;
+    }
+    colours
 }
 
 impl Op<'_> {

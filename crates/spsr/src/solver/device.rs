@@ -8,7 +8,7 @@ use rayon::prelude::*;
 
 use super::{Op, Problem};
 use crate::bspline::Table1D;
-use crate::gpu::{ConstraintLevel, Device, LevelShape, LevelSystem, Resident};
+use crate::gpu::{ConstraintLevel, CouplingLevel, Device, LevelShape, LevelSystem, Resident};
 use crate::octree::{Level, DEPTH_OFFSET};
 use crate::system::{push_colours, BroodStencil};
 
@@ -66,6 +66,49 @@ impl Op<'_> {
         dev.cycle_right_hand_side(lvl, b, pc, cchi, u)
             .map_err(|reason| dev.record_failure(reason))
             .ok()
+    }
+
+    /// The finer depths' coupling of the parent level on the GPU
+    /// (`cycles::coupling_below_of`, same arguments and result), bit for bit.
+    pub(super) fn coupling_below_gpu(&self, p: &Problem, x: &[f32], u: &[f64]) -> Option<Vec<f64>> {
+        let (dev, lvl) = self.on_gpu()?;
+        dev.coupling(lvl, &self.coupling_level(p, x, u))
+            .map_err(|reason| dev.record_failure(reason))
+            .ok()
+    }
+
+    /// The finer depths' coupling of the parent level as the kernels read it.
+    pub(super) fn coupling_level<'b>(
+        &'b self,
+        p: &'b Problem,
+        x: &'b [f32],
+        u: &'b [f64],
+    ) -> CouplingLevel<'b> {
+        let mut runs = Vec::new();
+        let mut run_ends = Vec::with_capacity(8);
+        for tiles in super::cycles::push_tiles(self) {
+            runs.extend(tiles.iter().map(|r| [r.start, r.end]));
+            run_ends.push(runs.len());
+        }
+        let t = self.t as usize - 1;
+        let range = p.tables[t]
+            .as_ref()
+            .expect("tables exist at solved levels")
+            .range;
+        let parent = &self.tree.levels[t];
+        let d = self.d - 1;
+        let (child_count, child_index, child_weight) = child_tables(p, d, range.lo, range.hi);
+        CouplingLevel {
+            runs,
+            run_ends,
+            x,
+            parent: level_shape(parent, d, range.lo, range.hi),
+            children: parent.children(),
+            child_count,
+            child_index,
+            child_weight,
+            u,
+        }
     }
 
     /// The level's system as the kernels read it.
@@ -238,13 +281,7 @@ pub(super) fn constraint_level<'a>(
         }
         v_start.push(v_slot.len() as u32);
     }
-    let (mut child_count, mut child_index, mut child_weight) = (vec![], vec![], vec![]);
-    for i in lo..=hi {
-        let mut out = [(0i64, 0.0f64); 4];
-        child_count.push(p.fem.children(d, i, &mut out) as u32);
-        child_index.extend(out.iter().map(|c| c.0));
-        child_weight.extend(out.iter().map(|c| c.1));
-    }
+    let (child_count, child_index, child_weight) = child_tables(p, d, lo, hi);
     // As the CPU: the next level's V is pushed when there is a next level and V on it.
     let push = next.is_some() && !v_finer.is_empty();
     let (mut push_order, mut push_ends) = (Vec::new(), Vec::new());
@@ -277,4 +314,18 @@ pub(super) fn constraint_level<'a>(
         v_finer,
         g_finer: g_finer.filter(|g| !g.is_empty()),
     }
+}
+
+/// The two-scale children of every function index `lo..=hi` at unit depth `d`
+/// (`Basis::children`), as `restrict_one` reads them on the card: per index how many, and
+/// four slots of (index, weight).
+fn child_tables(p: &Problem, d: u32, lo: i64, hi: i64) -> (Vec<u32>, Vec<i64>, Vec<f64>) {
+    let (mut count, mut index, mut weight) = (vec![], vec![], vec![]);
+    for i in lo..=hi {
+        let mut out = [(0i64, 0.0f64); 4];
+        count.push(p.fem.children(d, i, &mut out) as u32);
+        index.extend(out.iter().map(|c| c.0));
+        weight.extend(out.iter().map(|c| c.1));
+    }
+    (count, index, weight)
 }

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use super::device::constraint_level;
 use super::tests::{fixtures, pseudo_random, right_hand_side_inputs};
 use super::{coarse_cluster_values, cycles, right_hand_side, Op};
-use crate::gpu::{kernel_source, ConstraintLevel, LevelSystem};
+use crate::gpu::{kernel_source, ConstraintLevel, CouplingLevel, LevelSystem};
 use crate::system::divergence_constraints;
 
 /// What CUDA provides and C++ does not: the qualifiers, the thread index (set before each
@@ -191,6 +191,40 @@ type ConstraintRows = unsafe extern "C" fn(
     *const f32,
     *mut f64,
     *mut f32,
+);
+
+type PushToParents = unsafe extern "C" fn(
+    *const u32,
+    u64,
+    u32,
+    *const f32,
+    *const u32,
+    i32,
+    i64,
+    i64,
+    *const u32,
+    *const u32,
+    *const f64,
+    *const u32,
+    *const u32,
+    *const f64,
+    *const f64,
+    *mut f64,
+);
+type CouplingRows = unsafe extern "C" fn(
+    u32,
+    *const u32,
+    *const u32,
+    i32,
+    i64,
+    i64,
+    *const u32,
+    u64,
+    *const u32,
+    *const i64,
+    *const f64,
+    *const f64,
+    *mut f64,
 );
 
 /// The kernels of one degree, compiled for the host and loaded.
@@ -550,6 +584,68 @@ fn constraints(k: &Kernels, sys: &ConstraintLevel) -> (Vec<f64>, Vec<f32>) {
     (g, b)
 }
 
+/// The emulated `Device::coupling`: the tiles colour by colour, then the rows when there is a
+/// finer coupling to restrict. `lvl` is the depth's system (for its keys, parents and parent
+/// stencils).
+fn coupling(k: &Kernels, lvl: &LevelSystem, sys: &CouplingLevel) -> Vec<f64> {
+    let push: PushToParents = k.get("push_to_parents");
+    let rows: CouplingRows = k.get("coupling_rows");
+    let mut g = vec![0.0f64; sys.parent.nodes];
+    let gp = g.as_mut_ptr();
+    let pnbrs = sys.parent.brood_nbrs.as_flattened().as_ptr();
+    let mut start = 0usize;
+    for &end in &sys.run_ends {
+        let count = end - start;
+        k.threads(count, || {
+            // SAFETY: the kernel's arguments, over arrays of the sizes it indexes.
+            unsafe {
+                push(
+                    sys.runs.as_flattened().as_ptr(),
+                    start as u64,
+                    count as u32,
+                    sys.x.as_ptr(),
+                    lvl.shape.brood_key.as_flattened().as_ptr(),
+                    lvl.shape.depth as i32,
+                    lvl.shape.lo,
+                    lvl.shape.hi,
+                    lvl.brood_parent.as_ptr(),
+                    pnbrs,
+                    lvl.pstencil.as_flattened().as_ptr(),
+                    lvl.nonzero_start.as_ptr(),
+                    lvl.nonzero.as_ptr(),
+                    lvl.pmass.as_ptr(),
+                    lvl.pstiff.as_ptr(),
+                    gp,
+                )
+            }
+        });
+        start = end;
+    }
+    if !sys.u.is_empty() {
+        k.threads(sys.parent.nodes, || {
+            // SAFETY: the kernel's arguments; each thread writes its own node's value.
+            unsafe {
+                rows(
+                    sys.parent.nodes as u32,
+                    pnbrs,
+                    sys.parent.brood_key.as_flattened().as_ptr(),
+                    sys.parent.depth as i32,
+                    sys.parent.lo,
+                    sys.parent.hi,
+                    sys.children.as_ptr(),
+                    sys.children.len() as u64,
+                    sys.child_count.as_ptr(),
+                    sys.child_index.as_ptr(),
+                    sys.child_weight.as_ptr(),
+                    sys.u.as_ptr(),
+                    gp,
+                )
+            }
+        });
+    }
+    g
+}
+
 /// Asserts that `a` and `b` hold the same bits, naming the first difference and their count.
 fn same_bits(a: &[f32], b: &[f32], what: &str) {
     assert_eq!(a.len(), b.len(), "{what}: lengths");
@@ -622,7 +718,7 @@ fn the_gpu_kernels_run_on_the_cpu_give_the_solvers_bits() {
 /// of every fixture (degrees 1 and 2, each boundary), with each level's `G` feeding the next
 /// coarser one as in `solver::constraints`. Skipped, with a message, without a C++ compiler.
 #[test]
-fn the_constraint_kernels_run_on_the_cpu_give_the_solvers_bits() {
+fn the_gpu_constraint_kernels_run_on_the_cpu_give_the_solvers_bits() {
     let f64_bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
     for (what, f) in fixtures() {
         let kernels = match Kernels::build(f.fem.degree.get()) {
@@ -653,5 +749,48 @@ fn the_constraint_kernels_run_on_the_cpu_give_the_solvers_bits() {
             g_finer = g;
         }
         assert!(pushed_levels > 0, "{what}: no level had finer V to push");
+    }
+}
+
+/// The coupling kernels, run on the CPU in the device's launch order, give
+/// `cycles::coupling_below_of` bit for bit on every level above the base's next of every
+/// fixture (degrees 1 and 2, each boundary), from coefficients with zeros among them, with and
+/// without a finer coupling to restrict. Skipped, with a message, without a C++ compiler.
+#[test]
+fn the_gpu_coupling_kernels_run_on_the_cpu_give_the_solvers_bits() {
+    let f64_bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
+    for (what, f) in fixtures() {
+        let kernels = match Kernels::build(f.fem.degree.get()) {
+            Ok(k) => k,
+            Err(reason) => {
+                assert!(!reason.contains("do not compile"), "{reason}");
+                eprintln!("skipped: {reason}");
+                return;
+            }
+        };
+        let p = f.problem();
+        for t in f.base_level + 1..=f.max_level() {
+            let op = Op::new(&p, t);
+            let sys = op.level_system();
+            let seed = u64::from(t);
+            // Every third coefficient zero, as where the CPU skips a function.
+            let x: Vec<f32> = as_f32(pseudo_random(op.level.len(), 23 + seed))
+                .into_iter()
+                .enumerate()
+                .map(|(k, v)| if k % 3 == 0 { 0.0 } else { v })
+                .collect();
+            let u = pseudo_random(op.level.len(), 29 + seed);
+            for u in [Vec::new(), u] {
+                let cpu = cycles::coupling_below_of(&p, &op, &x, &u);
+                let emu = coupling(&kernels, &sys, &op.coupling_level(&p, &x, &u));
+                assert_eq!(
+                    f64_bits(&cpu),
+                    f64_bits(&emu),
+                    "{what}, level {t}: coupling (finer coupling: {})",
+                    !u.is_empty()
+                );
+                assert!(cpu.iter().any(|&g| g != 0.0), "{what}, level {t}: all zero");
+            }
+        }
     }
 }

@@ -577,9 +577,9 @@ pub(super) fn right_hand_side_inputs(f: &Fixture, t: u32) -> (Vec<f32>, Vec<f64>
     (tcons, pc, vc)
 }
 
-/// On a GPU, every level's right-hand sides and sweeps give the CPU's values bit for bit (from
-/// random inputs, with some coarser V zero, and from zero and a nonzero start), and so does the
-/// whole solve, with every solver path: the cascade alone, cascadic cycles and V-cycles.
+/// On a GPU, every level's right-hand sides, sweeps and finer coupling give the CPU's values
+/// bit for bit (from random inputs, with some coarser V zero, and from zero and a nonzero
+/// start), and so does the whole solve, with every solver path: the cascade alone, cascadic cycles and V-cycles.
 /// Skipped, with a message, where no GPU can be used.
 #[cfg(feature = "gpu")]
 #[test]
@@ -628,6 +628,25 @@ fn the_gpu_gives_the_cpus_bits() {
                 );
                 assert_eq!(bits(&cpu), bits(&gpu), "{what}, level {t}: sweeps");
             }
+            let x = as_f32(pseudo_random(cpu_op.level.len(), 23 + seed));
+            let u = pseudo_random(cpu_op.level.len(), 29 + seed);
+            for u in [Vec::new(), u] {
+                let cpu = super::cycles::coupling_below_of(&cpu_p, &cpu_op, &x, &u);
+                dev.take_timings();
+                let gpu = super::cycles::coupling_below_of(&gpu_p, &gpu_op, &x, &u);
+                assert!(
+                    dev.take_timings()
+                        .iter()
+                        .any(|s| s.kind == GpuKernel::Coupling),
+                    "{what}, level {t}: the coupling did not run on the GPU"
+                );
+                let f64_bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
+                assert_eq!(
+                    f64_bits(&cpu),
+                    f64_bits(&gpu),
+                    "{what}, level {t}: coupling"
+                );
+            }
             assert_eq!(dev.take_failure(), None, "{what}, level {t}");
         }
         let mut v = f.v.clone();
@@ -663,11 +682,15 @@ fn the_gpu_gives_the_cpus_bits() {
             );
             assert_eq!(dev.take_failure(), None, "{what}");
             let steps = dev.take_timings();
+            let coupled = (cycles > 1).then_some(GpuKernel::Coupling);
             for kind in [
                 GpuKernel::Constraints,
                 GpuKernel::RightHandSide,
                 GpuKernel::Relaxation,
-            ] {
+            ]
+            .into_iter()
+            .chain(coupled)
+            {
                 assert!(
                     steps.iter().any(|s| s.kind == kind),
                     "{what} {solver:?} x {cycles}: no {kind:?} on the GPU"
