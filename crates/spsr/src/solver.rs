@@ -99,6 +99,9 @@ struct Op<'a> {
     /// The level's system on the GPU, copied there on first use (`None`: the copy failed).
     #[cfg(feature = "gpu")]
     resident: std::sync::OnceLock<Option<crate::gpu::Resident>>,
+    /// The boundary condition (the GPU evaluates the basis at the clusters).
+    #[cfg(feature = "gpu")]
+    boundary: crate::bspline::Boundary,
 }
 
 impl<'a> Op<'a> {
@@ -130,6 +133,8 @@ impl<'a> Op<'a> {
             gpu: p.gpu,
             #[cfg(feature = "gpu")]
             resident: std::sync::OnceLock::new(),
+            #[cfg(feature = "gpu")]
+            boundary: p.fem.boundary,
         }
     }
 
@@ -1243,13 +1248,13 @@ fn right_hand_side(
     vc: &[[f32; 3]],
     u: &[f64],
 ) -> Vec<f32> {
-    let coarse_chi = coarse_cluster_values(op, fem, pc);
     #[cfg(feature = "gpu")]
     if u.is_empty() {
-        if let Some((r, _)) = op.first_right_hand_sides_gpu(&tcons, pc, vc, &coarse_chi, false) {
+        if let Some((r, _)) = op.first_right_hand_sides_gpu(&tcons, pc, vc, None, false) {
             return r;
         }
     }
+    let coarse_chi = coarse_cluster_values(op, fem, pc);
     // Each row reads only its own constraint: the right-hand side is written over them.
     tcons.par_iter_mut().enumerate().for_each(|(n, row)| {
         let n = n as u32;

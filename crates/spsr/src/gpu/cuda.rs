@@ -30,6 +30,7 @@ pub struct Device {
     constraint_rows: CudaFunction,
     push_to_parents: CudaFunction,
     coupling_rows: CudaFunction,
+    coarse_cluster_values: CudaFunction,
     /// Degree of the elements the kernels were compiled for.
     degree: u8,
     name: String,
@@ -83,10 +84,13 @@ pub struct Resident {
     first: CudaSlice<i32>,
     vals: CudaSlice<f32>,
     cl_node: CudaSlice<u32>,
+    cl_pos: CudaSlice<f64>,
+    boundary: i32,
     order: CudaSlice<u32>,
     class_ends: Vec<usize>,
     brood_parent: CudaSlice<u32>,
     parent_nbrs: Arc<CudaSlice<u32>>,
+    parent_keys: Arc<CudaSlice<u32>>,
     pstencil: CudaSlice<f64>,
     pvstencil: CudaSlice<f64>,
     nonzero_start: CudaSlice<u32>,
@@ -152,6 +156,7 @@ impl Device {
             constraint_rows: function("constraint_rows")?,
             push_to_parents: function("push_to_parents")?,
             coupling_rows: function("coupling_rows")?,
+            coarse_cluster_values: function("coarse_cluster_values")?,
             degree,
             name,
             failure: Mutex::new(None),
@@ -274,10 +279,13 @@ impl Device {
     fn upload_arrays(&self, sys: &LevelSystem) -> Result<Resident, DriverError> {
         let s = &self.stream;
         let (nbrs, keys) = self.shape_tables(&sys.shape)?;
-        let parent_nbrs =
-            self.tables(sys.shape.depth.saturating_sub(1), sys.parent_nbrs, || {
-                self.staging.upload(s, sys.parent_nbrs.as_flattened())
-            })?;
+        let parent_depth = sys.shape.depth.saturating_sub(1);
+        let parent_nbrs = self.tables(parent_depth, sys.parent_nbrs, || {
+            self.staging.upload(s, sys.parent_nbrs.as_flattened())
+        })?;
+        let parent_keys = self.tables(parent_depth, sys.parent_keys, || {
+            self.staging.upload(s, sys.parent_keys.as_flattened())
+        })?;
         let res = Resident {
             depth: sys.shape.depth,
             depth_arg: sys.shape.depth as i32,
@@ -304,10 +312,13 @@ impl Device {
                 .staging
                 .upload(s, sys.vals.as_flattened().as_flattened())?,
             cl_node: self.staging.upload(s, sys.cl_node)?,
+            cl_pos: self.staging.upload(s, sys.pos.as_flattened())?,
+            boundary: sys.boundary,
             order: self.staging.upload(s, &sys.order)?,
             class_ends: sys.class_ends.clone(),
             brood_parent: self.staging.upload(s, sys.brood_parent)?,
             parent_nbrs,
+            parent_keys,
             pstencil: self.staging.upload(s, sys.pstencil.as_flattened())?,
             pvstencil: self
                 .staging
@@ -433,14 +444,15 @@ impl Device {
     /// The right-hand sides of the cascade's pass over the resident depth `lvl` (see the
     /// kernel `first_right_hand_sides`): `r`, and with `fixed` its fixed part `b` (else
     /// empty). `tcons` are the depth's constraints, `pc` and `vc` the parent depth's
-    /// cumulative solution and V, `cchi` the coarser solution at the depth's clusters.
+    /// cumulative solution and V, `cchi` the coarser solution at the depth's clusters (`None`:
+    /// made on the card from `pc`, [`Device::coarse_chi`]).
     pub fn first_right_hand_sides(
         &self,
         lvl: &Resident,
         tcons: &[f32],
         pc: &[f64],
         vc: &[[f32; 3]],
-        cchi: &[f64],
+        cchi: Option<&[f64]>,
         fixed: bool,
     ) -> Result<(Vec<f32>, Vec<f32>), String> {
         if lvl.nodes == 0 {
@@ -452,7 +464,7 @@ impl Device {
             let tcons_d = self.staging.upload(s, tcons)?;
             let pc_d = self.staging.upload(s, pc)?;
             let vc_d = self.staging.upload(s, vc.as_flattened())?;
-            let cchi_d = self.staging.upload(s, cchi)?;
+            let cchi_d = self.coarse_chi(lvl, cchi, &pc_d)?;
             let mut r_d = s.alloc_zeros::<f32>(lvl.nodes.max(1))?;
             let mut b_d = s.alloc_zeros::<f32>(if fixed { lvl.nodes.max(1) } else { 1 })?;
             s.synchronize()?;
@@ -490,7 +502,10 @@ impl Device {
             self.record_rhs(lvl, transfer, kernels, pc.len());
             Ok((r, b))
         };
-        if pc.len() != vc.len() || tcons.len() != lvl.nodes || cchi.len() != lvl.clusters {
+        if pc.len() != vc.len()
+            || tcons.len() != lvl.nodes
+            || cchi.is_some_and(|c| c.len() != lvl.clusters)
+        {
             return Err("the right-hand side's inputs do not match the depth".into());
         }
         run().map_err(|e| {
@@ -506,18 +521,18 @@ impl Device {
 
     /// The right-hand side a further cycle relaxes the resident depth `lvl` against (see the
     /// kernel `cycle_right_hand_side`): the fixed part `b`, the parent depth's cumulative
-    /// solution `pc`, the coarser solution at the clusters `cchi`, and the finer depths'
-    /// coupling `u` (empty for none).
+    /// solution `pc`, the coarser solution at the clusters `cchi` (`None`: made on the card),
+    /// and the finer depths' coupling `u` (empty for none).
     pub fn cycle_right_hand_side(
         &self,
         lvl: &Resident,
         b: &[f32],
         pc: &[f64],
-        cchi: &[f64],
+        cchi: Option<&[f64]>,
         u: &[f64],
     ) -> Result<Vec<f32>, String> {
         if b.len() != lvl.nodes
-            || cchi.len() != lvl.clusters
+            || cchi.is_some_and(|c| c.len() != lvl.clusters)
             || !(u.is_empty() || u.len() == lvl.nodes)
         {
             return Err("the right-hand side's inputs do not match the depth".into());
@@ -530,7 +545,7 @@ impl Device {
             let clock = Instant::now();
             let b_d = self.staging.upload(s, b)?;
             let pc_d = self.staging.upload(s, pc)?;
-            let cchi_d = self.staging.upload(s, cchi)?;
+            let cchi_d = self.coarse_chi(lvl, cchi, &pc_d)?;
             let u_d = self.staging.upload(s, u)?;
             let mut r_d = s.alloc_zeros::<f32>(lvl.nodes.max(1))?;
             s.synchronize()?;
@@ -739,6 +754,43 @@ impl Device {
                 e,
             )
         })
+    }
+
+    /// χ_{<d} at the clusters of the resident depth `lvl`: `cchi` copied to the card, or with
+    /// `None` made there from the parent depth's cumulative solution `pc` (already on the
+    /// card) by the kernel `coarse_cluster_values` (solver.rs `coarse_cluster_values`). The
+    /// kernel's time counts with the copies of the step that asked for it.
+    fn coarse_chi(
+        &self,
+        lvl: &Resident,
+        cchi: Option<&[f64]>,
+        pc: &CudaSlice<f64>,
+    ) -> Result<CudaSlice<f64>, DriverError> {
+        let s = &self.stream;
+        if let Some(cchi) = cchi {
+            return self.staging.upload(s, cchi);
+        }
+        let mut out = s.alloc_zeros::<f64>(lvl.clusters.max(1))?;
+        if lvl.clusters > 0 {
+            let parent_depth = lvl.depth_arg - 1;
+            let mut launch = s.launch_builder(&self.coarse_cluster_values);
+            launch
+                .arg(&lvl.clusters_arg)
+                .arg(&lvl.cl_node)
+                .arg(&lvl.cl_pos)
+                .arg(&lvl.brood_parent)
+                .arg(&*lvl.parent_nbrs)
+                .arg(&*lvl.parent_keys)
+                .arg(&parent_depth)
+                .arg(&lvl.boundary)
+                .arg(pc)
+                .arg(&mut out);
+            // SAFETY: the arguments match the kernel's parameters in order and type; each
+            // cluster's node has a parent on the parent depth, whose window names nodes that
+            // `pc` holds, and each thread writes its own cluster's value.
+            unsafe { launch.launch(config(lvl.clusters_arg)) }?;
+        }
+        Ok(out)
     }
 
     /// The finer depths' coupling of the parent depth of the resident depth `lvl`

@@ -646,3 +646,76 @@ extern "C" __global__ void coupling_rows(
     if (!in_range(i, lo, hi)) return;
     g[n] = g[n] + restrict_one(nbrs, children, nchildren, n, i, lo, ch_count, ch_j, ch_w, u);
 }
+
+// The coarser solution χ_{<d} at the depth's screening clusters (solver.rs
+// `coarse_cluster_values`): at each cluster's position, the parent depth's cumulative
+// coefficients `pc` over the window of the parent of the cluster's node (solver.rs
+// `coarse_value`). `boundary` is 0 (free), 1 (Neumann) or 2 (Dirichlet).
+
+// The B-splines of a grid of `n` cells that are nonzero at `x` (bspline.rs `Basis::window`):
+// their values into `v` (DEGREE + 1 of them); returns the first one's index.
+__device__ __forceinline__ i64 window(i64 n, int boundary, double x, double v[3]) {
+    // bspline.rs `locate`: clamped to the unit interval, then to the grid's cells.
+    double xc = x < 0.0 ? 0.0 : (x > 1.0 ? 1.0 : x);
+    double u = xc * (double)n;
+    i64 c = (i64)floor(u);
+    if (c < 0) c = 0;
+    if (c > n - 1) c = n - 1;
+    double t = u - (double)c;
+#if DEGREE == 1
+    v[0] = 1.0 - t;
+    v[1] = t;
+    v[2] = 0.0;
+    if (boundary == 2) {
+        if (c == 0) v[0] = 0.0;
+        if (c == n - 1) v[1] = 0.0;
+    }
+    return c;
+#else
+    double s = 1.0 - t;
+    double m = t - 0.5;
+    v[0] = 0.5 * s * s;
+    v[1] = 0.75 - m * m;
+    v[2] = 0.5 * t * t;
+    if (boundary != 0) {
+        double sign = boundary == 1 ? 1.0 : -1.0;
+        if (c == 0) {
+            v[1] += sign * v[0];
+            v[0] = 0.0;
+        }
+        if (c == n - 1) {
+            v[1] += sign * v[2];
+            v[2] = 0.0;
+        }
+    }
+    return c - 1;
+#endif
+}
+
+extern "C" __global__ void coarse_cluster_values(
+    u32 count, const u32* __restrict__ cl_node, const double* __restrict__ pos,
+    const u32* __restrict__ brood_parent, const u32* __restrict__ pnbrs,
+    const u32* __restrict__ pkeys, int pdepth, int boundary, const double* __restrict__ pc,
+    double* __restrict__ out) {
+    u32 c = blockIdx.x * blockDim.x + threadIdx.x;
+    if (c >= count) return;
+    u32 par = brood_parent[cl_node[c] >> 3];
+    i64 own[3];
+    func_index(pkeys, pdepth, par, own);
+    i64 n = (i64)1 << pdepth;
+    double v[3][3];
+    i64 f[3];
+    for (int a = 0; a < 3; a++) f[a] = window(n, boundary, pos[(u64)c * 3u + a], v[a]);
+    double s = 0.0;
+    for (int z = 0; z <= DEGREE; z++) {
+        for (int y = 0; y <= DEGREE; y++) {
+            for (int xx = 0; xx <= DEGREE; xx++) {
+                i64 o0 = f[0] + xx - own[0], o1 = f[1] + y - own[1], o2 = f[2] + z - own[2];
+                u32 m = neighbour(pnbrs, par, (int)((o0 + 2) + 5 * (o1 + 2) + 25 * (o2 + 2)));
+                if (m == NONE) continue;
+                s += v[0][xx] * v[1][y] * v[2][z] * pc[m];
+            }
+        }
+    }
+    out[c] = s;
+}

@@ -161,10 +161,16 @@ pub struct LevelSystem<'a> {
     pub vals: &'a [[[f32; 3]; 3]],
     /// The node of each cluster.
     pub cl_node: &'a [u32],
+    /// The position of each cluster, in the unit cube.
+    pub pos: &'a [[f64; 3]],
+    /// The boundary condition: 0 free, 1 Neumann, 2 Dirichlet.
+    pub boundary: i32,
     /// The parent node of each brood.
     pub brood_parent: &'a [u32],
     /// The parent level's 27 broods around each brood.
     pub parent_nbrs: &'a [[u32; 27]],
+    /// The key of each of the parent level's broods' parent (`octree::Level::key`).
+    pub parent_keys: &'a [[u32; 3]],
     /// Interior parent stiffness stencils by child parity (`DepthTables::pstencil`).
     pub pstencil: &'a [[f64; 125]; 8],
     /// Interior parent V stencils by child parity and component.

@@ -306,10 +306,7 @@ impl<'a> Cycles<'a> {
         } else {
             self.b[t].clone()
         };
-        let op = self.op(t);
-        let pc = &self.pcum[t - 1];
-        let coarse_chi = coarse_cluster_values(op, self.p.fem, pc);
-        cycle_right_hand_side(op, b, pc, &coarse_chi, &self.u[t])
+        cycle_right_hand_side(self.op(t), self.p.fem, b, &self.pcum[t - 1], &self.u[t])
     }
 
     /// `iters` Gauss–Seidel sweeps on level `t` from its current solution.
@@ -673,11 +670,11 @@ pub(super) fn right_hand_sides(
     pc: &[f64],
     vc: &[[f32; 3]],
 ) -> (Vec<f32>, Vec<f32>) {
-    let coarse_chi = coarse_cluster_values(op, fem, pc);
     #[cfg(feature = "gpu")]
-    if let Some(out) = op.first_right_hand_sides_gpu(&tcons, pc, vc, &coarse_chi, true) {
+    if let Some(out) = op.first_right_hand_sides_gpu(&tcons, pc, vc, None, true) {
         return out;
     }
+    let coarse_chi = coarse_cluster_values(op, fem, pc);
     let mut fixed = vec![0.0f32; tcons.len()];
     (tcons.par_iter_mut().zip(fixed.par_iter_mut()))
         .enumerate()
@@ -701,21 +698,21 @@ pub(super) fn right_hand_sides(
 }
 
 /// The right-hand side a further cycle relaxes a level against: its fixed part `b`, minus the
-/// coarser solution's coupling (`pc`, cumulative, on the parent level, and `coarse_chi`, the
-/// coarser solution at the level's clusters), minus the finer levels' `u` (empty for none);
-/// stored in single precision, as the cascade's. On the GPU where the problem has one.
-/// Written over `b`.
+/// coarser solution's coupling (`pc`, cumulative, on the parent level, and the coarser
+/// solution at the level's clusters), minus the finer levels' `u` (empty for none); stored in
+/// single precision, as the cascade's. On the GPU where the problem has one. Written over `b`.
 pub(super) fn cycle_right_hand_side(
     op: &Op,
+    fem: crate::bspline::Basis,
     mut b: Vec<f32>,
     pc: &[f64],
-    coarse_chi: &[f64],
     u: &[f64],
 ) -> Vec<f32> {
     #[cfg(feature = "gpu")]
-    if let Some(r) = op.cycle_right_hand_side_gpu(&b, pc, coarse_chi, u) {
+    if let Some(r) = op.cycle_right_hand_side_gpu(&b, pc, None, u) {
         return r;
     }
+    let coarse_chi = coarse_cluster_values(op, fem, pc);
     b.par_iter_mut().enumerate().for_each(|(n, row)| {
         let n = n as u32;
         let i = op.index(n);

@@ -7,7 +7,7 @@
 use rayon::prelude::*;
 
 use super::{Op, Problem};
-use crate::bspline::Table1D;
+use crate::bspline::{Boundary, Table1D};
 use crate::gpu::{ConstraintLevel, CouplingLevel, Device, LevelShape, LevelSystem, Resident};
 use crate::octree::{Level, DEPTH_OFFSET};
 use crate::system::{push_colours, BroodStencil};
@@ -38,13 +38,13 @@ impl Op<'_> {
 
     /// The cascade's right-hand sides of the level on the GPU (`cycles::right_hand_sides`, and
     /// with `fixed` false `super::right_hand_side`), bit for bit; `cchi` is the coarser
-    /// solution at the level's clusters.
+    /// solution at the level's clusters (`None`: made on the card from `pc`).
     pub(super) fn first_right_hand_sides_gpu(
         &self,
         tcons: &[f32],
         pc: &[f64],
         vc: &[[f32; 3]],
-        cchi: &[f64],
+        cchi: Option<&[f64]>,
         fixed: bool,
     ) -> Option<(Vec<f32>, Vec<f32>)> {
         let (dev, lvl) = self.on_gpu()?;
@@ -54,12 +54,13 @@ impl Op<'_> {
     }
 
     /// A further cycle's right-hand side of the level on the GPU
-    /// (`cycles::Cycles::level_right_hand_side`), bit for bit.
+    /// (`cycles::cycle_right_hand_side`), bit for bit; `cchi` as in
+    /// [`Op::first_right_hand_sides_gpu`].
     pub(super) fn cycle_right_hand_side_gpu(
         &self,
         b: &[f32],
         pc: &[f64],
-        cchi: &[f64],
+        cchi: Option<&[f64]>,
         u: &[f64],
     ) -> Option<Vec<f32>> {
         let (dev, lvl) = self.on_gpu()?;
@@ -147,8 +148,15 @@ impl Op<'_> {
             first: &self.cl.first,
             vals: &self.cl.vals,
             cl_node: &self.cl.node,
+            pos: &self.cl.pos,
+            boundary: match self.boundary {
+                Boundary::Free => 0,
+                Boundary::Neumann => 1,
+                Boundary::Dirichlet => 2,
+            },
             brood_parent: &self.level.brood_parent,
             parent_nbrs: &parent.brood_nbrs,
+            parent_keys: parent.brood_keys(),
             pstencil: &self.tab.pstencil,
             pvstencil: &self.tab.pvstencil,
             nonzero_start,

@@ -18,6 +18,7 @@ use crate::system::divergence_constraints;
 /// What CUDA provides and C++ does not: the qualifiers, the thread index (set before each
 /// call, one thread per block) and the bit intrinsics.
 const SHIM: &str = r#"
+#include <math.h>
 #define __global__
 #define __device__
 #define __forceinline__ inline
@@ -223,6 +224,19 @@ type CouplingRows = unsafe extern "C" fn(
     *const u32,
     *const i64,
     *const f64,
+    *const f64,
+    *mut f64,
+);
+
+type CoarseClusterValues = unsafe extern "C" fn(
+    u32,
+    *const u32,
+    *const f64,
+    *const u32,
+    *const u32,
+    *const u32,
+    i32,
+    i32,
     *const f64,
     *mut f64,
 );
@@ -438,6 +452,32 @@ fn cycle_right_hand_side(
         }
     });
     r
+}
+
+/// The emulated `Device::coarse_chi` (made on the card): χ_{<d} at the level's clusters from
+/// the parent level's cumulative solution `pc`.
+fn coarse_chi(k: &Kernels, sys: &LevelSystem, pc: &[f64]) -> Vec<f64> {
+    let f: CoarseClusterValues = k.get("coarse_cluster_values");
+    let mut out = vec![f64::NAN; sys.omega.len()];
+    let op = out.as_mut_ptr();
+    k.threads(sys.omega.len(), || {
+        // SAFETY: the kernel's arguments; each thread writes its own cluster's value.
+        unsafe {
+            f(
+                sys.omega.len() as u32,
+                sys.cl_node.as_ptr(),
+                sys.pos.as_flattened().as_ptr(),
+                sys.brood_parent.as_ptr(),
+                sys.parent_nbrs.as_flattened().as_ptr(),
+                sys.parent_keys.as_flattened().as_ptr(),
+                sys.shape.depth as i32 - 1,
+                sys.boundary,
+                pc.as_ptr(),
+                op,
+            )
+        }
+    });
+    out
 }
 
 /// The emulated `Device::gauss_seidel`: χ at the clusters, then the sweeps class by class.
@@ -689,6 +729,12 @@ fn the_gpu_kernels_run_on_the_cpu_give_the_solvers_bits() {
             let seed = u64::from(t);
             let (tcons, pc, vc) = right_hand_side_inputs(f, t);
             let cchi = coarse_cluster_values(&op, f.fem, &pc);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
+            assert_eq!(
+                bits(&cchi),
+                bits(&coarse_chi(&kernels, &sys, &pc)),
+                "{what}, level {t}: the coarser solution at the clusters"
+            );
             let (r, b) = cycles::right_hand_sides(&op, f.fem, tcons.clone(), &pc, &vc);
             let (er, eb) = first_right_hand_sides(&kernels, &sys, &tcons, &pc, &vc, &cchi);
             same_bits(&r, &er, &format!("{what}, level {t}: r"));
@@ -697,7 +743,7 @@ fn the_gpu_kernels_run_on_the_cpu_give_the_solvers_bits() {
             same_bits(&single, &er, &format!("{what}, level {t}: the cascade's r"));
             let u = pseudo_random(op.level.len(), 19 + seed);
             for u in [Vec::new(), u] {
-                let cpu = cycles::cycle_right_hand_side(&op, b.clone(), &pc, &cchi, &u);
+                let cpu = cycles::cycle_right_hand_side(&op, f.fem, b.clone(), &pc, &u);
                 let emu = cycle_right_hand_side(&kernels, &sys, &b, &pc, &cchi, &u);
                 same_bits(&cpu, &emu, &format!("{what}, level {t}: a cycle's r"));
             }
