@@ -1291,6 +1291,10 @@ fn coarse_cluster_values(op: &Op, fem: Basis, pc: &[f64]) -> Vec<f64> {
 /// The cumulative solution of level `op.t`: the coarser cumulative solution `pc` prolonged,
 /// plus the level's own coefficients `x`. Carried in double precision.
 fn prolong_solution(op: &Op, pc: &[f64], x: &[f32]) -> Vec<f64> {
+    #[cfg(feature = "gpu")]
+    if let Some(out) = op.prolong_solution_gpu(pc, x) {
+        return out;
+    }
     prolong::<1, f64>(
         Prolongation {
             tree: op.tree,
@@ -1307,6 +1311,10 @@ fn prolong_solution(op: &Op, pc: &[f64], x: &[f32]) -> Vec<f64> {
 /// The cumulative V of level `op.t`: the coarser cumulative V `vc` prolonged, plus the
 /// level's own V `vt` (may be empty; when not, the sums are written over it).
 fn prolong_field(op: &Op, vc: &[[f32; 3]], mut vt: Vec<[f32; 3]>) -> Vec<[f32; 3]> {
+    #[cfg(feature = "gpu")]
+    if let Some(out) = op.prolong_field_gpu(vc, &vt) {
+        return out;
+    }
     let at = Prolongation {
         tree: op.tree,
         t: op.t,

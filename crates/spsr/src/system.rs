@@ -69,6 +69,11 @@ impl Prolong {
         Self { lo, w }
     }
 
+    /// The first fine index and the rows from it, three weights (offsets −1, 0, 1) each.
+    pub fn rows(&self) -> (i64, &[[f64; 3]]) {
+        (self.lo, &self.w)
+    }
+
     /// Weight of coarse `(j >> 1) + o` for fine `j`.
     #[inline]
     pub fn get(&self, j: i64, o: i64) -> f64 {

@@ -31,6 +31,8 @@ pub struct Device {
     push_to_parents: CudaFunction,
     coupling_rows: CudaFunction,
     coarse_cluster_values: CudaFunction,
+    prolong_solution: CudaFunction,
+    prolong_field: CudaFunction,
     /// Degree of the elements the kernels were compiled for.
     degree: u8,
     name: String,
@@ -99,7 +101,19 @@ pub struct Resident {
     pstiff: CudaSlice<f64>,
     pvmass: CudaSlice<f64>,
     pvderiv: CudaSlice<f64>,
+    prolong: Weights,
+    vprolong: Weights,
+    vlo: i64,
+    vhi: i64,
     bytes_per_sweep: u64,
+}
+
+/// Two-scale weights on the card (`system::Prolong`): the first index, the rows (three
+/// weights each) and how many.
+struct Weights {
+    lo: i64,
+    rows: CudaSlice<f64>,
+    len: u64,
 }
 
 impl Device {
@@ -157,6 +171,8 @@ impl Device {
             push_to_parents: function("push_to_parents")?,
             coupling_rows: function("coupling_rows")?,
             coarse_cluster_values: function("coarse_cluster_values")?,
+            prolong_solution: function("prolong_solution")?,
+            prolong_field: function("prolong_field")?,
             degree,
             name,
             failure: Mutex::new(None),
@@ -329,6 +345,18 @@ impl Device {
             pstiff: self.staging.upload(s, &sys.pstiff)?,
             pvmass: self.staging.upload(s, &sys.pvmass)?,
             pvderiv: self.staging.upload(s, &sys.pvderiv)?,
+            prolong: Weights {
+                lo: sys.prolong.0,
+                rows: self.staging.upload(s, sys.prolong.1.as_flattened())?,
+                len: sys.prolong.1.len() as u64,
+            },
+            vprolong: Weights {
+                lo: sys.vprolong.0,
+                rows: self.staging.upload(s, sys.vprolong.1.as_flattened())?,
+                len: sys.vprolong.1.len() as u64,
+            },
+            vlo: sys.vrange.0,
+            vhi: sys.vrange.1,
             bytes_per_sweep: sys.bytes_per_sweep(),
         };
         s.synchronize()?;
@@ -791,6 +819,153 @@ impl Device {
             unsafe { launch.launch(config(lvl.clusters_arg)) }?;
         }
         Ok(out)
+    }
+
+    /// The cumulative solution of the resident depth `lvl` (solver.rs `prolong_solution`): the
+    /// parent depth's `pc` prolonged, plus the depth's coefficients `x`.
+    pub fn prolong_solution(
+        &self,
+        lvl: &Resident,
+        pc: &[f64],
+        x: &[f32],
+    ) -> Result<Vec<f64>, String> {
+        if x.len() != lvl.nodes {
+            return Err("the prolongation's inputs do not match the depth".into());
+        }
+        let run = || -> Result<Vec<f64>, DriverError> {
+            let s = &self.stream;
+            let clock = Instant::now();
+            let pc_d = self.staging.upload(s, pc)?;
+            let x_d = self.staging.upload(s, x)?;
+            let mut out = s.alloc_zeros::<f64>(lvl.nodes.max(1))?;
+            s.synchronize()?;
+            let mut transfer = clock.elapsed();
+            let clock = Instant::now();
+            let w = &lvl.prolong;
+            let mut launch = s.launch_builder(&self.prolong_solution);
+            launch
+                .arg(&lvl.nodes_arg)
+                .arg(&*lvl.keys)
+                .arg(&lvl.depth_arg)
+                .arg(&lvl.lo)
+                .arg(&lvl.hi)
+                .arg(&lvl.brood_parent)
+                .arg(&*lvl.parent_nbrs)
+                .arg(&w.rows)
+                .arg(&w.lo)
+                .arg(&w.len)
+                .arg(&pc_d)
+                .arg(&x_d)
+                .arg(&mut out);
+            // SAFETY: the arguments match the kernel's parameters in order and type; parent
+            // windows name nodes of the parent depth, which `pc` holds, and each thread writes
+            // its own node's value.
+            if lvl.nodes > 0 {
+                unsafe { launch.launch(config(lvl.nodes_arg)) }?;
+            }
+            s.synchronize()?;
+            let kernels = clock.elapsed();
+            let clock = Instant::now();
+            let out = self.staging.download(s, &out, lvl.nodes)?;
+            transfer += clock.elapsed();
+            self.record_prolongation(
+                lvl,
+                transfer,
+                kernels,
+                (pc.len() * 8 + lvl.nodes * 12) as u64,
+            );
+            Ok(out)
+        };
+        run().map_err(|e| {
+            driver(
+                &format!("prolonging to depth {} on {}", lvl.depth, self.name),
+                e,
+            )
+        })
+    }
+
+    /// The cumulative V of the resident depth `lvl` (solver.rs `prolong_field`): the parent
+    /// depth's `vc` prolonged, plus the depth's own V `vt` (empty: none).
+    pub fn prolong_field(
+        &self,
+        lvl: &Resident,
+        vc: &[[f32; 3]],
+        vt: &[[f32; 3]],
+    ) -> Result<Vec<[f32; 3]>, String> {
+        if !(vt.is_empty() || vt.len() == lvl.nodes) {
+            return Err("the prolongation's inputs do not match the depth".into());
+        }
+        let run = || -> Result<Vec<[f32; 3]>, DriverError> {
+            let s = &self.stream;
+            let clock = Instant::now();
+            let vc_d = self.staging.upload(s, vc.as_flattened())?;
+            let vt_d = self.staging.upload(s, vt.as_flattened())?;
+            let mut out = s.alloc_zeros::<f32>(3 * lvl.nodes.max(1))?;
+            s.synchronize()?;
+            let mut transfer = clock.elapsed();
+            let clock = Instant::now();
+            let w = &lvl.vprolong;
+            let null = 0u64;
+            let mut launch = s.launch_builder(&self.prolong_field);
+            launch
+                .arg(&lvl.nodes_arg)
+                .arg(&*lvl.keys)
+                .arg(&lvl.depth_arg)
+                .arg(&lvl.vlo)
+                .arg(&lvl.vhi)
+                .arg(&lvl.brood_parent)
+                .arg(&*lvl.parent_nbrs)
+                .arg(&w.rows)
+                .arg(&w.lo)
+                .arg(&w.len)
+                .arg(&vc_d);
+            if vt.is_empty() {
+                launch.arg(&null);
+            } else {
+                launch.arg(&vt_d);
+            }
+            launch.arg(&mut out);
+            // SAFETY: as in `prolong_solution`, with three values per node (a null `vt` is
+            // checked by the kernel).
+            if lvl.nodes > 0 {
+                unsafe { launch.launch(config(lvl.nodes_arg)) }?;
+            }
+            s.synchronize()?;
+            let kernels = clock.elapsed();
+            let clock = Instant::now();
+            let flat = self.staging.download(s, &out, 3 * lvl.nodes)?;
+            let out: Vec<[f32; 3]> = flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+            transfer += clock.elapsed();
+            let bytes = (vc.len() * 12 + vt.len() * 12 + lvl.nodes * 12) as u64;
+            self.record_prolongation(lvl, transfer, kernels, bytes);
+            Ok(out)
+        };
+        run().map_err(|e| {
+            driver(
+                &format!("prolonging V to depth {} on {}", lvl.depth, self.name),
+                e,
+            )
+        })
+    }
+
+    fn record_prolongation(
+        &self,
+        lvl: &Resident,
+        transfer: Duration,
+        kernels: Duration,
+        bytes: u64,
+    ) {
+        // Besides the values: per brood its key and parent, per parent brood its neighbours.
+        let bytes = bytes + (lvl.nodes / 8 * (12 + 4 + 27 * 4)) as u64;
+        self.record(GpuRelaxation {
+            kind: GpuKernel::Prolongation,
+            depth: lvl.depth,
+            nodes: lvl.nodes,
+            sweeps: 1,
+            transfer,
+            kernels,
+            bytes_per_sweep: bytes,
+        });
     }
 
     /// The finer depths' coupling of the parent depth of the resident depth `lvl`

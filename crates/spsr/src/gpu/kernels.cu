@@ -719,3 +719,91 @@ extern "C" __global__ void coarse_cluster_values(
     }
     out[c] = s;
 }
+
+// The prolongation of a depth's parent depth's cumulative coefficients to the depth, plus the
+// depth's own (system.rs `prolong`, as solver.rs `prolong_solution` and `prolong_field` call
+// it): per node, its own coefficient plus the parent window's coarse coefficients weighted by
+// the two-scale weights; zero for the nodes whose function is outside `lo..=hi`.
+
+// The weight of coarse index (j >> 1) + o for fine index j (system.rs `Prolong::get`): rows
+// from `wlo`, `wlen` of them, three offsets each.
+__device__ __forceinline__ double prolong_weight(const double* __restrict__ w, i64 wlo, u64 wlen,
+                                                 i64 j, int o) {
+    u64 r = (u64)(j - wlo);
+    if (r >= wlen) return 0.0;
+    return w[r * 3u + (u64)(o + 1)];
+}
+
+// Calls f(q, weight) for the parent window's nodes that a fine function `j` (node of parent
+// `par`) takes a nonzero weight from, in the CPU's order (system.rs `prolong_one`).
+template <typename F>
+__device__ __forceinline__ void for_each_prolong(const i64 j[3], u32 par,
+                                                 const u32* __restrict__ pnbrs,
+                                                 const double* __restrict__ w, i64 wlo,
+                                                 u64 wlen, F f) {
+    for (int oz = -1; oz <= 1; oz++) {
+        double wz = prolong_weight(w, wlo, wlen, j[2], oz);
+        if (wz == 0.0) continue;
+        for (int oy = -1; oy <= 1; oy++) {
+            double wy = prolong_weight(w, wlo, wlen, j[1], oy);
+            if (wy == 0.0) continue;
+            for (int ox = -1; ox <= 1; ox++) {
+                double wx = prolong_weight(w, wlo, wlen, j[0], ox);
+                if (wx == 0.0) continue;
+                u32 q = neighbour(pnbrs, par, (ox + 2) + 5 * (oy + 2) + 25 * (oz + 2));
+                if (q == NONE) continue;
+                f(q, wx * wy * wz);
+            }
+        }
+    }
+}
+
+// The cumulative solution (solver.rs `prolong_solution`): `pc` of the parent depth
+// prolonged, plus the depth's coefficients `x`, in double precision.
+extern "C" __global__ void prolong_solution(
+    u32 count, const u32* __restrict__ brood_key, int depth, i64 lo, i64 hi,
+    const u32* __restrict__ brood_parent, const u32* __restrict__ pnbrs,
+    const double* __restrict__ w, i64 wlo, u64 wlen, const double* __restrict__ pc,
+    const float* __restrict__ x, double* __restrict__ out) {
+    u32 n = blockIdx.x * blockDim.x + threadIdx.x;
+    if (n >= count) return;
+    i64 j[3];
+    func_index(brood_key, depth, n, j);
+    if (!in_range(j, lo, hi)) {
+        out[n] = 0.0;
+        return;
+    }
+    double acc = (double)x[n];
+    for_each_prolong(j, brood_parent[n >> 3], pnbrs, w, wlo, wlen,
+                     [&](u32 q, double wt) { acc += wt * pc[q]; });
+    out[n] = acc;
+}
+
+// The cumulative V (solver.rs `prolong_field`): `vc` of the parent depth prolonged, plus the
+// depth's own V `vt` (null: none), three components per node, summed in double precision and
+// stored in single.
+extern "C" __global__ void prolong_field(
+    u32 count, const u32* __restrict__ brood_key, int depth, i64 lo, i64 hi,
+    const u32* __restrict__ brood_parent, const u32* __restrict__ pnbrs,
+    const double* __restrict__ w, i64 wlo, u64 wlen, const float* __restrict__ vc,
+    const float* __restrict__ vt, float* __restrict__ out) {
+    u32 n = blockIdx.x * blockDim.x + threadIdx.x;
+    if (n >= count) return;
+    i64 j[3];
+    func_index(brood_key, depth, n, j);
+    float* o = out + (u64)n * 3u;
+    if (!in_range(j, lo, hi)) {
+        o[0] = 0.0f;
+        o[1] = 0.0f;
+        o[2] = 0.0f;
+        return;
+    }
+    double acc[3] = {0.0, 0.0, 0.0};
+    if (vt) {
+        for (int k = 0; k < 3; k++) acc[k] = (double)vt[(u64)n * 3u + k];
+    }
+    for_each_prolong(j, brood_parent[n >> 3], pnbrs, w, wlo, wlen, [&](u32 q, double wt) {
+        for (int k = 0; k < 3; k++) acc[k] += wt * (double)vc[(u64)q * 3u + k];
+    });
+    for (int k = 0; k < 3; k++) o[k] = (float)acc[k];
+}

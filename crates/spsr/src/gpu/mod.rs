@@ -71,6 +71,8 @@ pub enum GpuKernel {
     Constraints,
     /// The finer depths' coupling of a depth's parent depth (cycles after the first).
     Coupling,
+    /// A depth's cumulative solution or V, prolonged from its parent depth's.
+    Prolongation,
 }
 
 impl GpuKernel {
@@ -82,6 +84,7 @@ impl GpuKernel {
             GpuKernel::Relaxation => "relaxation",
             GpuKernel::Constraints => "constraints",
             GpuKernel::Coupling => "finer coupling",
+            GpuKernel::Prolongation => "prolongation",
         }
     }
 }
@@ -188,6 +191,13 @@ pub struct LevelSystem<'a> {
     pub pvmass: Vec<f64>,
     /// See `pmass`.
     pub pvderiv: Vec<f64>,
+    /// The two-scale weights of the level's functions (`system::Prolong::rows`): the first
+    /// index and three weights per index.
+    pub prolong: (i64, &'a [[f64; 3]]),
+    /// The same for the V basis.
+    pub vprolong: (i64, &'a [[f64; 3]]),
+    /// The V basis's index range (`lo`, `hi`).
+    pub vrange: (i64, i64),
     /// The nodes to relax, class after class: nodes of one class are relaxed at once.
     pub order: Vec<u32>,
     /// Where each class of `order` ends.

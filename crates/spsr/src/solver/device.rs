@@ -69,6 +69,26 @@ impl Op<'_> {
             .ok()
     }
 
+    /// The level's cumulative solution on the GPU (`super::prolong_solution`), bit for bit.
+    pub(super) fn prolong_solution_gpu(&self, pc: &[f64], x: &[f32]) -> Option<Vec<f64>> {
+        let (dev, lvl) = self.on_gpu()?;
+        dev.prolong_solution(lvl, pc, x)
+            .map_err(|reason| dev.record_failure(reason))
+            .ok()
+    }
+
+    /// The level's cumulative V on the GPU (`super::prolong_field`), bit for bit.
+    pub(super) fn prolong_field_gpu(
+        &self,
+        vc: &[[f32; 3]],
+        vt: &[[f32; 3]],
+    ) -> Option<Vec<[f32; 3]>> {
+        let (dev, lvl) = self.on_gpu()?;
+        dev.prolong_field(lvl, vc, vt)
+            .map_err(|reason| dev.record_failure(reason))
+            .ok()
+    }
+
     /// The finer depths' coupling of the parent level on the GPU
     /// (`cycles::coupling_below_of`, same arguments and result), bit for bit.
     pub(super) fn coupling_below_gpu(&self, p: &Problem, x: &[f32], u: &[f64]) -> Option<Vec<f64>> {
@@ -161,6 +181,9 @@ impl Op<'_> {
             pvstencil: &self.tab.pvstencil,
             nonzero_start,
             nonzero,
+            prolong: self.tab.prolong.rows(),
+            vprolong: self.tab.vprolong.rows(),
+            vrange: (self.tab.vrange.lo, self.tab.vrange.hi),
             pmass: row(&self.tab.pmass),
             pstiff: row(&self.tab.pstiff),
             pvmass: row(&self.tab.pvmass),

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use super::device::constraint_level;
 use super::tests::{fixtures, pseudo_random, right_hand_side_inputs};
-use super::{coarse_cluster_values, cycles, right_hand_side, Op};
+use super::{coarse_cluster_values, cycles, prolong_field, prolong_solution, right_hand_side, Op};
 use crate::gpu::{kernel_source, ConstraintLevel, CouplingLevel, LevelSystem};
 use crate::system::divergence_constraints;
 
@@ -239,6 +239,37 @@ type CoarseClusterValues = unsafe extern "C" fn(
     i32,
     *const f64,
     *mut f64,
+);
+
+type ProlongSolution = unsafe extern "C" fn(
+    u32,
+    *const u32,
+    i32,
+    i64,
+    i64,
+    *const u32,
+    *const u32,
+    *const f64,
+    i64,
+    u64,
+    *const f64,
+    *const f32,
+    *mut f64,
+);
+type ProlongField = unsafe extern "C" fn(
+    u32,
+    *const u32,
+    i32,
+    i64,
+    i64,
+    *const u32,
+    *const u32,
+    *const f64,
+    i64,
+    u64,
+    *const f32,
+    *const f32,
+    *mut f32,
 );
 
 /// The kernels of one degree, compiled for the host and loaded.
@@ -473,6 +504,73 @@ fn coarse_chi(k: &Kernels, sys: &LevelSystem, pc: &[f64]) -> Vec<f64> {
                 sys.shape.depth as i32 - 1,
                 sys.boundary,
                 pc.as_ptr(),
+                op,
+            )
+        }
+    });
+    out
+}
+
+/// The emulated `Device::prolong_solution`.
+fn prolong_solution_kernel(k: &Kernels, sys: &LevelSystem, pc: &[f64], x: &[f32]) -> Vec<f64> {
+    let f: ProlongSolution = k.get("prolong_solution");
+    let mut out = vec![f64::NAN; sys.shape.nodes];
+    let op = out.as_mut_ptr();
+    k.threads(sys.shape.nodes, || {
+        // SAFETY: the kernel's arguments; each thread writes its own node's value.
+        unsafe {
+            f(
+                sys.shape.nodes as u32,
+                sys.shape.brood_key.as_flattened().as_ptr(),
+                sys.shape.depth as i32,
+                sys.shape.lo,
+                sys.shape.hi,
+                sys.brood_parent.as_ptr(),
+                sys.parent_nbrs.as_flattened().as_ptr(),
+                sys.prolong.1.as_flattened().as_ptr(),
+                sys.prolong.0,
+                sys.prolong.1.len() as u64,
+                pc.as_ptr(),
+                x.as_ptr(),
+                op,
+            )
+        }
+    });
+    out
+}
+
+/// The emulated `Device::prolong_field`.
+fn prolong_field_kernel(
+    k: &Kernels,
+    sys: &LevelSystem,
+    vc: &[[f32; 3]],
+    vt: &[[f32; 3]],
+) -> Vec<[f32; 3]> {
+    let f: ProlongField = k.get("prolong_field");
+    let mut out = vec![[f32::NAN; 3]; sys.shape.nodes];
+    let op = out.as_flattened_mut().as_mut_ptr();
+    let vtp = if vt.is_empty() {
+        std::ptr::null()
+    } else {
+        vt.as_flattened().as_ptr()
+    };
+    k.threads(sys.shape.nodes, || {
+        // SAFETY: the kernel's arguments (a null `vt` for none); each thread writes its own
+        // node's values.
+        unsafe {
+            f(
+                sys.shape.nodes as u32,
+                sys.shape.brood_key.as_flattened().as_ptr(),
+                sys.shape.depth as i32,
+                sys.vrange.0,
+                sys.vrange.1,
+                sys.brood_parent.as_ptr(),
+                sys.parent_nbrs.as_flattened().as_ptr(),
+                sys.vprolong.1.as_flattened().as_ptr(),
+                sys.vprolong.0,
+                sys.vprolong.1.len() as u64,
+                vc.as_flattened().as_ptr(),
+                vtp,
                 op,
             )
         }
@@ -746,6 +844,24 @@ fn the_gpu_kernels_run_on_the_cpu_give_the_solvers_bits() {
                 let cpu = cycles::cycle_right_hand_side(&op, f.fem, b.clone(), &pc, &u);
                 let emu = cycle_right_hand_side(&kernels, &sys, &b, &pc, &cchi, &u);
                 same_bits(&cpu, &emu, &format!("{what}, level {t}: a cycle's r"));
+            }
+            let x = as_f32(pseudo_random(op.level.len(), 31 + seed));
+            assert_eq!(
+                bits(&prolong_solution(&op, &pc, &x)),
+                bits(&prolong_solution_kernel(&kernels, &sys, &pc, &x)),
+                "{what}, level {t}: the cumulative solution"
+            );
+            let vt: Vec<[f32; 3]> = (pseudo_random(3 * op.level.len(), 37 + seed).chunks(3))
+                .map(|c| [c[0] as f32, c[1] as f32, c[2] as f32])
+                .collect();
+            for vt in [Vec::new(), vt] {
+                let emu = prolong_field_kernel(&kernels, &sys, &vc, &vt);
+                let cpu = prolong_field(&op, &vc, vt);
+                same_bits(
+                    cpu.as_flattened(),
+                    emu.as_flattened(),
+                    &format!("{what}, level {t}: the cumulative V"),
+                );
             }
             let start = as_f32(pseudo_random(op.level.len(), 7 + seed));
             for x0 in [vec![0.0f32; op.level.len()], start] {

@@ -577,8 +577,8 @@ pub(super) fn right_hand_side_inputs(f: &Fixture, t: u32) -> (Vec<f32>, Vec<f64>
     (tcons, pc, vc)
 }
 
-/// On a GPU, every level's right-hand sides, sweeps and finer coupling give the CPU's values
-/// bit for bit (from random inputs, with some coarser V zero, and from zero and a nonzero
+/// On a GPU, every level's right-hand sides, sweeps, prolongations and finer coupling give
+/// the CPU's values bit for bit (from random inputs, with some coarser V zero, and from zero and a nonzero
 /// start), and so does the whole solve, with every solver path: the cascade alone, cascadic cycles and V-cycles.
 /// Skipped, with a message, where no GPU can be used.
 #[cfg(feature = "gpu")]
@@ -628,7 +628,30 @@ fn the_gpu_gives_the_cpus_bits() {
                 );
                 assert_eq!(bits(&cpu), bits(&gpu), "{what}, level {t}: sweeps");
             }
+            let f64_bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
             let x = as_f32(pseudo_random(cpu_op.level.len(), 23 + seed));
+            dev.take_timings();
+            assert_eq!(
+                f64_bits(&super::prolong_solution(&cpu_op, &pc, &x)),
+                f64_bits(&super::prolong_solution(&gpu_op, &pc, &x)),
+                "{what}, level {t}: the cumulative solution"
+            );
+            let vt = vec![[0.5f32, -0.25, 0.125]; cpu_op.level.len()];
+            let cpu = super::prolong_field(&cpu_op, &vc, vt.clone());
+            let gpu = super::prolong_field(&gpu_op, &vc, vt);
+            assert_eq!(
+                bits(cpu.as_flattened()),
+                bits(gpu.as_flattened()),
+                "{what}, level {t}: the cumulative V"
+            );
+            let prolonged = dev.take_timings();
+            assert_eq!(
+                (prolonged.iter())
+                    .filter(|s| s.kind == GpuKernel::Prolongation)
+                    .count(),
+                2,
+                "{what}, level {t}: the prolongations did not run on the GPU"
+            );
             let u = pseudo_random(cpu_op.level.len(), 29 + seed);
             for u in [Vec::new(), u] {
                 let cpu = super::cycles::coupling_below_of(&cpu_p, &cpu_op, &x, &u);
@@ -640,7 +663,6 @@ fn the_gpu_gives_the_cpus_bits() {
                         .any(|s| s.kind == GpuKernel::Coupling),
                     "{what}, level {t}: the coupling did not run on the GPU"
                 );
-                let f64_bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
                 assert_eq!(
                     f64_bits(&cpu),
                     f64_bits(&gpu),
@@ -687,6 +709,7 @@ fn the_gpu_gives_the_cpus_bits() {
                 GpuKernel::Constraints,
                 GpuKernel::RightHandSide,
                 GpuKernel::Relaxation,
+                GpuKernel::Prolongation,
             ]
             .into_iter()
             .chain(coupled)
