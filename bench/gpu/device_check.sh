@@ -5,7 +5,7 @@
 # (../shared/data/gt) and, for the reference's column, `PoissonRecon` (PoissonRecon 18.74's
 # command line, built from the sources pypoisson2 vendors; bench/gpu/README.md). Writes its
 # logs to $OUT.
-#   [THREADS="1 4 16"] [BIG=0] [SMALL_V=1] [UNIT=0] [PR=0] [SMALL="POINTS DEPTH"] \
+#   [THREADS="1 4 16"] [BIG=0] [SMALL_V=1] [UNIT=0] [PR=0] [SMALL="POINTS DEPTH"] [RUN_TIMEOUT=300] \
 #       bash bench/gpu/device_check.sh [POINTS] [DEPTH]
 # (UNIT=0 skips step 1, PR=0 skips PoissonRecon, SMALL sets the small cloud.)
 # 1. the GPU unit tests (right-hand sides, sweeps and solves against the CPU's, bit for bit);
@@ -62,7 +62,7 @@ PY
 }
 run() {  # cloud, depth, name, flags...
     local cloud=$1 depth=$2 name=$3; shift 3
-    timeout 200 /usr/bin/time -f "%e s wall, %M KiB peak" "$B/spsr" reconstruct "$cloud" \
+    timeout "${RUN_TIMEOUT:-300}" /usr/bin/time -f "%e s wall, %M KiB peak" "$B/spsr" reconstruct "$cloud" \
         -o "$W/$name.ply" --depth "$depth" "$@" 2> "$OUT/$name.log"
     stamp "$name: exit $? $(tail -1 "$OUT/$name.log")"
 }
