@@ -1,6 +1,6 @@
 //! The GPU back end (issue 17), behind the cargo feature `gpu`: the divergence constraints and
-//! the solver's right-hand sides and Gauss–Seidel relaxations on an NVIDIA card, giving the
-//! CPU's coefficients bit for bit.
+//! the solver's depths above the base (right-hand sides, relaxations, prolongations, coupling)
+//! on an NVIDIA card, giving the CPU's coefficients bit for bit.
 //!
 //! The binding is `cudarc`, chosen because it loads the CUDA driver and NVRTC when the program
 //! runs (`dlopen`), so that the crate builds, and a build with the feature runs on the CPU, on
@@ -12,8 +12,10 @@
 //! Each depth's system is copied to the card once per solve ([`LevelSystem`], `Resident`) and
 //! read there by every right-hand side and relaxation of the depth. The divergence constraints
 //! run there too, depth by depth from the finest ([`ConstraintLevel`]), each depth's V and `G`
-//! kept on the card for the next. The coarser solution at the clusters, the prolongation and
-//! the extraction stay on the CPU (`docs/gpu.md` gives the measured profile and what is left).
+//! kept on the card for the next. The coarser solution at the clusters, the prolongations and the
+//! finer depths' coupling of the later cycles run there too ([`CouplingLevel`]); the base depth,
+//! the other stages and the extraction stay on the CPU (`docs/gpu.md` gives the measured profile
+//! and what is left).
 
 #[cfg(feature = "gpu")]
 use crate::octree::WINDOW;
