@@ -110,7 +110,8 @@ pub struct ReconstructArgs {
     /// Maximum octree depth; the finest cells are 1/2^depth of the bounding cube. Default as
     /// PoissonRecon 6 and 18. `auto` chooses it from the data: the first depth whose finest
     /// cells are no wider than the points' typical spacing (median nearest-neighbour distance),
-    /// lowered to fit --max-memory, and says which in a note
+    /// or on a clean cloud whose cells' face diagonals are no longer, fewer on a smooth
+    /// surface, lowered to fit --max-memory, and says which in a note
     #[arg(
         long,
         value_name = "D",

@@ -69,7 +69,9 @@ impl Prolong {
         Self { lo, w }
     }
 
-    /// The first fine index and the rows from it, three weights (offsets −1, 0, 1) each.
+    /// The first fine index and the rows from it, three weights (offsets −1, 0, 1) each (the
+    /// GPU's copy, `crate::gpu`).
+    #[cfg_attr(not(feature = "gpu"), allow(dead_code))]
     pub fn rows(&self) -> (i64, &[[f64; 3]]) {
         (self.lo, &self.w)
     }

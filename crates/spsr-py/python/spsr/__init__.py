@@ -667,8 +667,9 @@ def reconstruct(
         Maximum octree depth; the finest cells are 1/2**depth of the bounding cube. At most
         :data:`MAX_DEPTH` (18). Default 8, as PoissonRecon 6 and 18. ``"auto"`` chooses
         it from the data: the shallowest depth whose finest cells are no wider than the
-        points' typical spacing (the median nearest-neighbour distance of 4096 of them),
-        lowered until the run fits ``max_memory`` (or the memory available).
+        points' typical spacing (the median nearest-neighbour distance of 4096 of them), or
+        on a clean cloud whose cells' face diagonals are no longer, fewer on a smooth
+        surface, lowered until the run fits ``max_memory`` (or the memory available).
         ``stats["depth"]`` is the depth used and ``stats["depth_choice"]`` says why.
     width : float, optional
         The finest cells' width in the input's units, instead of ``depth`` (giving both is

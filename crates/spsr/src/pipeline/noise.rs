@@ -613,7 +613,7 @@ impl QuadricFit {
     /// The standard deviation of the offsets about the fitted height field: what remains
     /// once the surface's position, slope and curvature are taken out. `None` with too few
     /// samples or samples that do not span the plane.
-    fn residual(&self) -> Option<f64> {
+    pub(crate) fn residual(&self) -> Option<f64> {
         let beta = self.coefficients()?;
         let rss = self.rr - (0..6).map(|i| beta[i] * self.xr[i]).sum::<f64>();
         Some((rss.max(0.0) / (self.n - 6.0)).sqrt())

@@ -9,10 +9,16 @@
 //!   tiles) run at the same width share one cell size.
 //! - **Auto**: the typical point spacing `s` is the median distance from a deterministic
 //!   sample of [`SPACING_SAMPLES`] points to their nearest other point (a k-d tree over all
-//!   usable points); the depth is `ceil(log2(cube / s))`: the shallowest whose finest cells
-//!   are no wider than the spacing, which the Chamfer sweep of `bench/depth-auto` places
-//!   within one depth of the most accurate one on 13 of the 16 shared sets, and within one
-//!   of a depth within 2 % of it on all 16 (`docs/design.md`). A smooth surface gets
+//!   usable points). The same sample's noise is the median scatter of each point's
+//!   [`CURVATURE_NEIGHBOURS`] nearest about the quadratic height field fitted to them. Where
+//!   it is under [`CLEAN_SHARE`] of the spacing (a clean cloud), the depth is the shallowest
+//!   whose finest cells' face diagonals are no longer than the spacing,
+//!   `ceil(log2(√2 · cube / s))`: the surface between the samples is then known, and a plane
+//!   crossing a cell aslant spans its diagonal; a noisier cloud gets the shallowest whose
+//!   cells are no wider than the spacing, `ceil(log2(cube / s))`, since finer cells would
+//!   follow its noise. The Chamfer sweep of `bench/depth-auto` places the choice within one
+//!   depth of the most accurate one on all 16 shared sets (`docs/design.md`). A smooth
+//!   surface gets
 //!   less: the same sample's curvature (a quadratic height field fitted to each point's
 //!   [`CURVATURE_NEIGHBOURS`] nearest) bounds the depth where the finest cells reach
 //!   1/[`CELLS_PER_RADIUS`] of the radius of curvature that all but 1 % of the points stay
@@ -37,6 +43,15 @@ use crate::{Error, Params, PointCloud, Resolution, Result, MAX_DEPTH};
 
 /// Points whose nearest-neighbour distance is measured for the spacing.
 pub const SPACING_SAMPLES: usize = 4096;
+
+/// A cloud whose noise (the median scatter about the local quadratic fits) is under this
+/// share of its spacing is clean, and gets cells whose face diagonals match the spacing;
+/// a noisier one gets cells as wide as the spacing. Measured (`bench/depth-auto`): the clean
+/// shared sets 0.00–0.10, the kitten scan 0.04, CGAL's oni scan 0.42, the noisy sets
+/// (0.25 % and 0.5 % of the diagonal, and the ramp) 0.85–1.06. On the clean sets the most
+/// accurate depth lies one or two deeper than the cells as wide as the spacing; on the noisy
+/// ones at that depth or one shallower.
+pub const CLEAN_SHARE: f64 = 0.25;
 
 /// Neighbours (the point itself included) of each sampled point in the quadratic fit that
 /// reads the surface's curvature there.
@@ -95,6 +110,12 @@ pub enum DepthReason {
         spacing: f64,
         /// Points whose nearest-neighbour distance was measured.
         sampled: usize,
+        /// The points' median scatter about their local quadratic fits (input units), when
+        /// enough could be measured.
+        noise: Option<f64>,
+        /// Whether the noise is under [`CLEAN_SHARE`] of the spacing, so that the cells'
+        /// face diagonals, not their sides, match the spacing.
+        clean: bool,
         /// The depth the spacing asked for.
         wanted: u32,
         /// When the surface is smooth enough to need fewer depths: the radius of curvature
@@ -141,20 +162,36 @@ impl DepthChoice {
             DepthReason::Spacing {
                 spacing,
                 sampled,
+                noise,
+                clean,
                 wanted,
                 smooth,
                 limited,
             } => {
+                let cells = num(self.cube / f64::from(1u32 << *wanted));
+                let scatter = noise.map_or("an unmeasured distance".into(), num);
+                let why = if *clean {
+                    format!(
+                        "they scatter {scatter} about a smooth surface (median of local \
+                         quadratic fits), under a quarter of that, so cells of {cells} in a \
+                         cube of {} are the first whose face diagonals are no longer",
+                        num(self.cube)
+                    )
+                } else {
+                    format!(
+                        "they scatter {scatter} about a smooth surface (median of local \
+                         quadratic fits), a quarter of that or more, so cells of {cells} in a \
+                         cube of {} are the first no wider (finer cells would follow the noise)",
+                        num(self.cube)
+                    )
+                };
                 let mut s = format!(
                     "{} auto chose {} {}: the points are {} apart (median nearest-neighbour \
-                     distance of {sampled} points), and cells of {} in a cube of {} are the \
-                     first no wider",
+                     distance of {sampled} points); {why}",
                     spell("depth"),
                     spell("depth"),
                     self.depth,
                     num(*spacing),
-                    num(self.cube / f64::from(1u32 << *wanted)),
-                    num(self.cube),
                 );
                 if let Some((radius, smooth)) = smooth {
                     s = format!(
@@ -307,7 +344,8 @@ fn auto_depth(
 ) -> (u32, DepthReason) {
     let survey = survey(&points.positions, valid);
     let (spacing, sampled) = (survey.spacing, survey.sampled);
-    let ratio = frame.width / spacing;
+    let clean = survey.noise.is_some_and(|r| r < CLEAN_SHARE * spacing);
+    let ratio = frame.width / spacing * if clean { std::f64::consts::SQRT_2 } else { 1.0 };
     let wanted = if ratio.is_finite() && ratio > 1.0 {
         ratio.log2().ceil().min(f64::from(MAX_DEPTH) + 1.0) as u32
     } else if ratio.is_finite() {
@@ -341,6 +379,8 @@ fn auto_depth(
         DepthReason::Spacing {
             spacing,
             sampled,
+            noise: survey.noise,
+            clean,
             wanted,
             smooth,
             limited,
@@ -371,14 +411,18 @@ struct Survey {
     /// The curvature (1 / input units) that [`CURVATURE_SHARE`] of the sampled points stay
     /// at or below; `None` when too few could be measured.
     curvature: Option<f64>,
+    /// The median scatter of the sampled points' neighbourhoods about their quadratic fits
+    /// (input units); `None` when too few could be measured.
+    noise: Option<f64>,
 }
 
 /// [`SPACING_SAMPLES`] of the points (every `n / samples`-th): the median distance to their
-/// nearest other point at a positive distance (twins do not count), and their curvature.
+/// nearest other point at a positive distance (twins do not count), their curvature and
+/// their noise.
 fn survey(positions: &[[f64; 3]], valid: &[usize]) -> Survey {
     let tree = knn::Tree::new(positions, valid.iter().map(|&i| i as u32).collect());
     let m = SPACING_SAMPLES.min(valid.len());
-    let (mut d, k): (Vec<f64>, Vec<Option<f64>>) = (0..m)
+    let (mut d, shape): (Vec<f64>, Vec<Option<(f64, f64)>>) = (0..m)
         .into_par_iter()
         .map_init(Vec::new, |buf, s| {
             let i = valid[s * valid.len() / m];
@@ -390,29 +434,30 @@ fn survey(positions: &[[f64; 3]], valid: &[usize]) -> Survey {
                 .map(|&(_, d2)| d2)
                 .find(|&d2| d2 > 0.0)
                 .map_or(f64::INFINITY, f64::sqrt);
-            (near, curvature(positions, positions[i], buf))
+            (near, local_shape(positions, positions[i], buf))
         })
         .unzip();
     d.sort_unstable_by(f64::total_cmp);
-    let mut k: Vec<f64> = k.into_iter().flatten().collect();
-    k.sort_unstable_by(f64::total_cmp);
-    // A quantile of a few hundred values at least.
-    let curvature = (k.len() >= 256 && k.len() * 2 >= m).then(|| {
-        let at = ((k.len() - 1) as f64 * CURVATURE_SHARE).round() as usize;
-        k[at]
-    });
+    let (mut k, mut r): (Vec<f64>, Vec<f64>) = shape.into_iter().flatten().unzip();
+    // Quantiles of a few hundred values at least.
+    let enough = k.len() >= 256 && k.len() * 2 >= m;
+    let quantile = |v: &mut Vec<f64>, share: f64| {
+        v.sort_unstable_by(f64::total_cmp);
+        v[((v.len() - 1) as f64 * share).round() as usize]
+    };
     Survey {
         spacing: d[m / 2],
         sampled: m,
-        curvature,
+        curvature: enough.then(|| quantile(&mut k, CURVATURE_SHARE)),
+        noise: enough.then(|| quantile(&mut r, 0.5)),
     }
 }
 
-/// The larger principal curvature (in absolute value, 1 / input units) at `p` of the
-/// quadratic height field fitted over the plane of its neighbours `near` (cloud indices and
-/// squared distances, from the tree); `None` when they are too few, coincide or do not span
-/// a plane.
-fn curvature(positions: &[[f64; 3]], p: [f64; 3], near: &[(u32, f64)]) -> Option<f64> {
+/// The quadratic height field fitted over the plane of `p`'s neighbours `near` (cloud indices
+/// and squared distances, from the tree): its larger principal curvature in absolute value
+/// (1 / input units) at `p`, and the neighbours' scatter about it (input units); `None` when
+/// they are too few, coincide or do not span a plane.
+fn local_shape(positions: &[[f64; 3]], p: [f64; 3], near: &[(u32, f64)]) -> Option<(f64, f64)> {
     let reach = near.last()?.1.sqrt();
     if near.len() < CURVATURE_NEIGHBOURS || reach <= 0.0 {
         return None;
@@ -442,7 +487,8 @@ fn curvature(positions: &[[f64; 3]], p: [f64; 3], near: &[(u32, f64)]) -> Option
     // The height field's Hessian [[2 b3, b4], [b4, 2 b5]]: its larger eigenvalue in size.
     let (mid, half) = (b[3] + b[5], ((b[3] - b[5]).powi(2) + b[4] * b[4]).sqrt());
     let k = (mid.abs() + half) / reach;
-    k.is_finite().then_some(k)
+    let scatter = fit.residual()? * reach;
+    (k.is_finite() && scatter.is_finite()).then_some((k, scatter))
 }
 
 /// The octree nodes predicted at each unit depth `0..=depth`: complete levels down to the

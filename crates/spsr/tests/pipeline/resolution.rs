@@ -76,6 +76,7 @@ fn depth_auto_goes_deeper_for_a_denser_sampling_of_the_same_shape() {
         let c = r.choice.unwrap();
         let DepthReason::Spacing {
             spacing,
+            clean,
             smooth,
             limited,
             ..
@@ -83,9 +84,11 @@ fn depth_auto_goes_deeper_for_a_denser_sampling_of_the_same_shape() {
         else {
             panic!("{:?}", c.reason)
         };
-        assert_eq!((smooth, limited), (None, None));
-        // The finest cells are no wider than the spacing, and one depth coarser would be.
-        assert!(c.cell <= spacing && 2.0 * c.cell > spacing, "{c:?}");
+        assert_eq!((clean, smooth, limited), (true, None, None));
+        // The finest cells' face diagonals are no longer than the spacing, and one depth
+        // coarser they would be.
+        let diagonal = c.cell * std::f64::consts::SQRT_2;
+        assert!(diagonal <= spacing && 2.0 * diagonal > spacing, "{c:?}");
         (c.depth, spacing)
     };
     let (sparse, s1) = depth_of(2_000);
@@ -94,6 +97,60 @@ fn depth_auto_goes_deeper_for_a_denser_sampling_of_the_same_shape() {
     assert!((s1 / s2 - 4.0).abs() < 1.0, "spacings {s1} {s2}");
     assert!(dense > sparse, "{sparse} {dense}");
     assert!((dense - sparse).abs_diff(2) <= 1, "{sparse} {dense}");
+}
+
+/// The torus of `depth_auto_goes_deeper_for_a_denser_sampling_of_the_same_shape`, each point
+/// moved along its normal by a uniform offset in [−a, a] (a standard deviation of a / √3).
+fn noisy_torus(n: usize, a: f64) -> spsr::PointCloud {
+    let clean = crate::common::torus(n, 1.0, 0.15, 3);
+    let mut rng = crate::common::Rng(11);
+    let pos = (clean.positions.iter().zip(&clean.normals))
+        .map(|(p, n)| {
+            let t = a * (2.0 * rng.next() - 1.0);
+            std::array::from_fn(|k| p[k] + t * n[k])
+        })
+        .collect();
+    spsr::PointCloud::new(pos, clean.normals.clone()).unwrap()
+}
+
+#[test]
+fn depth_auto_gives_a_clean_cloud_finer_cells_than_a_noisy_one() {
+    let auto = Params {
+        resolution: Resolution::Auto,
+        max_memory: Some(1 << 40),
+        ..Params::default()
+    };
+    let read = |cloud: &spsr::PointCloud| {
+        let c = spsr::resolve(cloud, &auto).unwrap().choice.unwrap();
+        let DepthReason::Spacing {
+            spacing,
+            noise,
+            clean,
+            ..
+        } = c.reason
+        else {
+            panic!("{:?}", c.reason)
+        };
+        (c, spacing, noise.expect("the noise is measured"), clean)
+    };
+    let (c, spacing, noise, clean) = read(&noisy_torus(32_000, 0.0));
+    assert!(clean && noise < 0.05 * spacing, "{noise} {spacing}");
+    let diagonal = c.cell * std::f64::consts::SQRT_2;
+    assert!(diagonal <= spacing && 2.0 * diagonal > spacing, "{c:?}");
+    let clean_depth = c.depth;
+    // Noise as large as the spacing (about 0.01): read within a factor of 1.5, and the cells
+    // are as wide as the spacing, not as their diagonals.
+    let sigma = 0.02 / 3f64.sqrt();
+    let (c, spacing, noise, clean) = read(&noisy_torus(32_000, 0.02));
+    assert!(!clean, "{c:?}");
+    assert!(
+        (sigma / 1.5..sigma * 1.5).contains(&noise),
+        "{noise} {sigma}"
+    );
+    assert!(c.cell <= spacing && 2.0 * c.cell > spacing, "{c:?}");
+    assert!(c.depth < clean_depth, "{} {clean_depth}", c.depth);
+    let note = c.message(&|f| format!("--{f}"));
+    assert!(note.contains("follow the noise"), "{note}");
 }
 
 /// `side²` points on a grid over [−1, 1]², lifted to a bowl of radius of curvature 4 at
