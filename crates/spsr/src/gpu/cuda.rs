@@ -700,9 +700,8 @@ impl Device {
             let vmass = self.staging.upload(s, &sys.vmass)?;
             let vderiv = self.staging.upload(s, &sys.vderiv)?;
             let children = self.staging.upload(s, sys.children)?;
-            let ch_count = self.staging.upload(s, &sys.child_count)?;
-            let ch_j = self.staging.upload(s, &sys.child_index)?;
-            let ch_w = self.staging.upload(s, &sys.child_weight)?;
+            let (ch_count, ch_j, ch_w) =
+                self.child_tables(&sys.child_count, &sys.child_index, &sys.child_weight)?;
             s.synchronize()?;
             transfer += clock.elapsed();
             let clock = Instant::now();
@@ -1027,9 +1026,8 @@ impl Device {
                 let children = self.tables(sys.parent.depth, sys.children, || {
                     self.staging.upload(s, sys.children)
                 })?;
-                let ch_count = self.staging.upload(s, &sys.child_count)?;
-                let ch_j = self.staging.upload(s, &sys.child_index)?;
-                let ch_w = self.staging.upload(s, &sys.child_weight)?;
+                let (ch_count, ch_j, ch_w) =
+                    self.child_tables(&sys.child_count, &sys.child_index, &sys.child_weight)?;
                 s.synchronize()?;
                 transfer += clock.elapsed();
                 let clock = Instant::now();
@@ -1082,6 +1080,22 @@ impl Device {
                 e,
             )
         })
+    }
+
+    /// The two-scale children tables that `restrict_one` reads, on the card.
+    #[allow(clippy::type_complexity)]
+    fn child_tables(
+        &self,
+        count: &[u32],
+        index: &[i64],
+        weight: &[f64],
+    ) -> Result<(CudaSlice<u32>, CudaSlice<i64>, CudaSlice<f64>), DriverError> {
+        let s = &self.stream;
+        Ok((
+            self.staging.upload(s, count)?,
+            self.staging.upload(s, index)?,
+            self.staging.upload(s, weight)?,
+        ))
     }
 
     fn record_rhs(&self, lvl: &Resident, transfer: Duration, kernels: Duration, parents: usize) {

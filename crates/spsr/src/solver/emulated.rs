@@ -307,6 +307,19 @@ impl Kernels {
         Ok(Kernels { lib, _dir: dir })
     }
 
+    /// [`Kernels::build`], or `None` with a message where no C++ compiler can be found; a
+    /// kernel source that does not compile fails the test.
+    fn build_or_skip(degree: u8) -> Option<Kernels> {
+        match Kernels::build(degree) {
+            Ok(k) => Some(k),
+            Err(reason) => {
+                assert!(!reason.contains("do not compile"), "{reason}");
+                eprintln!("skipped: {reason}");
+                None
+            }
+        }
+    }
+
     fn get<T: Copy>(&self, name: &str) -> T {
         // SAFETY: each name is one of the kernels (or the shim's setter), and the caller's type
         // is its signature, written out above from `kernels.cu`.
@@ -812,13 +825,8 @@ fn as_f32(v: Vec<f64>) -> Vec<f32> {
 #[test]
 fn the_gpu_kernels_run_on_the_cpu_give_the_solvers_bits() {
     for (what, f) in fixtures() {
-        let kernels = match Kernels::build(f.fem.degree.get()) {
-            Ok(k) => k,
-            Err(reason) => {
-                assert!(!reason.contains("do not compile"), "{reason}");
-                eprintln!("skipped: {reason}");
-                return;
-            }
+        let Some(kernels) = Kernels::build_or_skip(f.fem.degree.get()) else {
+            return;
         };
         let p = f.problem();
         for t in f.base_level + 1..=f.max_level() {
@@ -883,13 +891,8 @@ fn the_gpu_kernels_run_on_the_cpu_give_the_solvers_bits() {
 fn the_gpu_constraint_kernels_run_on_the_cpu_give_the_solvers_bits() {
     let f64_bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
     for (what, f) in fixtures() {
-        let kernels = match Kernels::build(f.fem.degree.get()) {
-            Ok(k) => k,
-            Err(reason) => {
-                assert!(!reason.contains("do not compile"), "{reason}");
-                eprintln!("skipped: {reason}");
-                return;
-            }
+        let Some(kernels) = Kernels::build_or_skip(f.fem.degree.get()) else {
+            return;
         };
         let p = f.problem();
         let mut v = f.v.clone();
@@ -922,13 +925,8 @@ fn the_gpu_constraint_kernels_run_on_the_cpu_give_the_solvers_bits() {
 fn the_gpu_coupling_kernels_run_on_the_cpu_give_the_solvers_bits() {
     let f64_bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
     for (what, f) in fixtures() {
-        let kernels = match Kernels::build(f.fem.degree.get()) {
-            Ok(k) => k,
-            Err(reason) => {
-                assert!(!reason.contains("do not compile"), "{reason}");
-                eprintln!("skipped: {reason}");
-                return;
-            }
+        let Some(kernels) = Kernels::build_or_skip(f.fem.degree.get()) else {
+            return;
         };
         let p = f.problem();
         for t in f.base_level + 1..=f.max_level() {
