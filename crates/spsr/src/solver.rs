@@ -1250,7 +1250,7 @@ fn right_hand_side(
 ) -> Vec<f32> {
     #[cfg(feature = "gpu")]
     if u.is_empty() {
-        if let Some((r, _)) = op.first_right_hand_sides_gpu(&tcons, pc, vc, None, false) {
+        if let Some((r, _)) = op.first_right_hand_sides_gpu(&tcons, pc, vc, false) {
             return r;
         }
     }

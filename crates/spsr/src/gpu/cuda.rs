@@ -472,15 +472,14 @@ impl Device {
     /// The right-hand sides of the cascade's pass over the resident depth `lvl` (see the
     /// kernel `first_right_hand_sides`): `r`, and with `fixed` its fixed part `b` (else
     /// empty). `tcons` are the depth's constraints, `pc` and `vc` the parent depth's
-    /// cumulative solution and V, `cchi` the coarser solution at the depth's clusters (`None`:
-    /// made on the card from `pc`, [`Device::coarse_chi`]).
+    /// cumulative solution and V; the coarser solution at the depth's clusters is made on the
+    /// card from `pc` ([`Device::coarse_chi`]).
     pub fn first_right_hand_sides(
         &self,
         lvl: &Resident,
         tcons: &[f32],
         pc: &[f64],
         vc: &[[f32; 3]],
-        cchi: Option<&[f64]>,
         fixed: bool,
     ) -> Result<(Vec<f32>, Vec<f32>), String> {
         if lvl.nodes == 0 {
@@ -492,7 +491,7 @@ impl Device {
             let tcons_d = self.staging.upload(s, tcons)?;
             let pc_d = self.staging.upload(s, pc)?;
             let vc_d = self.staging.upload(s, vc.as_flattened())?;
-            let cchi_d = self.coarse_chi(lvl, cchi, &pc_d)?;
+            let cchi_d = self.coarse_chi(lvl, &pc_d)?;
             let mut r_d = s.alloc_zeros::<f32>(lvl.nodes.max(1))?;
             let mut b_d = s.alloc_zeros::<f32>(if fixed { lvl.nodes.max(1) } else { 1 })?;
             s.synchronize()?;
@@ -530,10 +529,7 @@ impl Device {
             self.record_rhs(lvl, transfer, kernels, pc.len());
             Ok((r, b))
         };
-        if pc.len() != vc.len()
-            || tcons.len() != lvl.nodes
-            || cchi.is_some_and(|c| c.len() != lvl.clusters)
-        {
+        if pc.len() != vc.len() || tcons.len() != lvl.nodes {
             return Err("the right-hand side's inputs do not match the depth".into());
         }
         run().map_err(|e| {
@@ -549,20 +545,16 @@ impl Device {
 
     /// The right-hand side a further cycle relaxes the resident depth `lvl` against (see the
     /// kernel `cycle_right_hand_side`): the fixed part `b`, the parent depth's cumulative
-    /// solution `pc`, the coarser solution at the clusters `cchi` (`None`: made on the card),
-    /// and the finer depths' coupling `u` (empty for none).
+    /// solution `pc` (from which the coarser solution at the clusters is made on the card), and
+    /// the finer depths' coupling `u` (empty for none).
     pub fn cycle_right_hand_side(
         &self,
         lvl: &Resident,
         b: &[f32],
         pc: &[f64],
-        cchi: Option<&[f64]>,
         u: &[f64],
     ) -> Result<Vec<f32>, String> {
-        if b.len() != lvl.nodes
-            || cchi.is_some_and(|c| c.len() != lvl.clusters)
-            || !(u.is_empty() || u.len() == lvl.nodes)
-        {
+        if b.len() != lvl.nodes || !(u.is_empty() || u.len() == lvl.nodes) {
             return Err("the right-hand side's inputs do not match the depth".into());
         }
         if lvl.nodes == 0 {
@@ -573,7 +565,7 @@ impl Device {
             let clock = Instant::now();
             let b_d = self.staging.upload(s, b)?;
             let pc_d = self.staging.upload(s, pc)?;
-            let cchi_d = self.coarse_chi(lvl, cchi, &pc_d)?;
+            let cchi_d = self.coarse_chi(lvl, &pc_d)?;
             let u_d = self.staging.upload(s, u)?;
             let mut r_d = s.alloc_zeros::<f32>(lvl.nodes.max(1))?;
             s.synchronize()?;
@@ -783,20 +775,16 @@ impl Device {
         })
     }
 
-    /// χ_{<d} at the clusters of the resident depth `lvl`: `cchi` copied to the card, or with
-    /// `None` made there from the parent depth's cumulative solution `pc` (already on the
-    /// card) by the kernel `coarse_cluster_values` (solver.rs `coarse_cluster_values`). The
-    /// kernel's time counts with the copies of the step that asked for it.
+    /// χ_{<d} at the clusters of the resident depth `lvl`, made on the card from the parent
+    /// depth's cumulative solution `pc` (already there) by the kernel `coarse_cluster_values`
+    /// (solver.rs `coarse_cluster_values`). The kernel's time counts with the copies of the
+    /// step that asked for it.
     fn coarse_chi(
         &self,
         lvl: &Resident,
-        cchi: Option<&[f64]>,
         pc: &CudaSlice<f64>,
     ) -> Result<CudaSlice<f64>, DriverError> {
         let s = &self.stream;
-        if let Some(cchi) = cchi {
-            return self.staging.upload(s, cchi);
-        }
         let mut out = s.alloc_zeros::<f64>(lvl.clusters.max(1))?;
         if lvl.clusters > 0 {
             let parent_depth = lvl.depth_arg - 1;

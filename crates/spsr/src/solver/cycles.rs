@@ -671,7 +671,7 @@ pub(super) fn right_hand_sides(
     vc: &[[f32; 3]],
 ) -> (Vec<f32>, Vec<f32>) {
     #[cfg(feature = "gpu")]
-    if let Some(out) = op.first_right_hand_sides_gpu(&tcons, pc, vc, None, true) {
+    if let Some(out) = op.first_right_hand_sides_gpu(&tcons, pc, vc, true) {
         return out;
     }
     let coarse_chi = coarse_cluster_values(op, fem, pc);
@@ -709,7 +709,7 @@ pub(super) fn cycle_right_hand_side(
     u: &[f64],
 ) -> Vec<f32> {
     #[cfg(feature = "gpu")]
-    if let Some(r) = op.cycle_right_hand_side_gpu(&b, pc, None, u) {
+    if let Some(r) = op.cycle_right_hand_side_gpu(&b, pc, u) {
         return r;
     }
     let coarse_chi = coarse_cluster_values(op, fem, pc);

@@ -37,34 +37,32 @@ impl Op<'_> {
     }
 
     /// The cascade's right-hand sides of the level on the GPU (`cycles::right_hand_sides`, and
-    /// with `fixed` false `super::right_hand_side`), bit for bit; `cchi` is the coarser
-    /// solution at the level's clusters (`None`: made on the card from `pc`).
+    /// with `fixed` false `super::right_hand_side`), bit for bit; the coarser solution at the
+    /// level's clusters is made on the card from `pc`.
     pub(super) fn first_right_hand_sides_gpu(
         &self,
         tcons: &[f32],
         pc: &[f64],
         vc: &[[f32; 3]],
-        cchi: Option<&[f64]>,
         fixed: bool,
     ) -> Option<(Vec<f32>, Vec<f32>)> {
         let (dev, lvl) = self.on_gpu()?;
-        dev.first_right_hand_sides(lvl, tcons, pc, vc, cchi, fixed)
+        dev.first_right_hand_sides(lvl, tcons, pc, vc, fixed)
             .map_err(|reason| dev.record_failure(reason))
             .ok()
     }
 
     /// A further cycle's right-hand side of the level on the GPU
-    /// (`cycles::cycle_right_hand_side`), bit for bit; `cchi` as in
-    /// [`Op::first_right_hand_sides_gpu`].
+    /// (`cycles::cycle_right_hand_side`), bit for bit, the coarser solution at the clusters
+    /// made on the card.
     pub(super) fn cycle_right_hand_side_gpu(
         &self,
         b: &[f32],
         pc: &[f64],
-        cchi: Option<&[f64]>,
         u: &[f64],
     ) -> Option<Vec<f32>> {
         let (dev, lvl) = self.on_gpu()?;
-        dev.cycle_right_hand_side(lvl, b, pc, cchi, u)
+        dev.cycle_right_hand_side(lvl, b, pc, u)
             .map_err(|reason| dev.record_failure(reason))
             .ok()
     }
