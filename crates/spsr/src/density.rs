@@ -237,12 +237,23 @@ impl Density {
 
     /// As [`Density::query`], starting no deeper than `max_depth`.
     pub fn query_from(&self, p: [f64; 3], max_depth: u32) -> DepthAndArea {
+        self.query_for(p, max_depth, self.samples_per_node)
+    }
+
+    /// As [`Density::query`], for `factor` times the samples per node: the depth and area
+    /// weight an explicit `--samples-per-node` that much larger would give the sample (the
+    /// noise stage's per-sample choice, `pipeline::noise`).
+    pub fn query_scaled(&self, p: [f64; 3], factor: f64) -> DepthAndArea {
+        self.query_for(p, self.kernel_depth, self.samples_per_node * factor)
+    }
+
+    /// As [`Density::query_from`], for `s` samples per node.
+    fn query_for(&self, p: [f64; 3], max_depth: u32, s: f64) -> DepthAndArea {
         let top = max_depth.min(self.kernel_depth);
         let mut d = 0;
         while d < top && self.rho[d as usize + 1].contains_key(&pack(cell_of(p, d + 1))) {
             d += 1;
         }
-        let s = self.samples_per_node;
         let width2 = |d: u32| {
             let h = 1.0 / (1i64 << d) as f64;
             h * h

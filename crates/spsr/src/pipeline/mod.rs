@@ -425,7 +425,12 @@ pub(crate) fn solve_implicit(
     }
     let noise = (params.noise == Noise::Adaptive).then(|| {
         run.stage(NOISE, || {
-            noise::adapt(&sampled.samples, &mut sampled.depths, params.depth)
+            noise::adapt(
+                &sampled.samples,
+                &sampled.density,
+                &mut sampled.depths,
+                params.depth,
+            )
         })
         .in_units(frame.width)
     });

@@ -40,25 +40,35 @@
 //! nothing was resolved (90 % of their samples; the oni's reach 0.3, but at depths 3 to 5).
 //! Clean scans, dense or sparse, then keep the reference's splat depths.
 //!
-//! **Choosing.** A sample whose density gives cells of width `h` (depth `d`) and whose noise
-//! is `σ` is splatted at depth `d' = d − ½ log2(1 + r²)`, `r = (κσ/h)^p`, the same as
-//! multiplying its samples per node by `1 + r²`: where the noise is well below the spacing
-//! nothing changes, where it is larger the cells grow with it. `κ = 2` and `p = 1.3` were
-//! chosen at depth 9 on the bunny with noise of 0.25 % and 0.5 % of its diagonal, the bunny
-//! and fandisk noise ramps and the rocker arm with 0.5 % noise (bench/noise/run.py; `κ = 2.5`
-//! smooths the rocker arm's thin ring away, `κ = 1.5` leaves the bunny bumpy). The noise is
-//! smoothed first, twice: each sample takes the median noise of the measured samples in the
-//! 3×3×3 cells around it one level above the typical measuring depth, then the median of
-//! those medians two levels coarser, so that the splat depth varies slowly across the
-//! surface. (Splat depths that vary from sample to sample cost accuracy: on clouds with
-//! uniform noise, one depth change for all samples did 5–7 % better than the same changes
-//! chosen per sample from one smoothing pass.)
+//! **Choosing.** A sample whose density gives cells of width `h` and whose noise is `σ` is
+//! splatted as if its samples per node were `S · min(1 + (κσ/h)², 8)`, `κ = 3`: the density
+//! estimator is queried again at that larger count ([`Density::query_scaled`]), which gives
+//! the sample both its lower depth and the area weight of that depth, exactly what an
+//! explicit `--samples-per-node` that large would give it. Where the noise is well below the
+//! spacing nothing changes; where it is larger the cells grow with it, by at most 1.5 levels.
+//! (An earlier version lowered only the depth, `d − ½ log2(1 + r²)`, and kept the area weight
+//! of the density's own depth. That weight is read from the finest cells, where noise
+//! scatters the samples through the volume and the count per cell is low and uneven; the
+//! vector field then inherited that unevenness. With the same lowering for every noisy
+//! sample, it was 2–6 % less accurate than the equivalent `--samples-per-node` on the bunny's
+//! noise ramp, band by band; queried again, the two agree.) `κ = 3` and the cap were chosen at
+//! depths 8 to 10 on the bunny with noise of 0.25 % and 0.5 % of its diagonal, the bunny and
+//! fandisk noise ramps, and spot and the rocker arm with 0.5 % noise (bench/noise/run.py):
+//! without the cap, the strong noise of the rocker arm smooths its thin ring away (7.4 against
+//! 5.8 × 10⁻⁴ of the diagonal), and a flatter or weaker mapping leaves the ramps' less noisy
+//! parts under-smoothed. A curvature-aware choice (larger cells where the fitted height field
+//! is flat, the bias–variance optimum of a local fit) was tried and did not separate the
+//! shapes that want more smoothing (spot) from those that want less (the rocker arm): the
+//! curvature measured on noisy samples is mostly noise. The noise is smoothed first, twice:
+//! each sample takes the median noise of the measured samples in the 3×3×3 cells around it
+//! one level above the typical measuring depth, then the median of those medians two levels
+//! coarser, so that the splat depth varies slowly across the surface.
 
 use rayon::prelude::*;
 
 use rustc_hash::FxHashMap;
 
-use crate::density::{cell_of, DepthAndArea, Sample};
+use crate::density::{cell_of, Density, DepthAndArea, Sample};
 use crate::morton;
 use crate::normals::estimate::{eigen_sym3, Sym3};
 
@@ -79,11 +89,13 @@ const THICK_SHARE: f64 = 0.25;
 /// cube or less.
 const THICK_DEPTH: u32 = 6;
 
-/// Splat cells grow with `(CELLS_PER_NOISE σ / h)^NOISE_POWER` (see the module docs).
-const CELLS_PER_NOISE: f64 = 2.0;
+/// A sample's samples per node are multiplied by `1 + (CELLS_PER_NOISE σ / h)²` (see the
+/// module docs).
+const CELLS_PER_NOISE: f64 = 3.0;
 
-/// See [`CELLS_PER_NOISE`].
-const NOISE_POWER: f64 = 1.3;
+/// The largest multiplication of a sample's samples per node: its splat depth is lowered by
+/// at most 1.5 levels (see the module docs).
+const MAX_FACTOR: f64 = 8.0;
 
 /// What the noise stage found, for the user.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -727,8 +739,13 @@ fn smooth(samples: &[Sample], sigma: &[f64], d: u32) -> Vec<f64> {
 
 /// Lowers each sample's splat depth as far as its local noise needs (stage 2b) and says what
 /// it found. `max_depth` is the tree's depth `D`.
-pub fn adapt(samples: &[Sample], depths: &mut [DepthAndArea], max_depth: u32) -> NoiseSummary {
-    adapt_at(samples, depths, max_depth, None)
+pub fn adapt(
+    samples: &[Sample],
+    density: &Density,
+    depths: &mut [DepthAndArea],
+    max_depth: u32,
+) -> NoiseSummary {
+    adapt_at(samples, density, depths, max_depth, None)
 }
 
 /// Each sample's measured noise and the depth it was measured at, `None` where it could not
@@ -773,6 +790,7 @@ pub fn smoothing_depth(histogram: &[u64], max_depth: u32) -> u32 {
 /// cloud's own measurements give.
 pub fn adapt_at(
     samples: &[Sample],
+    density: &Density,
     depths: &mut [DepthAndArea],
     max_depth: u32,
     smooth_depth: Option<u32>,
@@ -781,12 +799,13 @@ pub fn adapt_at(
         return NoiseSummary::default();
     }
     let measured = measure(samples, max_depth);
-    adapt_measured(samples, depths, &measured, max_depth, smooth_depth)
+    adapt_measured(samples, density, depths, &measured, max_depth, smooth_depth)
 }
 
 /// As [`adapt_at`], with the noise already measured (`measured`, from [`measure`]).
 pub fn adapt_measured(
     samples: &[Sample],
+    density: &Density,
     depths: &mut [DepthAndArea],
     measured: &[Option<(f64, u32)>],
     max_depth: u32,
@@ -817,15 +836,15 @@ pub fn adapt_measured(
     let median = median_by(&mut sigmas, f64::total_cmp).unwrap_or(0.0);
     let lowered: Vec<f64> = depths
         .par_iter_mut()
-        .zip(&sigma)
-        .map(|(q, &s)| {
-            let d0 = q.depth.min(f64::from(max_depth));
-            let r = (CELLS_PER_NOISE * s * d0.exp2()).powf(NOISE_POWER);
-            let d = d0 - 0.5 * (1.0 + r * r).log2();
-            let drop = (d0 - d).max(0.0);
-            if drop > 0.0 {
-                q.depth = d;
+        .zip(samples.par_iter().zip(&sigma))
+        .map(|(q, (sample, &s))| {
+            let factor = samples_per_node_factor(s, q.depth.min(f64::from(max_depth)));
+            if factor <= 1.0 {
+                return 0.0;
             }
+            let scaled = density.query_scaled(sample.pos, factor);
+            let drop = (q.depth - scaled.depth).max(0.0);
+            *q = scaled;
             drop
         })
         .collect();
@@ -841,6 +860,14 @@ pub fn adapt_measured(
             0.0
         },
     }
+}
+
+/// How many times its density's samples per node a sample of noise `σ` is splatted with,
+/// where the density gives it depth `d` (cells of width `h = 2^-d`): `1 + (κσ/h)²`, at most
+/// [`MAX_FACTOR`]; 1 for a clean sample.
+fn samples_per_node_factor(sigma: f64, d: f64) -> f64 {
+    let r = CELLS_PER_NOISE * sigma * d.exp2();
+    (1.0 + r * r).min(MAX_FACTOR)
 }
 
 /// A sample counts as adapted when its depth was lowered by more than this (in levels).

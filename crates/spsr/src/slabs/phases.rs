@@ -227,8 +227,16 @@ fn final_samples(
             }
             let measured = std::mem::take(&mut kept.measured);
             let mut sampled = kept.sampled(plan, &measured_path(dir, s))?;
+            // The noise phase's estimator, rebuilt from the same samples (it is not kept):
+            // the adaptation queries it at each noisy sample's own samples per node.
+            let density = Density::build(
+                &sampled.samples,
+                params.kernel_depth(),
+                params.samples_per_node,
+            );
             noise::adapt_measured(
                 &sampled.samples,
+                &density,
                 &mut sampled.depths,
                 &measured,
                 params.depth,

@@ -14,7 +14,7 @@ fn gauss(rng: &mut Rng) -> f64 {
 
 /// The unit sphere's points moved by Gaussian noise of `sigma` on every coordinate, normals
 /// tilted by noise of `tilt` on every component.
-fn noisy_sphere(n: usize, sigma: f64, tilt: f64, seed: u64) -> PointCloud {
+pub(crate) fn noisy_sphere(n: usize, sigma: f64, tilt: f64, seed: u64) -> PointCloud {
     let mut cloud = sphere(n, [0.0; 3], 1.0, seed);
     let mut rng = Rng(seed ^ 0x9e37_79b9);
     for (p, nrm) in cloud.positions.iter_mut().zip(&mut cloud.normals) {
@@ -85,6 +85,57 @@ fn noise_too_thin_to_bend_the_sparse_finer_neighbourhoods_is_still_measured() {
     assert!(summary.adapted > 0.5, "{summary:?}");
     let (e_off, e_on) = (radial_error(&off.mesh), radial_error(&on.mesh));
     assert!(e_on < e_off, "adaptive {e_on} against off {e_off}");
+}
+
+/// Mean distance from the unit sphere of the mesh's vertices on each side of the plane
+/// `y = 0`: (below, above).
+fn radial_error_by_half(mesh: &Mesh) -> (f64, f64) {
+    let mut sums = [(0.0, 0usize); 2];
+    for v in &mesh.vertices {
+        let e = ((v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt() - 1.0).abs();
+        let half = &mut sums[usize::from(v[1] > 0.0)];
+        *half = (half.0 + e, half.1 + 1);
+    }
+    (sums[0].0 / sums[0].1 as f64, sums[1].0 / sums[1].1 as f64)
+}
+
+#[test]
+fn a_noise_ramp_is_smoothed_where_it_is_noisy_and_nowhere_else() {
+    // The unit sphere, clean below y = 0, with noise growing from 0 at y = 0 to 0.04 at the
+    // top, as a range scanner's grows with the distance.
+    let mut cloud = sphere(40_000, [0.0; 3], 1.0, 5);
+    let mut rng = Rng(0x5eed);
+    for p in &mut cloud.positions {
+        let sigma = 0.04 * p[1].max(0.0);
+        for c in p.iter_mut() {
+            *c += sigma * gauss(&mut rng);
+        }
+    }
+    let off = spsr::reconstruct(&cloud, &params(Noise::Off)).unwrap();
+    let on = spsr::reconstruct(&cloud, &params(Noise::Adaptive)).unwrap();
+    assert_eq!(assert_closed_manifold(&on.mesh, "noise ramp").components, 1);
+    let (clean_off, noisy_off) = radial_error_by_half(&off.mesh);
+    let (clean_on, noisy_on) = radial_error_by_half(&on.mesh);
+    // The noisy half is smoothed: much closer to the sphere.
+    assert!(
+        noisy_on < 0.7 * noisy_off,
+        "noisy half: {noisy_on} against {noisy_off}"
+    );
+    // The clean half keeps its detail: within a tenth of the unadapted mesh's error.
+    assert!(
+        clean_on < 1.1 * clean_off,
+        "clean half: {clean_on} against {clean_off}"
+    );
+    // Raising the samples per node everywhere instead smooths the clean half too.
+    let five = Params {
+        samples_per_node: 5.0,
+        ..params(Noise::Off)
+    };
+    let (clean_five, _) = radial_error_by_half(&spsr::reconstruct(&cloud, &five).unwrap().mesh);
+    assert!(
+        clean_on < clean_five,
+        "clean half: {clean_on} against {clean_five} with S = 5"
+    );
 }
 
 #[test]

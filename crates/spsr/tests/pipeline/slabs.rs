@@ -108,6 +108,18 @@ fn slabs_match_the_in_core_bunny_with_noise_adaptation() {
 }
 
 #[test]
+fn slabs_match_the_in_core_noisy_sphere_with_noise_adaptation() {
+    // Noise the adaptation measures and acts on: each slab queries its own density at each
+    // noisy sample's raised samples per node, as the in-core run does.
+    let cloud = crate::noise::noisy_sphere(30_000, 0.02, 0.1, 3);
+    let params = Params {
+        depth: 8,
+        ..Params::default()
+    };
+    compare("noisy sphere (adaptive)", &cloud, &params, &[3]);
+}
+
+#[test]
 fn slabs_written_as_they_come_match_the_mesh_in_memory() {
     let cloud = torus(20_000, 1.0, 0.35, 11);
     let params = plain(7);
