@@ -172,13 +172,17 @@ pub struct Density {
 /// samples in it.
 pub type Cell = ([i64; 3], f64, [f64; 3]);
 
-/// Where a sample sits in the hierarchy: its fractional depth and its area weight.
+/// Where a sample sits in the hierarchy: its fractional depth and its area weight, and the
+/// share of its weight its screening keeps.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DepthAndArea {
     /// Estimated splat depth (may be fractional).
     pub depth: f64,
     /// Area of surface represented by one unit of sample weight, unit-cube units.
     pub area: f64,
+    /// The factor on the sample's weight in the screening term and the iso-value: 1, except
+    /// for samples the noise stage finds noisy (`pipeline::noise`).
+    pub screen: f64,
 }
 
 impl Density {
@@ -263,6 +267,7 @@ impl Density {
             return DepthAndArea {
                 depth: f64::from(d) + 0.5 * (fine / s).log2(),
                 area: width2(d) / fine,
+                screen: 1.0,
             };
         }
         while d > 0 {
@@ -280,7 +285,11 @@ impl Density {
                 } else {
                     width2(d)
                 };
-                return DepthAndArea { depth, area };
+                return DepthAndArea {
+                    depth,
+                    area,
+                    screen: 1.0,
+                };
             }
             fine = coarse;
         }
@@ -288,6 +297,7 @@ impl Density {
         DepthAndArea {
             depth: 0.0,
             area: if fine > 0.0 { 1.0 / fine } else { 1.0 },
+            screen: 1.0,
         }
     }
 }

@@ -24,6 +24,16 @@ pub struct Sampled {
     pub depths: Vec<DepthAndArea>,
 }
 
+impl Sampled {
+    /// Each sample's weight in the screening term, the iso-value and the attributes' field:
+    /// its weight times the share its screening keeps ([`DepthAndArea::screen`]).
+    pub fn screening_weights(&self) -> Vec<f64> {
+        (self.samples.iter().zip(&self.depths))
+            .map(|(s, q)| s.weight * q.screen)
+            .collect()
+    }
+}
+
 /// Merges the prepared points into samples and estimates their density (stage 2). The points
 /// are released before the density is built.
 pub fn sample(points: Vec<UnitPoint>, carried: Carried, params: &Params) -> Sampled {

@@ -436,6 +436,7 @@ pub(crate) fn solve_implicit(
     });
     let refined = run.stage("octree", || tree::build(&sampled, params, input_points))?;
     let field = run.stage("splatting", || splat::splat(&refined, &sampled, params))?;
+    let weights = sampled.screening_weights();
     let density::Sampled {
         samples,
         values,
@@ -458,7 +459,7 @@ pub(crate) fn solve_implicit(
     let samples_len = samples.len();
     let points = system::SamplePoints {
         positions: samples.iter().map(|s| s.pos).collect(),
-        weights: samples.iter().map(|s| s.weight).collect(),
+        weights,
     };
     drop(samples);
     let fem = Basis::new(params.degree, params.boundary);

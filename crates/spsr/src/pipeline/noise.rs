@@ -844,7 +844,10 @@ pub fn adapt_measured(
             }
             let scaled = density.query_scaled(sample.pos, factor);
             let drop = (q.depth - scaled.depth).max(0.0);
-            *q = scaled;
+            *q = DepthAndArea {
+                screen: factor.powf(-SCREEN_POWER),
+                ..scaled
+            };
             drop
         })
         .collect();
@@ -869,6 +872,11 @@ fn samples_per_node_factor(sigma: f64, d: f64) -> f64 {
     let r = CELLS_PER_NOISE * sigma * d.exp2();
     (1.0 + r * r).min(MAX_FACTOR)
 }
+
+/// A noisy sample's screening keeps `factor^-SCREEN_POWER` of its weight, where `factor` is
+/// the multiplication of its samples per node ([`samples_per_node_factor`]; see the module
+/// docs).
+const SCREEN_POWER: f64 = 1.0 / 3.0;
 
 /// A sample counts as adapted when its depth was lowered by more than this (in levels).
 const ADAPTED: f64 = 0.05;

@@ -406,12 +406,9 @@ pub fn coarse(
         .filter(|(_, &o)| o)
         .map(|(x, _)| x.pos)
         .collect();
-    let weights: Vec<f64> = sampled
-        .samples
-        .iter()
-        .zip(&owned)
+    let weights: Vec<f64> = (sampled.screening_weights().into_iter().zip(&owned))
         .filter(|(_, &o)| o)
-        .map(|(x, _)| x.weight)
+        .map(|(w, _)| w)
         .collect();
     let leaf_of = system::deepest_nodes(&tree, &positions);
     let data = own_data(&tree, &sampled, &owned, &leaf_of, &weights, plan, params);
@@ -510,7 +507,7 @@ fn slab_data(
     params: &Params,
 ) -> Result<DataField> {
     let positions: Vec<[f64; 3]> = sampled.samples.iter().map(|x| x.pos).collect();
-    let weights: Vec<f64> = sampled.samples.iter().map(|x| x.weight).collect();
+    let weights = sampled.screening_weights();
     let leaf_of = system::deepest_nodes(tree, &positions);
     let k = plan.channels();
     let mut data = DataField::build(
@@ -1056,7 +1053,7 @@ pub fn solve(
     let tree = refined.tree;
     let points = system::SamplePoints {
         positions: sampled.samples.iter().map(|x| x.pos).collect(),
-        weights: sampled.samples.iter().map(|x| x.weight).collect(),
+        weights: sampled.screening_weights(),
     };
     drop(sampled);
     let fem = Basis::new(params.degree, params.boundary);
