@@ -155,7 +155,8 @@ pub struct ReconstructArgs {
     pub point_weight: Option<f64>,
 
     /// Adapt the reconstruction to the noise measured around each point (adaptive: noisy
-    /// regions are splatted coarser, clean ones keep full detail), or not (off: exactly
+    /// regions are splatted coarser and their points screened less, clean ones keep full
+    /// detail), or not (off: exactly
     /// PoissonRecon's behaviour) [default: adaptive, or off when --samples-per-node or
     /// --point-weight is given]
     #[arg(long, value_enum, value_name = "MODE")]
@@ -517,7 +518,7 @@ pub enum GpuArg {
 /// `--noise`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum NoiseArg {
-    /// Adapt the splat depth to the local noise.
+    /// Adapt the splat depth and the screening to the local noise.
     Adaptive,
     /// PoissonRecon's behaviour.
     Off,

@@ -65,8 +65,9 @@ pub struct Params {
     /// Compute per-vertex normals from the gradient of the implicit function (`−∇χ`,
     /// unit length). Default off.
     pub normals: bool,
-    /// Adapt the splat depth to the noise measured around each sample (default), or splat
-    /// where the density alone says, as PoissonRecon does.
+    /// Adapt the splat depth and the screening weight to the noise measured around each
+    /// sample (default), or splat where the density alone says and screen every sample
+    /// alike, as PoissonRecon does.
     pub noise: Noise,
     /// Keep the far outliers (points far outside the box that holds the bulk of the cloud)
     /// instead of leaving them out, as PoissonRecon does. Default off: they are left out,
@@ -175,8 +176,8 @@ pub enum Resolution {
 /// Whether the reconstruction adapts to the local noise of the points (issue 16).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 pub enum Noise {
-    /// Measure the noise around every sample and splat it no finer than the noise allows
-    /// (default).
+    /// Measure the noise around every sample, splat it no finer than the noise allows and
+    /// lower a noisy sample's screening weight with it (default).
     #[default]
     Adaptive,
     /// Splat every sample at the depth its density gives, as PoissonRecon.

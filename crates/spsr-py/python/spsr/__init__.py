@@ -686,8 +686,9 @@ def reconstruct(
         Screening weight alpha; 0 gives the unscreened 2006 method. Default 2 * degree.
         Giving it turns the noise adaptation off unless ``noise="adaptive"`` is given too.
     noise : {"adaptive", "off"}, optional
-        ``"adaptive"`` measures the noise around every point and splats noisy regions
-        coarser (clean ones keep full detail), and removes pieces under 0.1 % of the mesh's
+        ``"adaptive"`` measures the noise around every point, splats noisy regions
+        coarser and lowers their points' screening weight (clean ones keep full detail),
+        and removes pieces under 0.1 % of the mesh's
         area (bubbles left by noise); ``"off"`` is exactly PoissonRecon's behaviour.
         Default adaptive, or off when ``samples_per_node`` or ``point_weight`` is given.
     keep_outliers : bool, default False
