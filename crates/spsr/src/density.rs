@@ -180,8 +180,9 @@ pub struct DepthAndArea {
     pub depth: f64,
     /// Area of surface represented by one unit of sample weight, unit-cube units.
     pub area: f64,
-    /// The factor on the sample's weight in the screening term and the iso-value: 1, except
-    /// for samples the noise stage finds noisy (`pipeline::noise`).
+    /// The factor on the sample's weight in the screening term, the iso-value and the
+    /// attributes' field: 1, except for samples the noise stage finds noisy
+    /// (`pipeline::noise`).
     pub screen: f64,
 }
 

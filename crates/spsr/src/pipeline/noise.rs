@@ -66,8 +66,8 @@
 //! samples per node were multiplied by `factor` keeps `factor^(-1/3)` of its weight in the
 //! screening term and in the iso-value ([`DepthAndArea::screen`]; its weight in the vector
 //! field is unchanged). Measured at depth 9 (Chamfer × 10⁻⁴ of the diagonal, without → with):
-//! the bunny's ramp 4.37 → 4.29, the fandisk's 4.19 → 4.09, the 0.25 %-noise bunny 4.54 →
-//! 4.34, the rocker arm 5.79 → 5.54, spot 5.65 → 5.08, the 0.5 %-noise bunny 7.48 → 7.51.
+//! the bunny's ramp 4.37 → 4.30, the fandisk's 4.19 → 4.09, the 0.25 %-noise bunny 4.55 →
+//! 4.33, the rocker arm 5.79 → 5.55, spot 5.65 → 5.08, the 0.5 %-noise bunny 7.48 → 7.51.
 //! Powers of 1/2 and 1 help spot and the 0.25 %-noise bunny a little more but cost the
 //! 0.5 %-noise bunny 2–11 %; 1/4 helps everywhere less. (Lowering the screening of noisy
 //! samples had been tried before the samples per node were queried again, and was worse on
