@@ -34,6 +34,12 @@ impl Sampled {
     }
 }
 
+/// The density estimator of the samples at the parameters' kernel depth and samples per
+/// node (also rebuilt by the slabs' coarse phase from the samples they keep).
+pub fn estimator(samples: &[Sample], params: &Params) -> Density {
+    Density::build(samples, params.kernel_depth(), params.samples_per_node)
+}
+
 /// Merges the prepared points into samples and estimates their density (stage 2). The points
 /// are released before the density is built.
 pub fn sample(points: Vec<UnitPoint>, carried: Carried, params: &Params) -> Sampled {
@@ -44,7 +50,7 @@ pub fn sample(points: Vec<UnitPoint>, carried: Carried, params: &Params) -> Samp
     let attribute_types = carried.types;
     drop(carried.values);
     drop(points);
-    let density = Density::build(&samples, params.kernel_depth(), params.samples_per_node);
+    let density = estimator(&samples, params);
     let depths = samples.par_iter().map(|s| density.query(s.pos)).collect();
     Sampled {
         samples,

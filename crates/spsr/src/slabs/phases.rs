@@ -229,11 +229,7 @@ fn final_samples(
             let mut sampled = kept.sampled(plan, &measured_path(dir, s))?;
             // The noise phase's estimator, rebuilt from the same samples (it is not kept):
             // the adaptation queries it at each noisy sample's own samples per node.
-            let density = Density::build(
-                &sampled.samples,
-                params.kernel_depth(),
-                params.samples_per_node,
-            );
+            let density = density::estimator(&sampled.samples, params);
             noise::adapt_measured(
                 &sampled.samples,
                 &density,
