@@ -9,15 +9,20 @@
 //!
 //! Storage. Each tree depth is a [`Level`] whose nodes come in broods of 8 siblings stored
 //! consecutively (node `8b + c` is child `c` of brood `b`, child bit 0 = x, 1 = y, 2 = z).
-//! Broods are ordered by their parent, so every level is in Morton order. Each brood stores
+//! Broods are ordered by their parent, so every level is in Morton order. Each brood has
 //! the 27 broods around it (the children of its parent's 3×3×3 neighbours), which gives any
-//! node's 5×5×5 same-depth window in O(1) without hashing.
+//! node's 5×5×5 same-depth window in O(1) without hashing. Every level but the deepest stores
+//! them (108 bytes a brood); the deepest level, the largest, derives them when asked from its
+//! parent's row and child links ([`FromParent`]), which saves 13.5 bytes a node there.
 //!
 //! Invariants after [`Octree::build`]:
 //! - levels with unit depth `≤ full_depth` contain every ring node;
 //! - conforming (§4.2 step 5): if a node at unit depth `d ≥ base` has children, every node of
 //!   the ring within its 5×5×5 window exists;
 //! - the level of tree depth 0 is the virtual root alone; level 1 is its single brood.
+
+use std::borrow::Cow;
+use std::sync::Arc;
 
 use rayon::prelude::*;
 
@@ -41,11 +46,73 @@ pub struct Level {
     brood_key: Vec<[u32; 3]>,
     /// Brood index of each node's children at the next level, or [`NONE`]. Empty when no node
     /// of the level has children (the deepest level).
-    child: Vec<u32>,
+    child: Arc<[u32]>,
     /// Parent node (at the previous level) of each brood.
     pub brood_parent: Vec<u32>,
-    /// The 27 broods around each brood, slot `(dx+1) + 3(dy+1) + 9(dz+1)`, [`NONE`] if absent.
-    pub brood_nbrs: Vec<[u32; 27]>,
+    /// The 27 broods around each brood ([`Level::brood_row`]); empty where they are derived.
+    rows: Arc<[BroodRow]>,
+    /// Where the rows are derived: the parent level's rows and child links.
+    from_parent: Option<FromParent>,
+}
+
+/// The deepest level's rows are not stored but derived when asked from the parent level's
+/// rows and child links, which the level shares: the children of the brood's parent's 3×3×3
+/// neighbours (issue 20: at depth 10 the deepest level's rows would be a fifth of the peak
+/// memory).
+#[derive(Debug, Clone)]
+struct FromParent {
+    rows: Arc<[BroodRow]>,
+    child: Arc<[u32]>,
+}
+
+/// Window index ([`window_index`]) of each brood slot's offset `[-1,1]^3`.
+const SLOT_WINDOW: [u8; 27] = {
+    let mut w = [0u8; 27];
+    let mut s = 0;
+    while s < 27 {
+        w[s] = ((s % 3 + 1) + 5 * ((s / 3) % 3 + 1) + 25 * (s / 9 + 1)) as u8;
+        s += 1;
+    }
+    w
+};
+
+/// The 27 broods around a brood, slot `(dx+1) + 3(dy+1) + 9(dz+1)`, [`NONE`] if absent.
+pub type BroodRow = [u32; 27];
+
+/// A brood's row ([`Level::brood_row`]): the stored one, or one made for the asking.
+pub enum RowRef<'a> {
+    /// A level's stored row.
+    Stored(&'a BroodRow),
+    /// A row derived from the parent level's.
+    Made(BroodRow),
+}
+
+impl std::ops::Deref for RowRef<'_> {
+    type Target = BroodRow;
+    #[inline]
+    fn deref(&self) -> &BroodRow {
+        match self {
+            RowRef::Stored(row) => row,
+            RowRef::Made(row) => row,
+        }
+    }
+}
+
+/// The row of the broods around the children of node `p` (at child position `p & 7`), from
+/// the row `prow` of the broods around `p`'s brood and the level's `child` links: slot `s`
+/// holds the children of `p`'s neighbour at the slot's offset.
+#[inline]
+fn row_of_children(prow: &[u32; 27], child: &[u32], p: u32) -> [u32; 27] {
+    let c = (p & 7) as usize;
+    let mut out = [NONE; 27];
+    for (o, &w) in out.iter_mut().zip(&SLOT_WINDOW) {
+        let w = usize::from(w);
+        let pb = prow[usize::from(WINDOW.slot[c][w])];
+        if pb != NONE {
+            *o = child[(pb * 8 + u32::from(WINDOW.bits[c][w])) as usize];
+        }
+    }
+    out
 }
 
 impl Level {
@@ -85,6 +152,89 @@ impl Level {
     #[inline]
     pub fn child(&self, n: u32) -> u32 {
         self.child.get(n as usize).copied().unwrap_or(NONE)
+    }
+
+    /// Number of broods.
+    #[inline]
+    pub fn broods(&self) -> usize {
+        self.brood_parent.len()
+    }
+
+    /// The 27 broods around brood `b` ([`BroodRow`]).
+    #[inline(always)]
+    pub fn brood_row(&self, b: u32) -> RowRef<'_> {
+        match self.rows.get(b as usize) {
+            Some(row) => RowRef::Stored(row),
+            None => RowRef::Made(self.derived_row(b)),
+        }
+    }
+
+    /// The brood in slot `slot` around brood `b` ([`Level::brood_row`]).
+    #[inline(always)]
+    pub fn brood_nbr(&self, b: u32, slot: usize) -> u32 {
+        match self.rows.get(b as usize) {
+            Some(row) => row[slot],
+            None => self.derived_nbr(b, slot),
+        }
+    }
+
+    /// [`Level::brood_row`] where it is derived.
+    #[inline(never)]
+    fn derived_row(&self, b: u32) -> BroodRow {
+        match &self.from_parent {
+            Some(from) => {
+                let p = self.brood_parent[b as usize];
+                row_of_children(&from.rows[(p >> 3) as usize], &from.child, p)
+            }
+            None => [NONE; 27],
+        }
+    }
+
+    /// Slot `slot` of [`Level::derived_row`] alone.
+    #[inline(never)]
+    fn derived_nbr(&self, b: u32, slot: usize) -> u32 {
+        let Some(from) = &self.from_parent else {
+            return NONE;
+        };
+        let p = self.brood_parent[b as usize];
+        let c = (p & 7) as usize;
+        let w = usize::from(SLOT_WINDOW[slot]);
+        let pb = from.rows[(p >> 3) as usize][usize::from(WINDOW.slot[c][w])];
+        if pb == NONE {
+            NONE
+        } else {
+            from.child[(pb * 8 + u32::from(WINDOW.bits[c][w])) as usize]
+        }
+    }
+
+    /// The row ([`Level::brood_row`]) of node `p`'s children at the next level.
+    #[inline]
+    fn children_row(&self, p: u32) -> [u32; 27] {
+        row_of_children(&self.brood_row(p >> 3), &self.child, p)
+    }
+
+    /// Every brood's row ([`Level::brood_row`]): borrowed where stored, made (in parallel)
+    /// where derived.
+    pub fn brood_rows(&self) -> Cow<'_, [[u32; 27]]> {
+        match &self.from_parent {
+            None => Cow::Borrowed(&self.rows),
+            Some(_) => Cow::Owned(
+                (0..self.broods() as u32)
+                    .into_par_iter()
+                    .map(|b| self.derived_row(b))
+                    .collect(),
+            ),
+        }
+    }
+
+    /// What [`Level::brood_rows`] is made from, as an address and a length, which stay the
+    /// same while the tree lives (so that a copy of the rows elsewhere can be recognised).
+    #[cfg(feature = "gpu")]
+    pub fn brood_rows_identity(&self) -> (usize, usize) {
+        match &self.from_parent {
+            None => (self.rows.as_ptr() as usize, self.rows.len()),
+            Some(from) => (from.rows.as_ptr() as usize + 1, self.broods()),
+        }
     }
 }
 
@@ -137,7 +287,7 @@ pub static WINDOW: WindowTable = {
 };
 
 /// The same-depth offset, from a node at child position `c`, of node `k` of the brood in
-/// neighbour slot `slot` (`(dx+1) + 3(dy+1) + 9(dz+1)`, as [`Level::brood_nbrs`]).
+/// neighbour slot `slot` (`(dx+1) + 3(dy+1) + 9(dz+1)`, as [`Level::brood_row`]).
 #[inline]
 pub fn brood_offset(c: usize, slot: u8, k: usize) -> [i64; 3] {
     let db = [slot % 3, slot / 3 % 3, slot / 9].map(|v| i64::from(v) - 1);
@@ -469,35 +619,10 @@ fn child_array(len: usize, parents: &[u32]) -> Vec<u32> {
     child
 }
 
-/// The 27 broods around each brood of a new level: the children of its parent's 3×3×3
-/// neighbours in `prev` (whose child array is set), for parents at tree depth `t - 1`.
-fn brood_neighbours(prev: &Level, parents: &[u32], t: u32) -> Vec<[u32; 27]> {
-    parents
-        .par_iter()
-        .map(|&p| {
-            let mut out = [NONE; 27];
-            for (s, o) in out.iter_mut().enumerate() {
-                let d = [
-                    (s % 3) as i64 - 1,
-                    ((s / 3) % 3) as i64 - 1,
-                    (s / 9) as i64 - 1,
-                ];
-                let q = if t == 1 {
-                    if d == [0, 0, 0] {
-                        0
-                    } else {
-                        NONE
-                    }
-                } else {
-                    prev_neighbor(prev, p, d)
-                };
-                if q != NONE {
-                    *o = prev.child(q);
-                }
-            }
-            out
-        })
-        .collect()
+/// The 27 broods around each brood of a new level whose broods' parents are `parents` in
+/// `prev` (whose child array is set).
+fn brood_neighbours(prev: &Level, parents: &[u32]) -> Vec<[u32; 27]> {
+    parents.par_iter().map(|&p| prev.children_row(p)).collect()
 }
 
 impl Octree {
@@ -536,16 +661,30 @@ impl Octree {
                 break;
             }
             let prev = &mut levels[t as usize - 1];
-            prev.child = child_array(prev.len, &parents);
+            prev.child = child_array(prev.len, &parents).into();
             let prev = &levels[t as usize - 1];
-            let brood_nbrs = brood_neighbours(prev, &parents, t);
+            // Level 1 holds the root's one brood, alone; the deepest level derives its rows.
+            let (rows, from_parent): (Arc<[BroodRow]>, _) = if t == 1 {
+                let mut row = [NONE; 27];
+                row[13] = 0;
+                (Arc::from(vec![row]), None)
+            } else if t == max_t && prev.from_parent.is_none() {
+                let from = FromParent {
+                    rows: prev.rows.clone(),
+                    child: prev.child.clone(),
+                };
+                (Arc::from(Vec::new()), Some(from))
+            } else {
+                (brood_neighbours(prev, &parents).into(), None)
+            };
             let brood_key: Vec<[u32; 3]> = codes.par_iter().map(|&m| key_of(m)).collect();
             levels.push(Level {
                 len: brood_key.len() * 8,
                 brood_key,
-                child: Vec::new(),
+                child: Arc::from(Vec::new()),
                 brood_parent: parents,
-                brood_nbrs,
+                rows,
+                from_parent,
             });
             broods = codes;
         }
@@ -624,10 +763,10 @@ fn pack_u(k: [u32; 3]) -> u64 {
 }
 
 /// Same-level neighbour of node `n` by window index `w` (see [`window_index`]).
-#[inline]
+#[inline(always)]
 pub fn neighbor_in(level: &Level, n: u32, w: usize) -> u32 {
     let c = (n & 7) as usize;
-    let b = level.brood_nbrs[(n >> 3) as usize][WINDOW.slot[c][w] as usize];
+    let b = level.brood_nbr(n >> 3, usize::from(WINDOW.slot[c][w]));
     if b == NONE {
         NONE
     } else {
@@ -635,8 +774,44 @@ pub fn neighbor_in(level: &Level, n: u32, w: usize) -> u32 {
     }
 }
 
-fn prev_neighbor(level: &Level, n: u32, d: [i64; 3]) -> u32 {
-    neighbor_in(level, n, window_index(d))
+/// [`neighbor_in`] from the row of node `n`'s brood ([`Level::brood_row`]).
+#[inline]
+pub fn neighbor_in_row(row: &BroodRow, n: u32, w: usize) -> u32 {
+    let c = (n & 7) as usize;
+    let b = row[usize::from(WINDOW.slot[c][w])];
+    if b == NONE {
+        NONE
+    } else {
+        b * 8 + u32::from(WINDOW.bits[c][w])
+    }
+}
+
+/// `f(n, row)` for every node `n` of a level of broods, with the row of its brood
+/// ([`Level::brood_row`], made once per brood), in parallel; the results in node order.
+pub fn map_nodes<T: Send>(level: &Level, f: impl Fn(u32, &BroodRow) -> T + Sync) -> Vec<T> {
+    (0..level.broods() as u32)
+        .into_par_iter()
+        .map(|b| {
+            let row = level.brood_row(b);
+            std::array::from_fn::<T, 8, _>(|k| f(8 * b + k as u32, &row))
+        })
+        .collect::<Vec<[T; 8]>>()
+        .into_flattened()
+}
+
+/// `f(n, row, item)` for every node `n` of a level of broods and its item (`items` holds one
+/// per node), with the row of its brood (made once per brood), in parallel.
+pub fn for_each_node<T: Send>(
+    level: &Level,
+    items: &mut [T],
+    f: impl Fn(u32, &BroodRow, &mut T) + Sync,
+) {
+    items.par_chunks_mut(8).enumerate().for_each(|(b, brood)| {
+        let row = level.brood_row(b as u32);
+        for (k, item) in brood.iter_mut().enumerate() {
+            f(8 * b as u32 + k as u32, &row, item);
+        }
+    });
 }
 
 /// Function index (unit offset) of a tree key at unit depth `d`.
@@ -824,6 +999,8 @@ mod tests {
                             NONE
                         };
                         assert_eq!(tree.neighbor(t, n as u32, d), expect);
+                        let row = level.brood_row(n as u32 >> 3);
+                        assert_eq!(neighbor_in_row(&row, n as u32, w), expect);
                         // Conforming: around a refined node at unit depth >= 2, the ring window exists.
                         if level.child(n as u32) != NONE
                             && t >= 2 + DEPTH_OFFSET
@@ -831,6 +1008,26 @@ mod tests {
                         {
                             assert_ne!(expect, NONE, "conforming window broken at t={t}");
                         }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_deepest_level_derives_the_rows_the_others_store() {
+        for seed in 0..4 {
+            let tree = random_tree(seed, 2, 6);
+            let max = tree.levels.len() - 1;
+            for (t, level) in tree.levels.iter().enumerate().skip(1) {
+                assert_eq!(level.from_parent.is_some(), t == max && t > 1, "level {t}");
+                assert_eq!(level.rows.is_empty(), t == max && t > 1, "level {t}");
+                let rows = level.brood_rows();
+                assert_eq!(rows.len(), level.broods());
+                for (b, row) in rows.iter().enumerate() {
+                    assert_eq!(*row, *level.brood_row(b as u32));
+                    for (slot, &nb) in row.iter().enumerate() {
+                        assert_eq!(level.brood_nbr(b as u32, slot), nb);
                     }
                 }
             }

@@ -12,7 +12,8 @@ use rayon::prelude::*;
 use crate::bspline::Basis;
 use crate::gpu::Device;
 use crate::octree::{
-    brood_offset, func_index, neighbor_in, window_index, Level, Octree, DEPTH_OFFSET, NONE,
+    brood_offset, for_each_node, func_index, map_nodes, neighbor_in_row, window_index, BroodRow,
+    Level, Octree, DEPTH_OFFSET, NONE,
 };
 use crate::shared_slice::SharedSlice;
 use crate::system::{
@@ -145,13 +146,19 @@ impl<'a> Op<'a> {
 
     /// `Σ_j L_ij x_j` for row `n`, reading coefficients through `x`.
     #[inline]
-    fn stiffness_row(&self, n: u32, i: [i64; 3], x: &(impl Coefficients + ?Sized)) -> f64 {
+    fn stiffness_row(
+        &self,
+        nbrs: &BroodRow,
+        n: u32,
+        i: [i64; 3],
+        x: &(impl Coefficients + ?Sized),
+    ) -> f64 {
         if self.tab.range.interior(i, 3) {
-            return self.brood.row(self.level, n, |b| [x.brood(b as usize)]);
+            return self.brood.row(nbrs, n, |b| [x.brood(b as usize)]);
         }
         let mut s = 0.0;
         for &(w, o) in &self.win {
-            let m = neighbor_in(self.level, n, w);
+            let m = neighbor_in_row(nbrs, n, w);
             if m != NONE {
                 let xm = x.at(m as usize);
                 if xm != 0.0 {
@@ -165,8 +172,7 @@ impl<'a> Op<'a> {
     /// Calls `f(cluster, B_i(p_c))` for every screening cluster that touches function `i`
     /// (node `n`), brood by brood: one rank word per neighbouring brood gives its members.
     #[inline]
-    fn for_each_cluster(&self, n: u32, i: [i64; 3], mut f: impl FnMut(u32, f64)) {
-        let nbrs = &self.level.brood_nbrs[(n >> 3) as usize];
+    fn for_each_cluster(&self, nbrs: &BroodRow, n: u32, i: [i64; 3], mut f: impl FnMut(u32, f64)) {
         for &(slot, mask) in &self.cbroods[(n & 7) as usize] {
             let b = nbrs[usize::from(slot)];
             if b == NONE {
@@ -238,9 +244,10 @@ impl<'a> Op<'a> {
         let c = ((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2)) as usize;
         let ps = &tab.pstencil[c];
         let pv = &tab.pvstencil[c];
+        let row = parent_level.brood_row(par >> 3);
         for &w in &tab.pnonzero[c] {
             let w = usize::from(w);
-            let q = neighbor_in(parent_level, par, w);
+            let q = neighbor_in_row(&row, par, w);
             if q == NONE {
                 continue;
             }
@@ -285,9 +292,10 @@ impl<'a> Op<'a> {
                 vd[a][o] = tab.pvderiv.get(i[a], o as i64 - 2);
             }
         }
+        let row = parent_level.brood_row(par >> 3);
         for w in 0..125usize {
             let (ox, oy, oz) = (w % 5, (w / 5) % 5, w / 25);
-            let q = neighbor_in(parent_level, par, w);
+            let q = neighbor_in_row(&row, par, w);
             if q == NONE {
                 continue;
             }
@@ -314,18 +322,17 @@ impl<'a> Op<'a> {
     }
 
     fn diagonal(&self) -> Vec<f32> {
-        (0..self.level.len() as u32)
-            .into_par_iter()
-            .map(|n| {
-                let i = self.index(n);
-                if !self.tab.range.contains(i) {
-                    return 0.0;
-                }
-                let mut dg = self.tab.stiffness(i, [0, 0, 0]);
-                self.for_each_cluster(n, i, |c, bv| dg += self.cl.omega[c as usize] * bv * bv);
-                dg as f32
-            })
-            .collect()
+        map_nodes(self.level, |n, nbrs| {
+            let i = self.index(n);
+            if !self.tab.range.contains(i) {
+                return 0.0;
+            }
+            let mut dg = self.tab.stiffness(i, [0, 0, 0]);
+            self.for_each_cluster(nbrs, n, i, |c, bv| {
+                dg += self.cl.omega[c as usize] * bv * bv
+            });
+            dg as f32
+        })
     }
 
     /// χ_d at every cluster from the level's coefficients.
@@ -339,20 +346,17 @@ impl<'a> Op<'a> {
     /// `y = (L + S) x`.
     fn apply(&self, x: &[f64], valid: &[bool]) -> Vec<f64> {
         let chi = self.cluster_values(|n| x[n]);
-        (0..self.level.len() as u32)
-            .into_par_iter()
-            .map(|n| {
-                if !valid[n as usize] {
-                    return 0.0;
-                }
-                let i = self.index(n);
-                let mut s = self.stiffness_row(n, i, x);
-                self.for_each_cluster(n, i, |c, bv| {
-                    s += self.cl.omega[c as usize] * bv * chi[c as usize]
-                });
-                s
-            })
-            .collect()
+        map_nodes(self.level, |n, nbrs| {
+            if !valid[n as usize] {
+                return 0.0;
+            }
+            let i = self.index(n);
+            let mut s = self.stiffness_row(nbrs, n, i, x);
+            self.for_each_cluster(nbrs, n, i, |c, bv| {
+                s += self.cl.omega[c as usize] * bv * chi[c as usize]
+            });
+            s
+        })
     }
 
     /// The level's matrix `L + S` with one fixed-width row per node (the stiffness window's
@@ -385,8 +389,9 @@ impl<'a> Op<'a> {
                 }
                 let i = self.index(n);
                 let interior = self.tab.range.interior(i, 3);
+                let nbrs = self.level.brood_row(n >> 3);
                 for (slot, &(w, o)) in self.win.iter().enumerate() {
-                    let m = neighbor_in(self.level, n, w);
+                    let m = neighbor_in_row(&nbrs, n, w);
                     if m != NONE && valid[m as usize] {
                         cols[slot] = m;
                         vals[slot] = if interior {
@@ -396,7 +401,7 @@ impl<'a> Op<'a> {
                         };
                     }
                 }
-                self.for_each_cluster(n, i, |c, bv| {
+                self.for_each_cluster(&nbrs, n, i, |c, bv| {
                     let c = c as usize;
                     let w_c = self.cl.omega[c] * bv;
                     let f = self.cl.first[c];
@@ -458,17 +463,22 @@ impl<'a> Op<'a> {
         let cs = SharedSlice::new(&mut chi);
         for _ in 0..iters {
             for list in &blocks {
-                list.par_iter().for_each(|&(b0, b1)| {
+                list.par_iter().for_each_init(Vec::new, |rows, &(b0, b1)| {
+                    // The block's rows, made once for its node colours (the deepest level
+                    // derives them).
+                    rows.clear();
+                    rows.extend((b0..b1).map(|b| *self.level.brood_row(b)));
                     for c in 0..node_colours {
-                        for b in b0..b1 {
+                        for (b, nbrs) in (b0..b1).zip(rows.iter()) {
                             let k = self.child_of_colour(c, residues.get(b as usize));
                             if k == NO_CHILD {
                                 continue;
                             }
                             let n = 8 * b + u32::from(k);
+                            let (i, r) = (self.index(n), r[n as usize].into());
                             // SAFETY: only this block's task touches the coefficients and
                             // cluster values within two nodes of its nodes (above).
-                            unsafe { self.relax(n, self.index(n), r[n as usize].into(), &xs, &cs) };
+                            unsafe { self.relax(nbrs, n, i, r, &xs, &cs) };
                         }
                     }
                 });
@@ -548,6 +558,7 @@ impl<'a> Op<'a> {
     #[inline]
     unsafe fn relax(
         &self,
+        nbrs: &BroodRow,
         n: u32,
         i: [i64; 3],
         r: f64,
@@ -557,7 +568,7 @@ impl<'a> Op<'a> {
         if !self.tab.range.contains(i) {
             return;
         }
-        let mut s = self.stiffness_row(n, i, &Live(x));
+        let mut s = self.stiffness_row(nbrs, n, i, &Live(x));
         let mut dg = if self.tab.range.interior(i, 3) {
             self.tab.stencil[62]
         } else {
@@ -565,7 +576,7 @@ impl<'a> Op<'a> {
         };
         let mut touched: [(u32, f64); 27] = [(0, 0.0); 27];
         let mut k = 0;
-        self.for_each_cluster(n, i, |c, bv| {
+        self.for_each_cluster(nbrs, n, i, |c, bv| {
             let w = self.cl.omega[c as usize] * bv;
             s += w * chi.get(c as usize);
             dg += w * bv;
@@ -723,6 +734,7 @@ fn cluster_value(
     let f = cl.first[c];
     let v = &cl.vals[c];
     let k = i64::from(degree);
+    let row = level.brood_row(node >> 3);
     let mut s = 0.0;
     for z in 0..=k {
         for y in 0..=k {
@@ -732,8 +744,8 @@ fn cluster_value(
                     i64::from(f[1]) + y,
                     i64::from(f[2]) + z,
                 ];
-                let m = neighbor_in(
-                    level,
+                let m = neighbor_in_row(
+                    &row,
                     node,
                     window_index([j[0] - own[0], j[1] - own[1], j[2] - own[2]]),
                 );
@@ -828,13 +840,12 @@ fn conjugate_gradients(
 
 /// Right-hand side contributions from the clusters: `Σ_c ω_c B_i(p_c) (τ − coarse_c)`.
 fn add_screening_targets(op: &Op, r: &mut [f64]) {
-    r.par_iter_mut().enumerate().for_each(|(n, rn)| {
-        let n = n as u32;
+    for_each_node(op.level, r, |n, nbrs, rn| {
         let i = op.index(n);
         if !op.tab.range.contains(i) {
             return;
         }
-        op.for_each_cluster(n, i, |c, bv| {
+        op.for_each_cluster(nbrs, n, i, |c, bv| {
             *rn += op.cl.omega[c as usize] * bv * TAU;
         });
     });
@@ -1256,15 +1267,14 @@ fn right_hand_side(
     }
     let coarse_chi = coarse_cluster_values(op, fem, pc);
     // Each row reads only its own constraint: the right-hand side is written over them.
-    tcons.par_iter_mut().enumerate().for_each(|(n, row)| {
-        let n = n as u32;
+    for_each_node(op.level, &mut tcons, |n, nbrs, row| {
         let i = op.index(n);
         if !op.tab.range.contains(i) {
             *row = 0.0;
             return;
         }
         let mut s = op.add_coarse_coupling::<true, true>(f64::from(*row), n, i, pc, vc);
-        op.for_each_cluster(n, i, |c, bv| {
+        op.for_each_cluster(nbrs, n, i, |c, bv| {
             s += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
         });
         if !u.is_empty() {
@@ -1356,6 +1366,7 @@ pub fn coarse_value(
     let wy = fem.window(d, pos[1]);
     let wz = fem.window(d, pos[2]);
     let k = i64::from(fem.degree.get());
+    let row = level.brood_row(node >> 3);
     let mut s = 0.0;
     for z in 0..=k {
         for y in 0..=k {
@@ -1365,7 +1376,7 @@ pub fn coarse_value(
                     wy.first + y - own[1],
                     wz.first + z - own[2],
                 ];
-                let m = neighbor_in(level, node, window_index(o));
+                let m = neighbor_in_row(&row, node, window_index(o));
                 if m == NONE {
                     continue;
                 }

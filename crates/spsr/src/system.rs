@@ -11,8 +11,8 @@ use crate::shared_slice::split_into;
 
 use crate::bspline::{table, Basis, Integrand, Table1D};
 use crate::octree::{
-    brood_offset, func_index, neighbor_in, window_index, Level, NodeRank, Octree, DEPTH_OFFSET,
-    NONE,
+    brood_offset, for_each_node, func_index, neighbor_in_row, window_index, BroodRow, Level,
+    NodeRank, Octree, DEPTH_OFFSET, NONE,
 };
 use crate::shared_slice::SharedSlice;
 
@@ -340,8 +340,7 @@ impl<const K: usize> BroodStencil<K> {
     /// gives the `K` values of brood `b`'s eight nodes. Lane `l` sums the `l`-th nodes of the
     /// broods; the lanes are added pairwise in a fixed order.
     #[inline]
-    pub fn row(&self, level: &Level, n: u32, brood: impl Fn(u32) -> [[f64; 8]; K]) -> f64 {
-        let nbrs = &level.brood_nbrs[(n >> 3) as usize];
+    pub fn row(&self, nbrs: &BroodRow, n: u32, brood: impl Fn(u32) -> [[f64; 8]; K]) -> f64 {
         let mut acc = [0.0f64; 8];
         for (slot, coef) in &self.rows[(n & 7) as usize] {
             let b = nbrs[usize::from(*slot)];
@@ -624,7 +623,7 @@ pub fn divergence_constraints(
     // An empty `G_{t+1}` is the zero one (see the end).
     let g_finer = g_finer.filter(|g| !g.is_empty());
     let vbrood = BroodStencil::new([&tab.vstencil[0], &tab.vstencil[1], &tab.vstencil[2]]);
-    let row = |n: u32| {
+    let row = |n: u32, nbrs: &BroodRow| {
         let i = func_index(level.key(n), d);
         if !tab.range.contains(i) {
             return (0.0, 0.0);
@@ -636,10 +635,10 @@ pub fn divergence_constraints(
         }
         let mut b = g;
         if !v.is_empty() && interior {
-            b += vbrood.row(level, n, |m| v_brood(v, m));
+            b += vbrood.row(nbrs, n, |m| v_brood(v, m));
         } else if !v.is_empty() {
             for w in 0..125 {
-                let m = neighbor_in(level, n, w);
+                let m = neighbor_in_row(nbrs, n, w);
                 if m == NONE {
                     continue;
                 }
@@ -664,13 +663,23 @@ pub fn divergence_constraints(
         }
         (g, b as f32)
     };
-    let rows = (0..level.len() as u32).into_par_iter();
+    let mut t_out = vec![0.0f32; level.len()];
     if pushed.is_empty() && g_finer.is_none() {
         // No finer V: `G_t` is zero, and is not stored (at the finest level it would be the
         // largest array alive while the constraints are made).
-        (Vec::new(), rows.map(|n| row(n).1).collect())
+        for_each_node(level, &mut t_out, |n, nbrs, t| *t = row(n, nbrs).1);
+        (Vec::new(), t_out)
     } else {
-        rows.map(row).unzip()
+        let mut g_out = vec![0.0f64; level.len()];
+        (g_out.par_chunks_mut(8).zip(t_out.par_chunks_mut(8)))
+            .enumerate()
+            .for_each(|(b, (g, t))| {
+                let nbrs = level.brood_row(b as u32);
+                for (k, (g, t)) in g.iter_mut().zip(t).enumerate() {
+                    (*g, *t) = row(8 * b as u32 + k as u32, &nbrs);
+                }
+            });
+        (g_out, t_out)
     }
 }
 
@@ -728,6 +737,7 @@ fn push_finer_v(
         list.par_iter().with_min_len(64).for_each(|&b| {
             let p = next.brood_parent[b as usize];
             let ip = func_index(level.key(p), d);
+            let row = level.brood_row(p >> 3);
             for c in 0..8u32 {
                 let vf = v_finer[(b * 8 + c) as usize];
                 if vf == [0.0; 3] {
@@ -762,8 +772,8 @@ fn push_finer_v(
                             if val == 0.0 {
                                 continue;
                             }
-                            let q = neighbor_in(
-                                level,
+                            let q = neighbor_in_row(
+                                &row,
                                 p,
                                 window_index([rel[0][x], rel[1][y], rel[2][z]]),
                             );
@@ -801,12 +811,13 @@ pub(crate) fn restrict_one(
         cnt[a] = basis.children(d, i[a], &mut ch[a]);
     }
     let mut s = 0.0;
+    let row = level.brood_row(n >> 3);
     for cz in &ch[2][..cnt[2]] {
         for cy in &ch[1][..cnt[1]] {
             for cx in &ch[0][..cnt[0]] {
                 let j = [cx.0, cy.0, cz.0];
                 let o = [(j[0] >> 1) - i[0], (j[1] >> 1) - i[1], (j[2] >> 1) - i[2]];
-                let m = neighbor_in(level, n, window_index(o));
+                let m = neighbor_in_row(&row, n, window_index(o));
                 if m == NONE {
                     continue;
                 }
@@ -892,6 +903,7 @@ fn prolong_one<const K: usize>(
     }
     let mut acc = add();
     let p = level.brood_parent[(n >> 3) as usize];
+    let row = parent_level.brood_row(p >> 3);
     for oz in -1..=1i64 {
         let wz = weights.get(j[2], oz);
         if wz == 0.0 {
@@ -907,7 +919,7 @@ fn prolong_one<const K: usize>(
                 if wx == 0.0 {
                     continue;
                 }
-                let q = neighbor_in(parent_level, p, window_index([ox, oy, oz]));
+                let q = neighbor_in_row(&row, p, window_index([ox, oy, oz]));
                 if q == NONE {
                     continue;
                 }

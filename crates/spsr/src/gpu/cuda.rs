@@ -213,16 +213,17 @@ impl Device {
     /// The neighbour table of depth `depth`, a copy of `host`: copied by `copy` the first
     /// time, then the same array on the card. The constraints copy each level's neighbour
     /// tables and keys, and the solve reads them again (and each level's as its children's
-    /// parent table), so that they cross the bus once. The host array is known by its address
-    /// and length, which cannot change while the tree that holds them lives; the record is
-    /// cleared before each run's constraints, so that a later tree cannot match.
-    fn tables<T>(
+    /// parent table), so that they cross the bus once. The host array is known by `id`, its
+    /// address and length (for the rows a level derives, those of what it derives them from:
+    /// `octree::Level::brood_rows_identity`), which cannot change while the tree that holds
+    /// them lives; the record is cleared before each run's constraints, so that a later tree
+    /// cannot match.
+    fn tables(
         &self,
         depth: u32,
-        host: &[T],
+        id: (usize, usize),
         copy: impl FnOnce() -> Result<CudaSlice<u32>, DriverError>,
     ) -> Result<Arc<CudaSlice<u32>>, DriverError> {
-        let id = (host.as_ptr() as usize, host.len());
         let mut tables = self.tables.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(t) = tables.iter().find(|t| t.depth == depth && t.host == id) {
             return Ok(t.dev.clone());
@@ -243,10 +244,10 @@ impl Device {
         shape: &LevelShape,
     ) -> Result<(Arc<CudaSlice<u32>>, Arc<CudaSlice<u32>>), DriverError> {
         let s = &self.stream;
-        let nbrs = self.tables(shape.depth, shape.brood_nbrs, || {
+        let nbrs = self.tables(shape.depth, shape.brood_nbrs_id, || {
             self.staging.upload(s, shape.brood_nbrs.as_flattened())
         })?;
-        let keys = self.tables(shape.depth, shape.brood_key, || {
+        let keys = self.tables(shape.depth, slice_id(shape.brood_key), || {
             self.staging.upload(s, shape.brood_key.as_flattened())
         })?;
         Ok((nbrs, keys))
@@ -296,10 +297,10 @@ impl Device {
         let s = &self.stream;
         let (nbrs, keys) = self.shape_tables(&sys.shape)?;
         let parent_depth = sys.shape.depth.saturating_sub(1);
-        let parent_nbrs = self.tables(parent_depth, sys.parent_nbrs, || {
+        let parent_nbrs = self.tables(parent_depth, sys.parent_nbrs_id, || {
             self.staging.upload(s, sys.parent_nbrs.as_flattened())
         })?;
-        let parent_keys = self.tables(parent_depth, sys.parent_keys, || {
+        let parent_keys = self.tables(parent_depth, slice_id(sys.parent_keys), || {
             self.staging.upload(s, sys.parent_keys.as_flattened())
         })?;
         let res = Resident {
@@ -1011,7 +1012,7 @@ impl Device {
             if !sys.u.is_empty() {
                 let clock = Instant::now();
                 let u = self.staging.upload(s, sys.u)?;
-                let children = self.tables(sys.parent.depth, sys.children, || {
+                let children = self.tables(sys.parent.depth, slice_id(sys.children), || {
                     self.staging.upload(s, sys.children)
                 })?;
                 let (ch_count, ch_j, ch_w) =
@@ -1178,4 +1179,9 @@ fn keep_freed_memory(ctx: &Arc<CudaContext>) {
 
 fn driver(what: &str, e: DriverError) -> String {
     format!("{what}: CUDA error {e}")
+}
+
+/// A host array's address and length, which name its copy on the card ([`Device::tables`]).
+fn slice_id<T>(host: &[T]) -> (usize, usize) {
+    (host.as_ptr() as usize, host.len())
 }

@@ -115,14 +115,18 @@ pub struct GpuRelaxation {
 #[cfg(feature = "gpu")]
 /// One octree depth's nodes as every kernel reads them: their depth and count, where they lie
 /// and who their neighbours are, and the range of their function indices.
-#[derive(Clone, Copy)]
+#[derive(Clone)]
 pub struct LevelShape<'a> {
     /// Unit-cube depth of the level (a node's function index is its key minus `2^depth`).
     pub depth: u32,
     /// Nodes of the level.
     pub nodes: usize,
-    /// The 27 broods around each brood (`octree::Level::brood_nbrs`).
-    pub brood_nbrs: &'a [[u32; 27]],
+    /// The 27 broods around each brood (`octree::Level::brood_rows`: made for the copy
+    /// where the level derives them).
+    pub brood_nbrs: std::borrow::Cow<'a, [[u32; 27]]>,
+    /// What the rows are made from (`octree::Level::brood_rows_identity`), which names the
+    /// card's copy.
+    pub brood_nbrs_id: (usize, usize),
     /// The key of each brood's parent (`octree::Level::key`).
     pub brood_key: &'a [[u32; 3]],
     /// Lowest function index per axis.
@@ -173,7 +177,9 @@ pub struct LevelSystem<'a> {
     /// The parent node of each brood.
     pub brood_parent: &'a [u32],
     /// The parent level's 27 broods around each brood.
-    pub parent_nbrs: &'a [[u32; 27]],
+    pub parent_nbrs: std::borrow::Cow<'a, [[u32; 27]]>,
+    /// What the parent level's rows are made from (`octree::Level::brood_rows_identity`).
+    pub parent_nbrs_id: (usize, usize),
     /// The key of each of the parent level's broods' parent (`octree::Level::key`).
     pub parent_keys: &'a [[u32; 3]],
     /// Interior parent stiffness stencils by child parity (`DepthTables::pstencil`).

@@ -8,7 +8,9 @@ use super::Implicit;
 use crate::attributes::Attribute;
 use crate::evaluate::{CornerField, Evaluator};
 use crate::extract::{extract_blocks, Blocks, Cells, ExtractOptions};
-use crate::octree::{func_index, neighbor_in, window_index, Octree, DEPTH_OFFSET, NONE};
+use crate::octree::{
+    func_index, neighbor_in, neighbor_in_row, window_index, Octree, DEPTH_OFFSET, NONE,
+};
 use crate::{Mesh, Params, Result};
 
 /// Extracts the mesh of the implicit function (stage 8). Without attributes, the tree and the
@@ -211,13 +213,14 @@ impl Cells for TreeCells<'_> {
         if next.is_none() {
             return 0;
         }
+        let row = level.brood_row(n >> 3);
         for s in 0..27u32 {
             let o = [
                 i64::from(s % 3) - 1,
                 i64::from((s / 3) % 3) - 1,
                 i64::from(s / 9) - 1,
             ];
-            let m = neighbor_in(level, n, window_index(o));
+            let m = neighbor_in_row(&row, n, window_index(o));
             if m != NONE && level.child(m) != NONE {
                 mask |= 1 << s;
             }

@@ -33,7 +33,7 @@ use super::{
     coarse_cluster_values, prolong_field, prolong_solution, remove_mean, to_f32, BaseSystem, Carry,
     Laps, Op, Problem, Solution, TAU,
 };
-use crate::octree::{neighbor_in, DEPTH_OFFSET, NONE};
+use crate::octree::{for_each_node, map_nodes, neighbor_in_row, DEPTH_OFFSET, NONE};
 use crate::shared_slice::SharedSlice;
 use crate::system::restrict_one;
 use crate::Solver;
@@ -405,29 +405,21 @@ impl<'a> Cycles<'a> {
             let pc = &self.pcum[t - 1];
             let coarse_chi = coarse_cluster_values(op, self.p.fem, pc);
             let b = &self.b[t];
-            let rhs: Vec<f64> = (0..op.level.len() as u32)
-                .into_par_iter()
-                .map(|n| {
-                    let i = op.index(n);
-                    if !op.tab.range.contains(i) {
-                        return 0.0;
-                    }
-                    let mut s = op.add_coarse_coupling::<true, false>(
-                        f64::from(b[n as usize]),
-                        n,
-                        i,
-                        pc,
-                        &[],
-                    );
-                    op.for_each_cluster(n, i, |c, bv| {
-                        s -= op.cl.omega[c as usize] * bv * coarse_chi[c as usize];
-                    });
-                    if !u_next.is_empty() {
-                        s -= u_next[n as usize];
-                    }
-                    s
-                })
-                .collect();
+            let rhs: Vec<f64> = map_nodes(op.level, |n, nbrs| {
+                let i = op.index(n);
+                if !op.tab.range.contains(i) {
+                    return 0.0;
+                }
+                let b = f64::from(b[n as usize]);
+                let mut s = op.add_coarse_coupling::<true, false>(b, n, i, pc, &[]);
+                op.for_each_cluster(nbrs, n, i, |c, bv| {
+                    s -= op.cl.omega[c as usize] * bv * coarse_chi[c as usize];
+                });
+                if !u_next.is_empty() {
+                    s -= u_next[n as usize];
+                }
+                s
+            });
             r2 += residual_squared(op, &rhs, &self.x[t]);
             b2 += norm2(&b.iter().map(|&x| f64::from(x)).collect::<Vec<_>>());
             u_next = self.coupling_below(t, &u_next);
@@ -676,23 +668,26 @@ pub(super) fn right_hand_sides(
     }
     let coarse_chi = coarse_cluster_values(op, fem, pc);
     let mut fixed = vec![0.0f32; tcons.len()];
-    (tcons.par_iter_mut().zip(fixed.par_iter_mut()))
+    (tcons.par_chunks_mut(8).zip(fixed.par_chunks_mut(8)))
         .enumerate()
-        .for_each(|(n, (row, fixed))| {
-            let n = n as u32;
-            let i = op.index(n);
-            if !op.tab.range.contains(i) {
-                *row = 0.0;
-                return;
+        .for_each(|(brood, (rows, fixed))| {
+            let nbrs = op.level.brood_row(brood as u32);
+            for (k, (row, fixed)) in rows.iter_mut().zip(fixed).enumerate() {
+                let n = 8 * brood as u32 + k as u32;
+                let i = op.index(n);
+                if !op.tab.range.contains(i) {
+                    *row = 0.0;
+                    continue;
+                }
+                let t = f64::from(*row);
+                let [mut r, mut b] = op.coarse_coupling::<true, true, true>([t, t], n, i, pc, vc);
+                op.for_each_cluster(&nbrs, n, i, |c, bv| {
+                    r += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
+                    b += op.cl.omega[c as usize] * bv * TAU;
+                });
+                *row = r as f32;
+                *fixed = b as f32;
             }
-            let t = f64::from(*row);
-            let [mut r, mut b] = op.coarse_coupling::<true, true, true>([t, t], n, i, pc, vc);
-            op.for_each_cluster(n, i, |c, bv| {
-                r += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
-                b += op.cl.omega[c as usize] * bv * TAU;
-            });
-            *row = r as f32;
-            *fixed = b as f32;
         });
     (tcons, fixed)
 }
@@ -713,8 +708,7 @@ pub(super) fn cycle_right_hand_side(
         return r;
     }
     let coarse_chi = coarse_cluster_values(op, fem, pc);
-    b.par_iter_mut().enumerate().for_each(|(n, row)| {
-        let n = n as u32;
+    for_each_node(op.level, &mut b, |n, nbrs, row| {
         let i = op.index(n);
         if !op.tab.range.contains(i) {
             *row = 0.0;
@@ -722,7 +716,7 @@ pub(super) fn cycle_right_hand_side(
         }
         let mut s = f64::from(*row);
         s = op.add_coarse_coupling::<true, false>(s, n, i, pc, &[]);
-        op.for_each_cluster(n, i, |c, bv| {
+        op.for_each_cluster(nbrs, n, i, |c, bv| {
             s -= op.cl.omega[c as usize] * bv * coarse_chi[c as usize];
         });
         if !u.is_empty() {
@@ -736,20 +730,17 @@ pub(super) fn cycle_right_hand_side(
 /// `Σ_n (r_n − ((L + S) x)_n)²` over the level's functions, summed in a fixed order.
 fn residual_squared<R: Copy + Into<f64> + Sync>(op: &Op, r: &[R], x: &[f32]) -> f64 {
     let chi = op.cluster_values(|n| f64::from(x[n]));
-    let res: Vec<f64> = (0..op.level.len() as u32)
-        .into_par_iter()
-        .map(|n| {
-            let i = op.index(n);
-            if !op.tab.range.contains(i) {
-                return 0.0;
-            }
-            let mut s = op.stiffness_row(n, i, x);
-            op.for_each_cluster(n, i, |c, bv| {
-                s += op.cl.omega[c as usize] * bv * chi[c as usize];
-            });
-            r[n as usize].into() - s
-        })
-        .collect();
+    let res: Vec<f64> = map_nodes(op.level, |n, nbrs| {
+        let i = op.index(n);
+        if !op.tab.range.contains(i) {
+            return 0.0;
+        }
+        let mut s = op.stiffness_row(nbrs, n, i, x);
+        op.for_each_cluster(nbrs, n, i, |c, bv| {
+            s += op.cl.omega[c as usize] * bv * chi[c as usize];
+        });
+        r[n as usize].into() - s
+    });
     norm2(&res)
 }
 
@@ -849,6 +840,7 @@ impl Op<'_> {
     fn for_each_parent_stiffness(&self, i: [i64; 3], par: u32, mut f: impl FnMut(u32, f64)) {
         let tab = self.tab;
         let parent_level = &self.tree.levels[self.t as usize - 1];
+        let row = parent_level.brood_row(par >> 3);
         if tab.is_interior(i) {
             let c = ((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2)) as usize;
             let ps = &tab.pstencil[c];
@@ -857,7 +849,7 @@ impl Op<'_> {
                 if ps[w] == 0.0 {
                     continue;
                 }
-                let q = neighbor_in(parent_level, par, w);
+                let q = neighbor_in_row(&row, par, w);
                 if q != NONE {
                     f(q, ps[w]);
                 }
@@ -880,7 +872,7 @@ impl Op<'_> {
             if k == 0.0 {
                 continue;
             }
-            let q = neighbor_in(parent_level, par, w);
+            let q = neighbor_in_row(&row, par, w);
             if q != NONE {
                 f(q, k);
             }
@@ -904,20 +896,17 @@ pub(super) fn apply_stiffness(p: &Problem, xs: &[Vec<f32>]) -> Vec<Vec<f64>> {
         let op = ops[t].as_ref().expect("op");
         let x = &xs[t];
         let prev = pcum.clone();
-        let y: Vec<f64> = (0..op.level.len() as u32)
-            .into_par_iter()
-            .map(|n| {
-                let i = op.index(n);
-                if !op.tab.range.contains(i) {
-                    return 0.0;
-                }
-                let mut s = op.stiffness_row(n, i, &x[..]);
-                if t > tb {
-                    s -= op.add_coarse_coupling::<true, false>(0.0, n, i, &prev, &[]);
-                }
-                s
-            })
-            .collect();
+        let y: Vec<f64> = map_nodes(op.level, |n, nbrs| {
+            let i = op.index(n);
+            if !op.tab.range.contains(i) {
+                return 0.0;
+            }
+            let mut s = op.stiffness_row(nbrs, n, i, &x[..]);
+            if t > tb {
+                s -= op.add_coarse_coupling::<true, false>(0.0, n, i, &prev, &[]);
+            }
+            s
+        });
         out[t] = y;
         if t > tb && t < max {
             pcum = prolong_solution(op, &prev, x);
