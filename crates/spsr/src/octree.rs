@@ -644,22 +644,23 @@ impl Octree {
             len: 1,
             ..Level::default()
         });
-        // The codes of the current level's broods' parents (the root's code for level 1).
-        let mut broods: Vec<u64> = Vec::new();
+        // Each level's broods are located one level ahead, so that the deepest level is known
+        // before its rows would be made.
+        let root = req.refined[0].binary_search(&0).is_ok();
+        let mut located = if root {
+            (vec![0], vec![0])
+        } else {
+            (vec![], vec![])
+        };
         for t in 1..=max_t {
-            let refined = &req.refined[t as usize - 1];
-            let (parents, codes) = if t == 1 {
-                let root = refined.binary_search(&0).is_ok();
-                (
-                    if root { vec![0] } else { vec![] },
-                    if root { vec![0] } else { vec![] },
-                )
-            } else {
-                locate(refined, &broods)
-            };
+            let (parents, codes) = std::mem::take(&mut located);
             if parents.is_empty() {
                 break;
             }
+            if t < max_t {
+                located = locate(&req.refined[t as usize], &codes);
+            }
+            let deepest = located.0.is_empty();
             let prev = &mut levels[t as usize - 1];
             prev.child = child_array(prev.len, &parents).into();
             let prev = &levels[t as usize - 1];
@@ -668,7 +669,7 @@ impl Octree {
                 let mut row = [NONE; 27];
                 row[13] = 0;
                 (Arc::from(vec![row]), None)
-            } else if t == max_t && prev.from_parent.is_none() {
+            } else if deepest && prev.from_parent.is_none() {
                 let from = FromParent {
                     rows: prev.rows.clone(),
                     child: prev.child.clone(),
@@ -686,7 +687,6 @@ impl Octree {
                 rows,
                 from_parent,
             });
-            broods = codes;
         }
         Octree { levels }
     }
