@@ -103,16 +103,20 @@ impl std::ops::Deref for RowRef<'_> {
 /// holds the children of `p`'s neighbour at the slot's offset.
 #[inline]
 fn row_of_children(prow: &[u32; 27], child: &[u32], p: u32) -> [u32; 27] {
+    std::array::from_fn(|slot| slot_of_children(prow, child, p, slot))
+}
+
+/// Slot `slot` of [`row_of_children`] alone.
+#[inline]
+fn slot_of_children(prow: &[u32; 27], child: &[u32], p: u32, slot: usize) -> u32 {
     let c = (p & 7) as usize;
-    let mut out = [NONE; 27];
-    for (o, &w) in out.iter_mut().zip(&SLOT_WINDOW) {
-        let w = usize::from(w);
-        let pb = prow[usize::from(WINDOW.slot[c][w])];
-        if pb != NONE {
-            *o = child[(pb * 8 + u32::from(WINDOW.bits[c][w])) as usize];
-        }
+    let w = usize::from(SLOT_WINDOW[slot]);
+    let pb = prow[usize::from(WINDOW.slot[c][w])];
+    if pb == NONE {
+        NONE
+    } else {
+        child[(pb * 8 + u32::from(WINDOW.bits[c][w])) as usize]
     }
-    out
 }
 
 impl Level {
@@ -197,14 +201,7 @@ impl Level {
             return NONE;
         };
         let p = self.brood_parent[b as usize];
-        let c = (p & 7) as usize;
-        let w = usize::from(SLOT_WINDOW[slot]);
-        let pb = from.rows[(p >> 3) as usize][usize::from(WINDOW.slot[c][w])];
-        if pb == NONE {
-            NONE
-        } else {
-            from.child[(pb * 8 + u32::from(WINDOW.bits[c][w])) as usize]
-        }
+        slot_of_children(&from.rows[(p >> 3) as usize], &from.child, p, slot)
     }
 
     /// The row ([`Level::brood_row`]) of node `p`'s children at the next level.
