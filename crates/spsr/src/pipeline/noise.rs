@@ -378,19 +378,64 @@ impl Depth {
     }
 }
 
-/// The patch of each cell's 3×3×3 neighbourhood at depth `d`, where it holds enough samples;
-/// the depth's moments are released once read.
+/// What the measure keeps of one depth's patches. A plane is never fitted at the finest
+/// depth, whose patches are read only as the next finer neighbourhood of a coarser plane's
+/// cell, for whether they are bent; so there only that bit is kept (the finest depth holds
+/// most of the cells, and a patch with its plane is a hundred bytes).
+enum Kept {
+    Patches(Vec<Option<Patch>>),
+    Bent(Vec<bool>),
+}
+
+impl Kept {
+    /// The plane of cell `k`'s neighbourhood, if it is flat (never at the finest depth).
+    fn plane(&self, k: usize) -> Option<&Plane> {
+        match self {
+            Kept::Patches(p) => p[k].as_ref().and_then(Patch::plane),
+            Kept::Bent(_) => None,
+        }
+    }
+
+    /// Whether cell `k`'s neighbourhood held enough samples and was not flat.
+    fn bent(&self, k: usize) -> bool {
+        match self {
+            Kept::Patches(p) => matches!(p[k], Some(Patch::Bent)),
+            Kept::Bent(b) => b[k],
+        }
+    }
+}
+
+/// The patches of depth `d` (see [`patches`]), kept as [`Kept`] says for a depth that is the
+/// finest or not.
+fn kept_patches(depths: &mut [Depth], d: usize) -> Kept {
+    if d + 1 == depths.len() {
+        Kept::Bent(patches(depths, d, |p| matches!(p, Some(Patch::Bent))))
+    } else {
+        Kept::Patches(patches(depths, d, |p| p))
+    }
+}
+
+/// `keep` of the patch of each cell's 3×3×3 neighbourhood at depth `d`, where it holds enough
+/// samples; the depth's moments are released once read.
 ///
 /// The neighbours are found parent by parent: the children of the parent's 3×3×3 neighbours
 /// (one lookup each) fill a 6×6×6 grid, which holds the neighbourhood of every child of the
 /// parent. That is a quarter of the lookups of finding each cell's 27 neighbours on its own,
 /// and the sums are the same, in the same order. Only depth `d`'s moments are read (and
 /// released), so the depths may be taken in any order.
-fn patches(depths: &mut [Depth], d: usize) -> Vec<Option<Patch>> {
+fn patches<T: Send>(
+    depths: &mut [Depth],
+    d: usize,
+    keep: impl Fn(Option<Patch>) -> T + Sync,
+) -> Vec<T> {
     let out = if d == 0 {
-        depths[0].moments.iter().map(|(m, n)| m.patch(*n)).collect()
+        depths[0]
+            .moments
+            .iter()
+            .map(|(m, n)| keep(m.patch(*n)))
+            .collect()
     } else {
-        let (up, here) = (&depths[d - 1], &depths[d]);
+        let (up, here, keep) = (&depths[d - 1], &depths[d], &keep);
         (0..up.codes.len())
             .into_par_iter()
             .flat_map_iter(|p| {
@@ -404,7 +449,7 @@ fn patches(depths: &mut [Depth], d: usize) -> Vec<Option<Patch>> {
                         m.add(qm);
                         n += qn;
                     });
-                    m.patch(n)
+                    keep(m.patch(n))
                 })
             })
             .collect()
@@ -514,8 +559,9 @@ fn depths(samples: &[Sample], top: u32) -> (Vec<Depth>, Vec<(u64, u32)>) {
 /// order and positions alone.
 pub fn measure(samples: &[Sample], top: u32) -> Measured {
     let (mut depths, sorted) = depths(samples, top);
-    let flat: Vec<Vec<Option<Patch>>> =
-        (0..depths.len()).map(|d| patches(&mut depths, d)).collect();
+    let flat: Vec<Kept> = (0..depths.len())
+        .map(|d| kept_patches(&mut depths, d))
+        .collect();
     let mut code_of = vec![0u64; samples.len()];
     for &(c, i) in &sorted {
         code_of[i as usize] = c;
@@ -534,10 +580,7 @@ pub fn measure(samples: &[Sample], top: u32) -> Measured {
         .map(|i| {
             (1..top).rev().find_map(|d| {
                 let k = cell_at(i, d);
-                flat[d as usize][k]
-                    .as_ref()
-                    .and_then(Patch::plane)
-                    .map(|_| (d, k as u32))
+                flat[d as usize].plane(k).map(|_| (d, k as u32))
             })
         })
         .collect();
@@ -547,13 +590,7 @@ pub fn measure(samples: &[Sample], top: u32) -> Measured {
     let resolved: Vec<bool> = home
         .par_iter()
         .enumerate()
-        .map(|(i, h)| {
-            h.is_some_and(|(d, _)| {
-                flat[d as usize + 1][cell_at(i, d + 1)]
-                    .as_ref()
-                    .is_some_and(|p| p.plane().is_none())
-            })
-        })
+        .map(|(i, h)| h.is_some_and(|(d, _)| flat[d as usize + 1].bent(cell_at(i, d + 1))))
         .collect();
     // The noise of every cell some sample's plane was fitted at.
     let mut wanted: Vec<(u32, u32)> = home.iter().flatten().copied().collect();
@@ -563,10 +600,7 @@ pub fn measure(samples: &[Sample], top: u32) -> Measured {
         .par_iter()
         .map(|&(d, k)| {
             let depth = &depths[d as usize];
-            let plane = flat[d as usize][k as usize]
-                .as_ref()
-                .and_then(Patch::plane)
-                .expect("a flat cell");
+            let plane = flat[d as usize].plane(k as usize).expect("a flat cell");
             let w = 1.0 / (1u64 << d) as f64;
             let mut fit = QuadricFit::default();
             for_each_neighbour(depth.cell(k as usize), |q| {
