@@ -337,7 +337,7 @@ impl<'a> Op<'a> {
 
     /// χ_d at every cluster from the level's coefficients.
     fn cluster_values(&self, x: impl Fn(usize) -> f64 + Sync) -> Vec<f64> {
-        (0..self.cl.pos.len())
+        (0..self.cl.len())
             .into_par_iter()
             .map(|c| cluster_value(self.level, self.cl, c, self.d, self.degree, &x))
             .collect()
@@ -404,22 +404,19 @@ impl<'a> Op<'a> {
                 self.for_each_cluster(&nbrs, n, i, |c, bv| {
                     let c = c as usize;
                     let w_c = self.cl.omega[c] * bv;
-                    let f = self.cl.first[c];
-                    let v = &self.cl.vals[c];
+                    let f = self.cl.first(c, i);
+                    let v = |a, k| f64::from(self.cl.axis_value(c, a, k));
                     for z in 0..=k {
                         for y in 0..=k {
                             for x in 0..=k {
                                 let o = [
-                                    i64::from(f[0]) + x as i64 - i[0],
-                                    i64::from(f[1]) + y as i64 - i[1],
-                                    i64::from(f[2]) + z as i64 - i[2],
+                                    f[0] + x as i64 - i[0],
+                                    f[1] + y as i64 - i[1],
+                                    f[2] + z as i64 - i[2],
                                 ];
                                 let slot = slot_of[window_index(o)];
                                 if slot != usize::MAX && cols[slot] != NONE {
-                                    vals[slot] += w_c
-                                        * f64::from(v[0][x])
-                                        * f64::from(v[1][y])
-                                        * f64::from(v[2][z]);
+                                    vals[slot] += w_c * v(0, x) * v(1, y) * v(2, z);
                                 }
                             }
                         }
@@ -731,19 +728,15 @@ fn cluster_value(
 ) -> f64 {
     let node = cl.node[c];
     let own = func_index(level.key(node), d);
-    let f = cl.first[c];
-    let v = &cl.vals[c];
+    let f = cl.first(c, own);
+    let v = |a, k: i64| f64::from(cl.axis_value(c, a, k as usize));
     let k = i64::from(degree);
     let row = level.brood_row(node >> 3);
     let mut s = 0.0;
     for z in 0..=k {
         for y in 0..=k {
             for xx in 0..=k {
-                let j = [
-                    i64::from(f[0]) + xx,
-                    i64::from(f[1]) + y,
-                    i64::from(f[2]) + z,
-                ];
+                let j = [f[0] + xx, f[1] + y, f[2] + z];
                 let m = neighbor_in_row(
                     &row,
                     node,
@@ -752,10 +745,7 @@ fn cluster_value(
                 if m == NONE {
                     continue;
                 }
-                s += f64::from(v[0][xx as usize])
-                    * f64::from(v[1][y as usize])
-                    * f64::from(v[2][z as usize])
-                    * x(m as usize);
+                s += v(0, xx) * v(1, y) * v(2, z) * x(m as usize);
             }
         }
     }
@@ -1288,7 +1278,7 @@ fn right_hand_side(
 /// The coarser solution `χ_{<d}` at each cluster of the level, from the cumulative
 /// coefficients `pc` of the parent level.
 fn coarse_cluster_values(op: &Op, fem: Basis, pc: &[f64]) -> Vec<f64> {
-    (0..op.cl.pos.len())
+    (0..op.cl.len())
         .into_par_iter()
         .map(|c| {
             let node = op.cl.node[c];

@@ -369,29 +369,90 @@ pub struct Clusters {
     pub pos: Vec<[f64; 3]>,
     /// Screening weight ω = α Ā 2^d W.
     pub omega: Vec<f64>,
-    /// Per axis, the first FEM index whose support contains the position, and the values of
-    /// the `degree + 1` functions from there.
-    pub first: Vec<[i32; 3]>,
-    /// Basis values per axis (see `first`).
-    pub vals: Vec<[[f32; 3]; 3]>,
+    /// Per axis, the first FEM index whose support contains the position, modulo 256: every
+    /// index a cluster meets lies within a few of it, and recovers it ([`Clusters::first`]).
+    /// (Issue 20: a quarter of the bytes of full indices, and the clusters are a third of
+    /// the solve's memory.)
+    first: Vec<[u8; 3]>,
+    /// Per axis, the values of the `degree + 1` functions from `first`, single precision:
+    /// `3 (degree + 1)` per cluster, axis by axis.
+    vals: Vec<f32>,
+    /// Values per axis, `degree + 1`.
+    per_axis: usize,
 }
 
 impl Clusters {
+    /// Number of clusters.
+    pub fn len(&self) -> usize {
+        self.node.len()
+    }
+
+    /// Per axis, the first FEM index of cluster `c`'s window, from any index `near` within
+    /// 127 of it (a function the cluster touches, or the cluster's own node's).
+    #[inline]
+    pub fn first(&self, c: usize, near: [i64; 3]) -> [i64; 3] {
+        let f = self.first[c];
+        std::array::from_fn(|a| near[a] + i64::from(offset_mod_256(f[a], near[a])))
+    }
+
+    /// Value of function `k` (from [`Clusters::first`]) along axis `a` at cluster `c`.
+    #[inline]
+    pub fn axis_value(&self, c: usize, a: usize, k: usize) -> f32 {
+        self.vals[(3 * c + a) * self.per_axis + k]
+    }
+
     /// Value of FEM function `i` at cluster `c`.
     #[inline]
     pub fn basis_value(&self, c: usize, i: [i64; 3], degree: u8) -> f64 {
         let f = self.first[c];
-        let v = &self.vals[c];
         let mut r = 1.0;
         for a in 0..3 {
-            let k = i[a] - i64::from(f[a]);
+            // `i − first`, which is small for every function a cluster is asked about.
+            let k = -i64::from(offset_mod_256(f[a], i[a]));
             if k < 0 || k > i64::from(degree) {
                 return 0.0;
             }
-            r *= f64::from(v[a][k as usize]);
+            r *= f64::from(self.axis_value(c, a, k as usize));
         }
         r
     }
+
+    /// Every cluster's first index per axis in full, from its node's key (the GPU's layout).
+    #[cfg(feature = "gpu")]
+    pub fn first_indices(&self, level: &Level, d: u32) -> Vec<[i32; 3]> {
+        (0..self.len())
+            .into_par_iter()
+            .map(|c| {
+                let own = func_index(level.key(self.node[c]), d);
+                self.first(c, own).map(|f| f as i32)
+            })
+            .collect()
+    }
+
+    /// Every cluster's values as three per axis, zero past `degree + 1` (the GPU's layout).
+    #[cfg(feature = "gpu")]
+    pub fn values_3x3(&self) -> Vec<[[f32; 3]; 3]> {
+        (0..self.len())
+            .into_par_iter()
+            .map(|c| {
+                std::array::from_fn(|a| {
+                    std::array::from_fn(|k| {
+                        if k < self.per_axis {
+                            self.axis_value(c, a, k)
+                        } else {
+                            0.0
+                        }
+                    })
+                })
+            })
+            .collect()
+    }
+}
+
+/// `stored − near` for an index stored modulo 256, exact while the two are within 127.
+#[inline]
+fn offset_mod_256(stored: u8, near: i64) -> i8 {
+    stored.wrapping_sub(near as u8) as i8
 }
 
 /// Builds the clusters of every level `≥ base level` from the samples' deepest nodes.
@@ -553,15 +614,19 @@ pub fn level_clusters(
 ) -> Clusters {
     let d = t - DEPTH_OFFSET;
     let scale = omega_scale * (1i64 << d) as f64;
+    let per_axis = usize::from(fem.degree.get()) + 1;
     // Each cluster is finished on its own, in parallel; `unzip` keeps the order.
-    let ((node, pos), (omega, (first, vals))) = merged
+    let ((node, pos), (omega, first)): ((Vec<_>, Vec<_>), (Vec<_>, Vec<_>)) = merged
         .par_iter()
         .map(|&(n, w, wp)| {
             let p = [wp[0] / w, wp[1] / w, wp[2] / w];
-            let (first, vals) = basis_window(fem, d, p);
-            ((n, p), (scale * w, (first, vals)))
+            ((n, p), (scale * w, first_of_window(fem, d, p)))
         })
         .unzip();
+    let mut vals = vec![0.0f32; 3 * per_axis * pos.len()];
+    vals.par_chunks_mut(3 * per_axis)
+        .zip(&pos)
+        .for_each(|(out, &p)| window_values(fem, d, p, out));
     Clusters {
         of_node: NodeRank::new(tree.levels[t as usize].len(), merged.iter().map(|e| e.0)),
         node,
@@ -569,21 +634,25 @@ pub fn level_clusters(
         omega,
         first,
         vals,
+        per_axis,
     }
 }
 
-/// Per axis, the first FEM index at depth `d` whose support contains `p`, and the values of
-/// the functions from there ([`Clusters::first`], [`Clusters::vals`]).
-fn basis_window(fem: Basis, d: u32, p: [f64; 3]) -> ([i32; 3], [[f32; 3]; 3]) {
-    let mut first = [0i32; 3];
-    let mut vals = [[0.0f32; 3]; 3];
-    for a in 0..3 {
+/// Per axis, the first FEM index at depth `d` whose support contains `p`, modulo 256
+/// ([`Clusters::first`]).
+fn first_of_window(fem: Basis, d: u32, p: [f64; 3]) -> [u8; 3] {
+    p.map(|x| fem.window(d, x).first as u8)
+}
+
+/// Per axis, the values at `p` of the `degree + 1` functions of depth `d` from the first
+/// ([`Clusters::axis_value`]), in single precision, into `out` (`degree + 1` per axis).
+fn window_values(fem: Basis, d: u32, p: [f64; 3], out: &mut [f32]) {
+    for (a, out) in out.chunks_mut(out.len() / 3).enumerate() {
         let win = fem.window(d, p[a]);
-        // Indices fit in i32 (depth ≤ MAX_DEPTH); values are stored in single precision.
-        first[a] = win.first as i32;
-        vals[a] = win.values.map(|v| v as f32);
+        for (o, v) in out.iter_mut().zip(win.values) {
+            *o = v as f32;
+        }
     }
-    (first, vals)
 }
 
 /// Per-axis offsets (relative to a function's own cell) of the cells whose cluster can touch

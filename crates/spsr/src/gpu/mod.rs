@@ -165,9 +165,9 @@ pub struct LevelSystem<'a> {
     /// Screening weight per cluster.
     pub omega: &'a [f64],
     /// First function index per axis of each cluster's window.
-    pub first: &'a [[i32; 3]],
+    pub first: std::borrow::Cow<'a, [[i32; 3]]>,
     /// Basis values per axis of each cluster.
-    pub vals: &'a [[[f32; 3]; 3]],
+    pub vals: std::borrow::Cow<'a, [[[f32; 3]; 3]]>,
     /// The node of each cluster.
     pub cl_node: &'a [u32],
     /// The position of each cluster, in the unit cube.

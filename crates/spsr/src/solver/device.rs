@@ -163,8 +163,8 @@ impl Op<'_> {
             rank_bits,
             rank_before,
             omega: &self.cl.omega,
-            first: &self.cl.first,
-            vals: &self.cl.vals,
+            first: self.cl.first_indices(self.level, self.d).into(),
+            vals: self.cl.values_3x3().into(),
             cl_node: &self.cl.node,
             pos: &self.cl.pos,
             boundary: match self.boundary {
