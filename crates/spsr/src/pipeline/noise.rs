@@ -559,9 +559,12 @@ fn depths(samples: &[Sample], top: u32) -> (Vec<Depth>, Vec<(u64, u32)>) {
 /// order and positions alone.
 pub fn measure(samples: &[Sample], top: u32) -> Measured {
     let (mut depths, sorted) = depths(samples, top);
-    let flat: Vec<Kept> = (0..depths.len())
+    // The finest depth first: its moments, the largest, are released before any plane is kept.
+    let mut flat: Vec<Kept> = (0..depths.len())
+        .rev()
         .map(|d| kept_patches(&mut depths, d))
         .collect();
+    flat.reverse();
     let mut code_of = vec![0u64; samples.len()];
     for &(c, i) in &sorted {
         code_of[i as usize] = c;
