@@ -290,12 +290,37 @@ impl CodeIndex {
     }
 }
 
+/// The samples sorted by their finest cell's Morton code, `(code, sample)`.
+#[derive(Clone, Copy)]
+struct Sorted<'a> {
+    samples: &'a [Sample],
+    sorted: &'a [(u64, u32)],
+}
+
+impl Sorted<'_> {
+    /// The moments and count of the sorted samples `a..b`, added in that order.
+    fn moments(&self, (a, b): (u32, u32)) -> (Moments, f64) {
+        let mut m = Moments::default();
+        for &(_, i) in &self.sorted[a as usize..b as usize] {
+            m.add(&Moments::of(&self.samples[i as usize]));
+        }
+        (m, f64::from(b - a))
+    }
+}
+
 /// The occupied cells of one depth, in Morton order: each cell's code, its moments and sample
 /// count (until the patches are made), and its samples as a range of the samples sorted by
 /// their finest cell's code (a cell's samples are contiguous there at every depth).
+///
+/// The finest depth stores no moments: its cells, most of the cells of all depths, hold a
+/// sample or two each, and their moments are summed from the samples when read
+/// ([`Depth::moments_at`]), the same sums in the same order (issue 20: they were the noise
+/// stage's largest array, 88 bytes a cell).
 struct Depth {
     codes: Vec<u64>,
     moments: Vec<(Moments, f64)>,
+    /// Whether the moments are summed from the samples when read (the finest depth).
+    summed: bool,
     ranges: Vec<(u32, u32)>,
     index: CodeIndex,
     /// Each cell's children as a range of the next finer depth's cells (empty at the finest).
@@ -303,35 +328,41 @@ struct Depth {
 }
 
 impl Depth {
-    /// The cells of the finest depth from the samples sorted by code, `(code, sample)`: a
-    /// cell's moments are its samples' added in the samples' order.
-    fn finest(samples: &[Sample], sorted: &[(u64, u32)], top: u32) -> Self {
-        let runs = runs(sorted.len(), |k| sorted[k].0);
-        let moments = runs
-            .par_iter()
-            .map(|&(a, b)| {
-                let mut m = Moments::default();
-                for &(_, i) in &sorted[a as usize..b as usize] {
-                    m.add(&Moments::of(&samples[i as usize]));
-                }
-                (m, f64::from(b - a))
-            })
+    /// The cells of the finest depth from the sorted samples: a cell's moments are its
+    /// samples' added in the samples' order, summed when read.
+    fn finest(src: Sorted, top: u32) -> Self {
+        let runs = runs(src.sorted.len(), |k| src.sorted[k].0);
+        let codes = runs
+            .iter()
+            .map(|&(a, _)| src.sorted[a as usize].0)
             .collect();
-        let codes = runs.iter().map(|&(a, _)| sorted[a as usize].0).collect();
-        Depth::new(codes, moments, runs, top)
+        let mut depth = Depth::new(codes, Vec::new(), runs, top);
+        depth.summed = true;
+        depth
+    }
+
+    /// The moments and sample count of cell `k`.
+    #[inline]
+    fn moments_at(&self, k: usize, src: Sorted) -> (Moments, f64) {
+        if self.summed {
+            src.moments(self.ranges[k])
+        } else {
+            self.moments[k]
+        }
     }
 
     /// The cells of the next coarser depth: a cell's moments are its children's added in
     /// Morton order. `depth` is the new cells' depth.
-    fn parent(&self, depth: u32) -> Self {
+    fn parent(&self, depth: u32, src: Sorted) -> Self {
         let runs = runs(self.codes.len(), |k| self.codes[k] >> 3);
         let moments = runs
             .par_iter()
             .map(|&(a, b)| {
                 let mut m = Moments::default();
                 let mut n = 0.0;
-                for (cm, cn) in &self.moments[a as usize..b as usize] {
-                    m.add(cm);
+                for k in a as usize..b as usize {
+                    let (cm, cn) = self.moments_at(k, src);
+                    m.add(&cm);
                     n += cn;
                 }
                 (m, n)
@@ -360,6 +391,7 @@ impl Depth {
         Depth {
             codes,
             moments,
+            summed: false,
             ranges,
             index,
             children: Vec::new(),
@@ -407,11 +439,11 @@ impl Kept {
 
 /// The patches of depth `d` (see [`patches`]), kept as [`Kept`] says for a depth that is the
 /// finest or not.
-fn kept_patches(depths: &mut [Depth], d: usize) -> Kept {
+fn kept_patches(depths: &mut [Depth], d: usize, src: Sorted) -> Kept {
     if d + 1 == depths.len() {
-        Kept::Bent(patches(depths, d, |p| matches!(p, Some(Patch::Bent))))
+        Kept::Bent(patches(depths, d, src, |p| matches!(p, Some(Patch::Bent))))
     } else {
-        Kept::Patches(patches(depths, d, |p| p))
+        Kept::Patches(patches(depths, d, src, |p| p))
     }
 }
 
@@ -421,18 +453,22 @@ fn kept_patches(depths: &mut [Depth], d: usize) -> Kept {
 /// The neighbours are found parent by parent: the children of the parent's 3×3×3 neighbours
 /// (one lookup each) fill a 6×6×6 grid, which holds the neighbourhood of every child of the
 /// parent. That is a quarter of the lookups of finding each cell's 27 neighbours on its own,
-/// and the sums are the same, in the same order. Only depth `d`'s moments are read (and
-/// released), so the depths may be taken in any order.
+/// and the sums are the same, in the same order. Where the moments are summed from the
+/// samples (the finest depth), those of the cells around the parent's children are summed
+/// once for them all ([`AroundChildren`]). Only depth `d`'s moments are read (and released),
+/// so the depths may be taken in any order.
 fn patches<T: Send>(
     depths: &mut [Depth],
     d: usize,
+    src: Sorted,
     keep: impl Fn(Option<Patch>) -> T + Sync,
 ) -> Vec<T> {
     let out = if d == 0 {
-        depths[0]
-            .moments
-            .iter()
-            .map(|(m, n)| keep(m.patch(*n)))
+        (0..depths[0].codes.len())
+            .map(|k| {
+                let (m, n) = depths[0].moments_at(k, src);
+                keep(m.patch(n))
+            })
             .collect()
     } else {
         let (up, here, keep) = (&depths[d - 1], &depths[d], &keep);
@@ -440,13 +476,14 @@ fn patches<T: Send>(
             .into_par_iter()
             .flat_map_iter(|p| {
                 let grid = Neighbourhood::of(up, here, p);
+                let mut around = AroundChildren::new(&grid);
                 let (a, b) = up.children[p];
                 (a as usize..b as usize).map(move |k| {
                     let mut m = Moments::default();
                     let mut n = 0.0;
-                    grid.for_each_around(here.cell(k), |j| {
-                        let (qm, qn) = &here.moments[j];
-                        m.add(qm);
+                    grid.for_each_around(here.cell(k), |q, j| {
+                        let (qm, qn) = around.moments(q, j, here, src);
+                        m.add(&qm);
                         n += qn;
                     });
                     keep(m.patch(n))
@@ -456,6 +493,44 @@ fn patches<T: Send>(
     };
     depths[d].moments = Vec::new();
     out
+}
+
+/// The moments of the 4×4×4 cells around the children of one parent cell, each read once
+/// (summed from the samples where the depth stores none) and then kept for the other
+/// children: a finest cell's samples are summed for the 8 parents around it instead of the 27
+/// cells around it.
+struct AroundChildren {
+    /// The lowest corner of the 4×4×4 cells.
+    origin: [i64; 3],
+    moments: [(Moments, f64); 64],
+    /// Which of `moments` are read.
+    read: u64,
+}
+
+impl AroundChildren {
+    fn new(grid: &Neighbourhood) -> Self {
+        AroundChildren {
+            // The grid starts one cell below the block around the parent's children.
+            origin: grid.origin.map(|v| v + 1),
+            moments: [(Moments::default(), 0.0); 64],
+            read: 0,
+        }
+    }
+
+    /// The moments of cell `j` of `here`, at `q` (around one of the parent's children).
+    #[inline]
+    fn moments(&mut self, q: [i64; 3], j: usize, here: &Depth, src: Sorted) -> (Moments, f64) {
+        if !here.summed {
+            return here.moments[j];
+        }
+        let r: [i64; 3] = std::array::from_fn(|a| q[a] - self.origin[a]);
+        let slot = (r[0] + 4 * (r[1] + 4 * r[2])) as usize;
+        if self.read & (1 << slot) == 0 {
+            self.moments[slot] = here.moments_at(j, src);
+            self.read |= 1 << slot;
+        }
+        self.moments[slot]
+    }
 }
 
 /// The cells of one depth around the children of one parent cell: a 6×6×6 grid over the
@@ -496,14 +571,15 @@ impl Neighbourhood {
             .then(|| (r[0] + 6 * (r[1] + 6 * r[2])) as usize)
     }
 
-    /// Calls `f` with the position of each occupied cell of the 3×3×3 cells around `c` (a
-    /// child of the grid's parent), in [`for_each_neighbour`]'s order.
+    /// Calls `f` with the cell coordinates and the position of each occupied cell of the
+    /// 3×3×3 cells around `c` (a child of the grid's parent), in [`for_each_neighbour`]'s
+    /// order.
     #[inline]
-    fn for_each_around(&self, c: [i64; 3], mut f: impl FnMut(usize)) {
+    fn for_each_around(&self, c: [i64; 3], mut f: impl FnMut([i64; 3], usize)) {
         for_each_neighbour(c, |q| {
             let k = self.slots[self.slot(q).expect("within the grid")];
             if k != NO_CELL {
-                f(k as usize);
+                f(q, k as usize);
             }
         });
     }
@@ -536,9 +612,13 @@ fn depths(samples: &[Sample], top: u32) -> (Vec<Depth>, Vec<(u64, u32)>) {
         })
         .collect();
     sorted.par_sort_unstable();
-    let mut out = vec![Depth::finest(samples, &sorted, top)];
+    let src = Sorted {
+        samples,
+        sorted: &sorted,
+    };
+    let mut out = vec![Depth::finest(src, top)];
     for d in (0..top).rev() {
-        let up = out.last().expect("the finest depth").parent(d);
+        let up = out.last().expect("the finest depth").parent(d, src);
         out.push(up);
     }
     out.reverse();
@@ -559,10 +639,15 @@ fn depths(samples: &[Sample], top: u32) -> (Vec<Depth>, Vec<(u64, u32)>) {
 /// order and positions alone.
 pub fn measure(samples: &[Sample], top: u32) -> Measured {
     let (mut depths, sorted) = depths(samples, top);
-    // The finest depth first: its moments, the largest, are released before any plane is kept.
+    let src = Sorted {
+        samples,
+        sorted: &sorted,
+    };
+    // The finest depth first: the moments of the depth above it, the largest stored, are
+    // released before any plane is kept.
     let mut flat: Vec<Kept> = (0..depths.len())
         .rev()
-        .map(|d| kept_patches(&mut depths, d))
+        .map(|d| kept_patches(&mut depths, d, src))
         .collect();
     flat.reverse();
     let mut code_of = vec![0u64; samples.len()];
