@@ -728,3 +728,54 @@ fn the_gpu_gives_the_cpus_bits() {
         eprintln!("{what}: the GPU ({}) gave the CPU's bits", dev.name());
     }
 }
+
+/// Each screening cluster's stored window (its first index modulo 256 and `degree + 1` values
+/// per axis) gives back the B-spline window at its position: the first index from the
+/// cluster's own node and from every function it touches, and the basis values of the
+/// functions in and just outside the window.
+#[test]
+fn clusters_give_back_their_windows() {
+    let mut checked = 0;
+    for (name, fx) in fixtures() {
+        let degree = fx.fem.degree.get();
+        for t in fx.base_level..=fx.max_level() {
+            let d = t - DEPTH_OFFSET;
+            let level = &fx.tree.levels[t as usize];
+            let cl = &fx.clusters[t as usize];
+            checked += cl.len();
+            for c in 0..cl.len() {
+                let p = cl.pos[c];
+                let own = func_index(level.key(cl.node[c]), d);
+                let win: [_; 3] = std::array::from_fn(|a| fx.fem.window(d, p[a]));
+                let first = win.map(|w| w.first);
+                assert_eq!(cl.first(c, own), first, "{name}: level {t} cluster {c}");
+                for (a, w) in win.iter().enumerate() {
+                    for k in 0..=usize::from(degree) {
+                        assert_eq!(cl.axis_value(c, a, k), w.values[k] as f32);
+                    }
+                }
+                // Every function of the window and of a ring one wider around it.
+                let r = i64::from(degree) + 1;
+                for dz in -1..=r {
+                    for dy in -1..=r {
+                        for dx in -1..=r {
+                            let k = [dx, dy, dz];
+                            let i: [i64; 3] = std::array::from_fn(|a| first[a] + k[a]);
+                            assert_eq!(cl.first(c, i), first);
+                            let inside = k.iter().all(|&v| (0..r).contains(&v));
+                            let want = if inside {
+                                (0..3)
+                                    .map(|a| f64::from(win[a].values[k[a] as usize] as f32))
+                                    .product()
+                            } else {
+                                0.0
+                            };
+                            assert_eq!(cl.basis_value(c, i, degree), want, "{name}: {k:?}");
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert!(checked > 10_000, "{checked} clusters checked");
+}
