@@ -1283,7 +1283,7 @@ fn coarse_cluster_values(op: &Op, fem: Basis, pc: &[f64]) -> Vec<f64> {
         .map(|c| {
             let node = op.cl.node[c];
             let par = op.tree.parent(op.t, node);
-            coarse_value(op.tree, fem, op.t - 1, par, op.cl.pos[c], pc)
+            coarse_value(op.tree, fem, op.t - 1, par, op.cl.pos[c].map(f64::from), pc)
         })
         .collect()
 }

@@ -365,8 +365,10 @@ pub struct Clusters {
     pub of_node: NodeRank,
     /// Node of each cluster.
     pub node: Vec<u32>,
-    /// Weighted mean position, unit-cube coordinates.
-    pub pos: Vec<[f64; 3]>,
+    /// Weighted mean position, unit-cube coordinates, stored in single precision as the
+    /// reference stores its screening samples' positions (issue 20: 12 bytes a cluster; the
+    /// basis values at it, `vals`, come from the position in double precision).
+    pub pos: Vec<[f32; 3]>,
     /// Screening weight ω = α Ā 2^d W.
     pub omega: Vec<f64>,
     /// Per axis, the first FEM index whose support contains the position, modulo 256: every
@@ -620,13 +622,18 @@ pub fn level_clusters(
         .par_iter()
         .map(|&(n, w, wp)| {
             let p = [wp[0] / w, wp[1] / w, wp[2] / w];
-            ((n, p), (scale * w, first_of_window(fem, d, p)))
+            (
+                (n, p.map(|x| x as f32)),
+                (scale * w, first_of_window(fem, d, p)),
+            )
         })
         .unzip();
     let mut vals = vec![0.0f32; 3 * per_axis * pos.len()];
     vals.par_chunks_mut(3 * per_axis)
-        .zip(&pos)
-        .for_each(|(out, &p)| window_values(fem, d, p, out));
+        .zip(merged)
+        .for_each(|(out, &(_, w, wp))| {
+            window_values(fem, d, [wp[0] / w, wp[1] / w, wp[2] / w], out)
+        });
     Clusters {
         of_node: NodeRank::new(tree.levels[t as usize].len(), merged.iter().map(|e| e.0)),
         node,

@@ -171,7 +171,7 @@ pub struct LevelSystem<'a> {
     /// The node of each cluster.
     pub cl_node: &'a [u32],
     /// The position of each cluster, in the unit cube.
-    pub pos: &'a [[f64; 3]],
+    pub pos: Vec<[f64; 3]>,
     /// The boundary condition: 0 free, 1 Neumann, 2 Dirichlet.
     pub boundary: i32,
     /// The parent node of each brood.

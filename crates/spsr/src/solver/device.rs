@@ -166,7 +166,7 @@ impl Op<'_> {
             first: self.cl.first_indices(self.level, self.d).into(),
             vals: self.cl.values_3x3().into(),
             cl_node: &self.cl.node,
-            pos: &self.cl.pos,
+            pos: self.cl.pos.iter().map(|p| p.map(f64::from)).collect(),
             boundary: match self.boundary {
                 Boundary::Free => 0,
                 Boundary::Neumann => 1,
