@@ -476,13 +476,17 @@ fn patches<T: Send>(
             .into_par_iter()
             .flat_map_iter(|p| {
                 let grid = Neighbourhood::of(up, here, p);
-                let mut around = AroundChildren::new(&grid);
+                // Only where the moments are summed when read is it worth keeping them.
+                let mut around = here.summed.then(|| AroundChildren::new(&grid));
                 let (a, b) = up.children[p];
                 (a as usize..b as usize).map(move |k| {
                     let mut m = Moments::default();
                     let mut n = 0.0;
                     grid.for_each_around(here.cell(k), |q, j| {
-                        let (qm, qn) = around.moments(q, j, here, src);
+                        let (qm, qn) = match &mut around {
+                            Some(around) => around.moments(q, j, here, src),
+                            None => here.moments[j],
+                        };
                         m.add(&qm);
                         n += qn;
                     });
@@ -520,9 +524,6 @@ impl AroundChildren {
     /// The moments of cell `j` of `here`, at `q` (around one of the parent's children).
     #[inline]
     fn moments(&mut self, q: [i64; 3], j: usize, here: &Depth, src: Sorted) -> (Moments, f64) {
-        if !here.summed {
-            return here.moments[j];
-        }
         let r: [i64; 3] = std::array::from_fn(|a| q[a] - self.origin[a]);
         let slot = (r[0] + 4 * (r[1] + 4 * r[2])) as usize;
         if self.read & (1 << slot) == 0 {
