@@ -6,25 +6,20 @@
 //! hostile input should get), but a panic, an abort, a hang or an invariant violation
 //! (checked here with `assert!`) is a finding.
 
-use std::path::PathBuf;
-use std::sync::OnceLock;
-
 use spsr::{Boundary, Degree, Mesh, Params, PointCloud, PointWeights};
 
-/// A folder of this process for the files the readers are given (the readers take paths,
-/// as users' files do, so the targets go through exactly the code users run).
-fn scratch(ext: &str) -> PathBuf {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
-    let dir = DIR.get_or_init(|| {
-        let d = tempfile::Builder::new()
-            .prefix("spsr-fuzz-")
-            .tempdir()
-            .expect("a temporary folder for the fuzz inputs");
-        d.keep()
-    });
-    let id = format!("{:?}", std::thread::current().id());
-    let id: String = id.chars().filter(char::is_ascii_alphanumeric).collect();
-    dir.join(format!("input-{id}.{ext}"))
+/// The input written to a temporary file with the given extension (the readers take paths,
+/// as users' files do, so the targets go through exactly the code users run). The file is
+/// removed when the returned handle is dropped, so neither fuzzing nor the test suite's
+/// replays leave anything behind.
+fn input_file(ext: &str, data: &[u8]) -> tempfile::NamedTempFile {
+    let mut f = tempfile::Builder::new()
+        .prefix("spsr-fuzz-")
+        .suffix(&format!(".{ext}"))
+        .tempfile()
+        .expect("a temporary file for the fuzz input");
+    std::io::Write::write_all(&mut f, data).expect("write the fuzz input");
+    f
 }
 
 /// Checks what a reader promises about a cloud it returns.
@@ -66,13 +61,13 @@ pub fn check_mesh(m: &Mesh) {
 }
 
 fn read_cloud_as(data: &[u8], ext: &str) {
-    let path = scratch(ext);
-    std::fs::write(&path, data).expect("write the fuzz input");
-    if let Ok(c) = spsr::io::read_cloud(&path) {
+    let input = input_file(ext, data);
+    let path = input.path();
+    if let Ok(c) = spsr::io::read_cloud(path) {
         check_cloud(&c);
     }
     // The oriented-points entry refuses clouds without normals early; same invariants.
-    if let Ok(c) = spsr::io::read_points(&path) {
+    if let Ok(c) = spsr::io::read_points(path) {
         check_cloud(&c);
         assert!(c.normals.len() == c.positions.len());
     }
@@ -85,9 +80,9 @@ pub fn ply(data: &[u8]) {
 
 /// PLY meshes (`spsr trim`, `spsr eval`).
 pub fn ply_mesh(data: &[u8]) {
-    let path = scratch("ply");
-    std::fs::write(&path, data).expect("write the fuzz input");
-    if let Ok(m) = spsr::io::read_mesh(&path) {
+    let input = input_file("ply", data);
+    let path = input.path();
+    if let Ok(m) = spsr::io::read_mesh(path) {
         check_mesh(&m);
         // What `spsr eval` and `spsr trim` do next with a mesh read from a file.
         let _ = m.topology();
@@ -103,14 +98,14 @@ pub fn ply_mesh(data: &[u8]) {
 /// (OBJ, binary STL) are reached too.
 pub fn mesh(data: &[u8]) {
     for ext in ["obj", "stl", "off", "glb"] {
-        let path = scratch(ext);
-        std::fs::write(&path, data).expect("write the fuzz input");
-        if let Ok(m) = spsr::io::read_mesh(&path) {
+        let input = input_file(ext, data);
+        let path = input.path();
+        if let Ok(m) = spsr::io::read_mesh(path) {
             check_mesh(&m);
             let _ = m.topology();
             let _ = m.area();
         }
-        if let Ok(c) = spsr::io::read_cloud(&path) {
+        if let Ok(c) = spsr::io::read_cloud(path) {
             check_cloud(&c);
         }
     }
