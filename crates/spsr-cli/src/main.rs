@@ -2,6 +2,8 @@
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
+    // Before any worker thread allocates (see the function's documentation).
+    spsr::share_one_allocator_arena();
     let cli = match spsr_cli::try_parse_from(std::env::args_os()) {
         Ok(cli) => cli,
         Err(e) => e.exit(),

@@ -54,5 +54,5 @@ pub use pipeline::{
     DepthLimit, DepthReason, Grid, ImplicitFunction, NoiseSummary, Reconstruction, Stats, Work,
 };
 pub use points::{PointCloud, ScanOrigin};
-pub use resources::{memory_budget, peak_rss};
+pub use resources::{memory_budget, peak_rss, share_one_allocator_arena};
 pub use solver::{DepthResidual, SolveReport};
