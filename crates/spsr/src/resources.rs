@@ -59,10 +59,29 @@ const LARGE_BLOCK: i32 = 4 << 20;
 ///
 /// Both take the trade. Elsewhere it does nothing.
 pub fn return_large_blocks_when_freed() {
+    /// glibc's `M_MMAP_THRESHOLD` (malloc.h).
+    const M_MMAP_THRESHOLD: i32 = -3;
+    set_allocator_option(M_MMAP_THRESHOLD, LARGE_BLOCK);
+}
+
+/// Makes every thread that has not yet allocated share glibc's main arena, for the rest of
+/// the process. By default glibc gives each thread an arena of its own (up to eight per
+/// core), and memory a worker thread freed in its arena is reused only by allocations that
+/// land in that same arena: a reconstruction's parallel stages each leave their workers'
+/// arenas with free space that the main thread's next arrays cannot use. Measured on 4 M
+/// points at depth 10, degree 1 (issue 20): peak 728–734 MiB with an arena per thread, 671–677
+/// MiB with one, the time within the runs' scatter. Threads that already have an arena keep
+/// it, so call this before the worker threads start. Elsewhere it does nothing.
+pub fn share_one_allocator_arena() {
+    /// glibc's `M_ARENA_MAX` (malloc.h).
+    const M_ARENA_MAX: i32 = -8;
+    set_allocator_option(M_ARENA_MAX, 1);
+}
+
+/// glibc's `mallopt(param, value)` (Linux with glibc; elsewhere nothing).
+fn set_allocator_option(param: i32, value: i32) {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     {
-        /// glibc's `M_MMAP_THRESHOLD` (malloc.h).
-        const M_MMAP_THRESHOLD: std::os::raw::c_int = -3;
         extern "C" {
             fn mallopt(
                 param: std::os::raw::c_int,
@@ -72,33 +91,9 @@ pub fn return_large_blocks_when_freed() {
         // SAFETY: `mallopt` takes no pointers; it sets a tuning value of the allocator, which
         // glibc allows at any time from any thread.
         unsafe {
-            mallopt(M_MMAP_THRESHOLD, LARGE_BLOCK);
+            mallopt(param, value);
         }
     }
-}
-
-/// Makes every thread that has not yet allocated share glibc's main arena, for the rest of
-/// the process. By default glibc gives each thread an arena of its own (up to eight per
-/// core), and memory a worker thread freed in its arena is reused only by allocations that
-/// land in that same arena: a reconstruction's parallel stages each leave their workers'
-/// arenas with free space that the main thread's next arrays cannot use. Measured on 4 M
-/// points at depth 10, degree 1 (issue 20): peak 711–730 MiB with an arena per thread, 670–679
-/// MiB with one, the time within the runs' scatter. Threads that already have an arena keep
-/// it, so call this before the worker threads start. Elsewhere it does nothing.
-pub fn share_one_allocator_arena() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    {
-        /// glibc's `M_ARENA_MAX` (malloc.h).
-        const M_ARENA_MAX: std::os::raw::c_int = -8;
-        extern "C" {
-            fn mallopt(
-                param: std::os::raw::c_int,
-                value: std::os::raw::c_int,
-            ) -> std::os::raw::c_int;
-        }
-        // SAFETY: as in `return_large_blocks_when_freed`.
-        unsafe {
-            mallopt(M_ARENA_MAX, 1);
-        }
-    }
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    let _ = (param, value);
 }
