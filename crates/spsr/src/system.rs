@@ -617,23 +617,18 @@ pub fn level_clusters(
     let d = t - DEPTH_OFFSET;
     let scale = omega_scale * (1i64 << d) as f64;
     let per_axis = usize::from(fem.degree.get()) + 1;
-    // Each cluster is finished on its own, in parallel; `unzip` keeps the order.
-    let ((node, pos), (omega, first)): ((Vec<_>, Vec<_>), (Vec<_>, Vec<_>)) = merged
-        .par_iter()
-        .map(|&(n, w, wp)| {
+    // Each cluster is finished on its own, in parallel, its windows found once (the first
+    // index and the values come from the same window); `unzip` keeps the order.
+    let mut vals = vec![0.0f32; 3 * per_axis * merged.len()];
+    let ((node, pos), (omega, first)): ((Vec<_>, Vec<_>), (Vec<_>, Vec<_>)) = vals
+        .par_chunks_mut(3 * per_axis)
+        .zip(merged)
+        .map(|(out, &(n, w, wp))| {
             let p = [wp[0] / w, wp[1] / w, wp[2] / w];
-            (
-                (n, p.map(|x| x as f32)),
-                (scale * w, first_of_window(fem, d, p)),
-            )
+            let first = window_values(fem, d, p, out);
+            ((n, p.map(|x| x as f32)), (scale * w, first))
         })
         .unzip();
-    let mut vals = vec![0.0f32; 3 * per_axis * pos.len()];
-    vals.par_chunks_mut(3 * per_axis)
-        .zip(merged)
-        .for_each(|(out, &(_, w, wp))| {
-            window_values(fem, d, [wp[0] / w, wp[1] / w, wp[2] / w], out)
-        });
     Clusters {
         of_node: NodeRank::new(tree.levels[t as usize].len(), merged.iter().map(|e| e.0)),
         node,
@@ -645,21 +640,19 @@ pub fn level_clusters(
     }
 }
 
-/// Per axis, the first FEM index at depth `d` whose support contains `p`, modulo 256
-/// ([`Clusters::first`]).
-fn first_of_window(fem: Basis, d: u32, p: [f64; 3]) -> [u8; 3] {
-    p.map(|x| fem.window(d, x).first as u8)
-}
-
 /// Per axis, the values at `p` of the `degree + 1` functions of depth `d` from the first
-/// ([`Clusters::axis_value`]), in single precision, into `out` (`degree + 1` per axis).
-fn window_values(fem: Basis, d: u32, p: [f64; 3], out: &mut [f32]) {
+/// ([`Clusters::axis_value`]), in single precision, into `out` (`degree + 1` per axis); returns
+/// the first function's index per axis modulo 256 ([`Clusters::first`]).
+fn window_values(fem: Basis, d: u32, p: [f64; 3], out: &mut [f32]) -> [u8; 3] {
+    let mut first = [0u8; 3];
     for (a, out) in out.chunks_mut(out.len() / 3).enumerate() {
         let win = fem.window(d, p[a]);
+        first[a] = win.first as u8;
         for (o, v) in out.iter_mut().zip(win.values) {
             *o = v as f32;
         }
     }
+    first
 }
 
 /// Per-axis offsets (relative to a function's own cell) of the cells whose cluster can touch
