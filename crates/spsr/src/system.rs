@@ -11,8 +11,8 @@ use crate::shared_slice::split_into;
 
 use crate::bspline::{table, Basis, Integrand, Table1D};
 use crate::octree::{
-    brood_offset, for_each_node, func_index, neighbor_in_row, window_index, BroodRow, Level,
-    NodeRank, Octree, DEPTH_OFFSET, NONE,
+    brood_offset, func_index, neighbor_in_row, window_index, BroodRow, Level, NodeRank, Octree,
+    DEPTH_OFFSET, NONE,
 };
 use crate::shared_slice::SharedSlice;
 
@@ -692,7 +692,10 @@ pub fn divergence_constraints(
     // An empty `G_{t+1}` is the zero one (see the end).
     let g_finer = g_finer.filter(|g| !g.is_empty());
     let vbrood = BroodStencil::new([&tab.vstencil[0], &tab.vstencil[1], &tab.vstencil[2]]);
-    let row = |n: u32, nbrs: &BroodRow| {
+    let with_v = broods_with_v(v);
+    // `near_v`: whether a brood around `n`'s has a nonzero V; where none has, the stencil's
+    // sum is +0 (each lane starts at +0 and adds only zero products), which is added as such.
+    let row = |n: u32, nbrs: &BroodRow, near_v: bool| {
         let i = func_index(level.key(n), d);
         if !tab.range.contains(i) {
             return (0.0, 0.0);
@@ -704,7 +707,11 @@ pub fn divergence_constraints(
         }
         let mut b = g;
         if !v.is_empty() && interior {
-            b += vbrood.row(nbrs, n, |m| v_brood(v, m));
+            b += if near_v {
+                vbrood.row(nbrs, n, |m| v_brood(v, m))
+            } else {
+                0.0
+            };
         } else if !v.is_empty() {
             for w in 0..125 {
                 let m = neighbor_in_row(nbrs, n, w);
@@ -732,11 +739,21 @@ pub fn divergence_constraints(
         }
         (g, b as f32)
     };
+    let near_v = |nbrs: &BroodRow| {
+        nbrs.iter()
+            .any(|&q| q != NONE && with_v.get(q as usize).is_some_and(|&x| x))
+    };
     let mut t_out = vec![0.0f32; level.len()];
     if pushed.is_empty() && g_finer.is_none() {
         // No finer V: `G_t` is zero, and is not stored (at the finest level it would be the
         // largest array alive while the constraints are made).
-        for_each_node(level, &mut t_out, |n, nbrs, t| *t = row(n, nbrs).1);
+        t_out.par_chunks_mut(8).enumerate().for_each(|(b, t)| {
+            let nbrs = level.brood_row(b as u32);
+            let near = near_v(&nbrs);
+            for (k, t) in t.iter_mut().enumerate() {
+                *t = row(8 * b as u32 + k as u32, &nbrs, near).1;
+            }
+        });
         (Vec::new(), t_out)
     } else {
         let mut g_out = vec![0.0f64; level.len()];
@@ -744,12 +761,23 @@ pub fn divergence_constraints(
             .enumerate()
             .for_each(|(b, (g, t))| {
                 let nbrs = level.brood_row(b as u32);
+                let near = near_v(&nbrs);
                 for (k, (g, t)) in g.iter_mut().zip(t).enumerate() {
-                    (*g, *t) = row(8 * b as u32 + k as u32, &nbrs);
+                    (*g, *t) = row(8 * b as u32 + k as u32, &nbrs, near);
                 }
             });
         (g_out, t_out)
     }
+}
+
+/// For each brood of a level, whether its V (one per node; may be empty) is nonzero
+/// anywhere. At the deepest level every brood has V (the others were clipped); one level
+/// up, about half the broods have none around them, and the coarser levels have none (their
+/// samples' V is pushed to them, `push_finer_v`).
+fn broods_with_v(v: &[[f32; 3]]) -> Vec<bool> {
+    v.par_chunks(8)
+        .map(|nodes| nodes.iter().any(|x| *x != [0.0; 3]))
+        .collect()
 }
 
 /// The V of brood `b`'s eight nodes, component by component.
