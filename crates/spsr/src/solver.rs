@@ -17,8 +17,8 @@ use crate::octree::{
 };
 use crate::shared_slice::SharedSlice;
 use crate::system::{
-    cluster_offsets, divergence_constraints, prolong, prolong_in_place, BroodStencil, Clusters,
-    DepthTables, Prolongation,
+    broods_with_v, cluster_offsets, divergence_constraints, prolong, prolong_in_place,
+    BroodStencil, Clusters, DepthTables, Prolongation,
 };
 use crate::Solver;
 
@@ -225,6 +225,38 @@ impl<'a> Op<'a> {
             self.add_interior_coupling::<SOL, VEC, FIX>(s, i, par, pc, vc)
         } else {
             self.add_boundary_coupling::<SOL, VEC, FIX>(s, i, par, pc, vc)
+        }
+    }
+
+    /// Whether the coarser V (`with_v`: per brood of the parent level, whether its V is
+    /// nonzero, [`broods_with_v`]) is nonzero anywhere on the parent windows of brood `b`'s
+    /// nodes: the broods around the brood's parent. Mostly not: V lives at the samples'
+    /// splat depths, and the coarser V is zero away from them.
+    #[inline]
+    fn coarser_v_near(&self, b: u32, with_v: &[bool]) -> bool {
+        let par = self.level.brood_parent[b as usize];
+        let row = self.tree.levels[self.t as usize - 1].brood_row(par >> 3);
+        row.iter()
+            .any(|&q| q != NONE && with_v.get(q as usize).is_some_and(|&x| x))
+    }
+
+    /// [`Op::coarse_coupling`] with the coarser solution's terms and, where `near_v`
+    /// ([`Op::coarser_v_near`]), the coarser V's. Elsewhere V is zero on the whole parent
+    /// window, and its terms, each ±0 (which only the interior stencils add; the boundary
+    /// path skips zero V), are left out.
+    #[inline]
+    fn coarse_coupling_near_v<const FIX: bool>(
+        &self,
+        s: [f64; 2],
+        n: u32,
+        i: [i64; 3],
+        (pc, vc): (&[f64], &[[f32; 3]]),
+        near_v: bool,
+    ) -> [f64; 2] {
+        if near_v {
+            self.coarse_coupling::<true, true, FIX>(s, n, i, pc, vc)
+        } else {
+            self.coarse_coupling::<true, false, FIX>(s, n, i, pc, vc)
         }
     }
 
@@ -1256,21 +1288,28 @@ fn right_hand_side(
         }
     }
     let coarse_chi = coarse_cluster_values(op, fem, pc);
+    let with_v = broods_with_v(vc);
     // Each row reads only its own constraint: the right-hand side is written over them.
-    for_each_node(op.level, &mut tcons, |n, nbrs, row| {
-        let i = op.index(n);
-        if !op.tab.range.contains(i) {
-            *row = 0.0;
-            return;
+    tcons.par_chunks_mut(8).enumerate().for_each(|(b, rows)| {
+        let nbrs = op.level.brood_row(b as u32);
+        let near_v = op.coarser_v_near(b as u32, &with_v);
+        for (k, row) in rows.iter_mut().enumerate() {
+            let n = 8 * b as u32 + k as u32;
+            let i = op.index(n);
+            if !op.tab.range.contains(i) {
+                *row = 0.0;
+                continue;
+            }
+            let t = f64::from(*row);
+            let [mut s, _] = op.coarse_coupling_near_v::<false>([t, 0.0], n, i, (pc, vc), near_v);
+            op.for_each_cluster(&nbrs, n, i, |c, bv| {
+                s += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
+            });
+            if !u.is_empty() {
+                s -= u[n as usize];
+            }
+            *row = s as f32;
         }
-        let mut s = op.add_coarse_coupling::<true, true>(f64::from(*row), n, i, pc, vc);
-        op.for_each_cluster(nbrs, n, i, |c, bv| {
-            s += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
-        });
-        if !u.is_empty() {
-            s -= u[n as usize];
-        }
-        *row = s as f32;
     });
     tcons
 }

@@ -774,7 +774,7 @@ pub fn divergence_constraints(
 /// anywhere. At the deepest level every brood has V (the others were clipped); one level
 /// up, about half the broods have none around them, and the coarser levels have none (their
 /// samples' V is pushed to them, `push_finer_v`).
-fn broods_with_v(v: &[[f32; 3]]) -> Vec<bool> {
+pub(crate) fn broods_with_v(v: &[[f32; 3]]) -> Vec<bool> {
     v.par_chunks(8)
         .map(|nodes| nodes.iter().any(|x| *x != [0.0; 3]))
         .collect()

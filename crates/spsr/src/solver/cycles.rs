@@ -667,11 +667,13 @@ pub(super) fn right_hand_sides(
         return out;
     }
     let coarse_chi = coarse_cluster_values(op, fem, pc);
+    let with_v = crate::system::broods_with_v(vc);
     let mut fixed = vec![0.0f32; tcons.len()];
     (tcons.par_chunks_mut(8).zip(fixed.par_chunks_mut(8)))
         .enumerate()
         .for_each(|(brood, (rows, fixed))| {
             let nbrs = op.level.brood_row(brood as u32);
+            let near_v = op.coarser_v_near(brood as u32, &with_v);
             for (k, (row, fixed)) in rows.iter_mut().zip(fixed).enumerate() {
                 let n = 8 * brood as u32 + k as u32;
                 let i = op.index(n);
@@ -680,7 +682,8 @@ pub(super) fn right_hand_sides(
                     continue;
                 }
                 let t = f64::from(*row);
-                let [mut r, mut b] = op.coarse_coupling::<true, true, true>([t, t], n, i, pc, vc);
+                let [mut r, mut b] =
+                    op.coarse_coupling_near_v::<true>([t, t], n, i, (pc, vc), near_v);
                 op.for_each_cluster(&nbrs, n, i, |c, bv| {
                     r += op.cl.omega[c as usize] * bv * (TAU - coarse_chi[c as usize]);
                     b += op.cl.omega[c as usize] * bv * TAU;
