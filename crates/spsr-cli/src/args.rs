@@ -7,7 +7,7 @@ use clap::Args;
 pub struct ThreadsArg {
     /// Number of worker threads, at least 1; results do not depend on it. Default: rayon's,
     /// which honours RAYON_NUM_THREADS [default: all cores]
-    #[arg(long, value_name = "N", value_parser = parse_threads)]
+    #[arg(long, value_name = "N", value_parser = parse_threads, allow_negative_numbers = true)]
     pub threads: Option<usize>,
 }
 

@@ -44,7 +44,7 @@ pub struct NormalOptions {
 
     /// Neighbours in each point's plane fit, at least 3 [default: chosen from the noise: 16 on
     /// clean clouds, 24 to 192 on noisy ones]
-    #[arg(long, value_name = "K", value_parser = parse_neighbours)]
+    #[arg(long, value_name = "K", value_parser = parse_neighbours, allow_negative_numbers = true)]
     pub neighbours: Option<usize>,
 }
 

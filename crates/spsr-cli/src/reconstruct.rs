@@ -124,12 +124,22 @@ pub struct ReconstructArgs {
     /// The finest cells' width, in the input's units: sets the depth to the smallest whose
     /// cells are no wider, and widens the bounding cube so that they are exactly W wide, as
     /// PoissonRecon's --width. Not with --depth [default: none]
-    #[arg(long, value_name = "W", conflicts_with = "depth")]
+    #[arg(
+        long,
+        value_name = "W",
+        conflicts_with = "depth",
+        allow_negative_numbers = true
+    )]
     pub width: Option<f64>,
 
     /// Depth down to which the octree is complete; the coarse solve happens there. Default as
     /// PoissonRecon 6 and 18 [default: 5, or --depth when that is smaller]
-    #[arg(long, value_name = "D", alias = "fullDepth")]
+    #[arg(
+        long,
+        value_name = "D",
+        alias = "fullDepth",
+        allow_negative_numbers = true
+    )]
     pub full_depth: Option<u32>,
 
     /// Target number of samples per octree node (sets each sample's splat depth). Default as
@@ -316,7 +326,7 @@ pub struct ReconstructArgs {
     /// Refuse the run, before the octree is built, when its estimated peak memory exceeds this
     /// size (bytes, or with a suffix K, M, G, T, powers of 1024; e.g. 8G) [default: the memory
     /// the machine has available]
-    #[arg(long, value_name = "SIZE", value_parser = parse_size)]
+    #[arg(long, value_name = "SIZE", value_parser = parse_size, allow_negative_numbers = true)]
     pub max_memory: Option<u64>,
 
     /// PoissonRecon's --maxMemory, in GB; 0 (no limit) keeps the default.
@@ -326,7 +336,7 @@ pub struct ReconstructArgs {
         hide = true,
         value_parser = crate::poissonrecon::parse_max_memory_gb,
         conflicts_with = "max_memory"
-    )]
+    , allow_negative_numbers = true)]
     pub reference_max_memory: Option<u64>,
 
     /// Cut the run into K slabs along x, solved one after another in bounded memory with the
@@ -374,7 +384,12 @@ pub struct ReconstructArgs {
 
     /// Samples along each axis of --grid's grid, at least 2; refused when R^3 float32 values
     /// exceed --max-memory. Needs --grid [default: none]
-    #[arg(long, value_name = "R", requires = "grid")]
+    #[arg(
+        long,
+        value_name = "R",
+        requires = "grid",
+        allow_negative_numbers = true
+    )]
     pub grid_res: Option<u32>,
 
     /// The ids of the arguments given on the command line (filled by

@@ -177,6 +177,25 @@ fn negative_point_weight() {
 }
 
 #[test]
+fn negative_numbers_are_read_as_values_of_their_flag() {
+    // Read as a flag of its own, `--width -1` was "unexpected argument '-1'", with advice
+    // (`-- -1`) that does not work for an option's value.
+    bad_parameter(&["--width", "-1"], "--width -1");
+    let dir = TempDir::new().unwrap();
+    let output = dir.path().join("out.ply");
+    for (flag, value) in [
+        ("--full-depth", "-1"),
+        ("--max-memory", "-1"),
+        ("--grid-res", "-4"),
+        ("--threads", "-2"),
+    ] {
+        let out = spsr(&["reconstruct", "in.ply", "-o", s(&output), flag, value]);
+        assert_fails(&out, USAGE, &[flag, &format!("'{value}'")], &output);
+        assert!(!stderr(&out).contains("unexpected argument"), "{flag}");
+    }
+}
+
+#[test]
 fn zero_iters() {
     bad_parameter(&["--iters", "0"], "--iters");
 }
