@@ -335,8 +335,9 @@ pub struct ReconstructArgs {
         value_name = "GB",
         hide = true,
         value_parser = crate::poissonrecon::parse_max_memory_gb,
-        conflicts_with = "max_memory"
-    , allow_negative_numbers = true)]
+        conflicts_with = "max_memory",
+        allow_negative_numbers = true
+    )]
     pub reference_max_memory: Option<u64>,
 
     /// Cut the run into K slabs along x, solved one after another in bounded memory with the
