@@ -47,7 +47,13 @@ pub struct RenderArgs {
 
     /// Picture size in pixels, WIDTH x HEIGHT (or one number for a square), each from 1 to
     /// 16384.
-    #[arg(long, value_name = "WxH", default_value = "800x800", value_parser = parse_size, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "WxH",
+        default_value = "800x800",
+        value_parser = parse_size,
+        allow_negative_numbers = true
+    )]
     pub size: (u32, u32),
 
     /// What colours the surface: auto (the mesh's vertex colours when it has them), plain,
