@@ -597,29 +597,46 @@ fn locate(refined: &[u64], broods: &[u64]) -> (Vec<u32>, Vec<u64>) {
 
 /// The child array of a level of `len` nodes whose nodes `parents` (increasing) have the
 /// broods `0, 1, …` of the next level: filled in blocks of nodes, in parallel.
-fn child_array(len: usize, parents: &[u32]) -> Vec<u32> {
-    let mut child = Vec::with_capacity(len);
-    child.par_extend(rayon::iter::repeat_n(NONE, len));
-    child
+fn child_array(len: usize, parents: &[u32]) -> Arc<[u32]> {
+    let mut child = Arc::<[u32]>::new_uninit_slice(len);
+    let block_of = Arc::get_mut(&mut child).expect("a new slice has one owner");
+    block_of
         .par_chunks_mut(CHUNK)
         .enumerate()
         .for_each(|(i, block)| {
             let lo = (i * CHUNK) as u32;
+            for c in block.iter_mut() {
+                c.write(NONE);
+            }
             let first = parents.partition_point(|&p| p < lo);
             for (b, &p) in parents.iter().enumerate().skip(first) {
                 match block.get_mut((p - lo) as usize) {
-                    Some(c) => *c = b as u32,
+                    Some(c) => {
+                        c.write(b as u32);
+                    }
                     None => break,
                 }
             }
         });
-    child
+    // SAFETY: every element was written above (each chunk's elements first set to NONE).
+    unsafe { child.assume_init() }
 }
 
 /// The 27 broods around each brood of a new level whose broods' parents are `parents` in
 /// `prev` (whose child array is set).
-fn brood_neighbours(prev: &Level, parents: &[u32]) -> Vec<[u32; 27]> {
-    parents.par_iter().map(|&p| prev.children_row(p)).collect()
+/// Made in place in the shared slice: collecting into a `Vec` first and converting it would
+/// copy the rows (67 MB at depth 9 of a million points; issue 20).
+fn brood_neighbours(prev: &Level, parents: &[u32]) -> Arc<[[u32; 27]]> {
+    let mut rows = Arc::<[[u32; 27]]>::new_uninit_slice(parents.len());
+    Arc::get_mut(&mut rows)
+        .expect("a new slice has one owner")
+        .par_iter_mut()
+        .zip(parents.par_iter())
+        .for_each(|(row, &p)| {
+            row.write(prev.children_row(p));
+        });
+    // SAFETY: every row was written above (one per parent).
+    unsafe { rows.assume_init() }
 }
 
 impl Octree {
@@ -659,7 +676,7 @@ impl Octree {
             }
             let deepest = located.0.is_empty();
             let prev = &mut levels[t as usize - 1];
-            prev.child = child_array(prev.len, &parents).into();
+            prev.child = child_array(prev.len, &parents);
             let prev = &levels[t as usize - 1];
             // Level 1 holds the root's one brood, alone; the deepest level derives its rows.
             let (rows, from_parent): (Arc<[BroodRow]>, _) = if t == 1 {
@@ -673,7 +690,7 @@ impl Octree {
                 };
                 (Arc::from(Vec::new()), Some(from))
             } else {
-                (brood_neighbours(prev, &parents).into(), None)
+                (brood_neighbours(prev, &parents), None)
             };
             let brood_key: Vec<[u32; 3]> = codes.par_iter().map(|&m| key_of(m)).collect();
             levels.push(Level {
