@@ -386,6 +386,12 @@ impl Field<(u32, u32)> for CornerField<'_> {
         self.sum::<false>(c, near).0
     }
 
+    /// Degree-1 elements are trilinear on the cells of their depth, so χ is trilinear on the
+    /// cells of any grid at least as fine as the tree's finest depth.
+    fn trilinear(&self) -> bool {
+        self.eval.degree() == 1 && self.depth >= self.eval.max_depth()
+    }
+
     /// The value at the corner, and the central gradient: the mean of the one-sided
     /// derivatives on either side of the corner. With degree-1 elements χ is piecewise
     /// trilinear and its derivative jumps at every corner; a one-sided derivative there is the

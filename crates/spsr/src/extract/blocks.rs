@@ -50,6 +50,8 @@ pub(super) struct Ctx<'a, C: Cells> {
     pub(super) inv: f64,
     pub(super) linear: bool,
     pub(super) normals: bool,
+    /// The field is trilinear on the corner grid's cells ([`Field::trilinear`]).
+    trilinear: bool,
 }
 
 /// The field at the corners a block has asked for: `χ − iso`, and the gradient once needed.
@@ -69,7 +71,8 @@ pub(super) struct CornerCache<H> {
     /// For each corner, a leaf whose closure holds it (the field's hint).
     near: Vec<H>,
     pub(super) d: Vec<f64>,
-    g: Vec<Option<[f64; 3]>>,
+    /// The derivatives along each axis, NaN until needed ([`CornerCache::slope`]).
+    g: Vec<[f64; 3]>,
 }
 
 /// Most slots of the dense corner grid (16 MiB): a block of 128 finest cells per axis (129³
@@ -159,22 +162,67 @@ impl<H: Copy> CornerCache<H> {
             self.at.push(c);
             self.near.push(near);
             self.d.push(0.0);
-            self.g.push(None);
+            self.g.push([f64::NAN; 3]);
         }
         (i, i == next)
     }
 
-    /// Gradient at corner `i`, evaluated the first time it is needed.
+    /// Gradient at corner `i` (unit-cube units), evaluated the first time it is needed.
     #[inline]
     pub(super) fn grad<C: Cells<Handle = H>>(&mut self, ctx: &Ctx<C>, i: u32) -> [f64; 3] {
-        let i = i as usize;
-        match self.g[i] {
-            Some(g) => g,
-            None => {
-                let g = ctx.field.corner(self.at[i], self.near[i]).1;
-                self.g[i] = Some(g);
-                g
-            }
+        [0, 1, 2].map(|a| self.slope(ctx, i, a))
+    }
+
+    /// The derivative along `axis` at corner `i` (unit-cube units), evaluated the first time
+    /// it is needed: from the field's gradient, or, for a field trilinear on the corner
+    /// grid's cells ([`Field::trilinear`]), from the values at the corner's two neighbours
+    /// on that axis.
+    #[inline]
+    pub(super) fn slope<C: Cells<Handle = H>>(&mut self, ctx: &Ctx<C>, i: u32, axis: usize) -> f64 {
+        let k = i as usize;
+        let known = self.g[k][axis];
+        if !known.is_nan() {
+            return known;
+        }
+        if ctx.trilinear {
+            let s = self.central_difference(ctx, i, axis);
+            self.g[k][axis] = s;
+            s
+        } else {
+            let g = ctx.field.corner(self.at[k], self.near[k]).1;
+            self.g[k] = g;
+            g[axis]
+        }
+    }
+
+    /// The derivative along `axis` at corner `i` of a field trilinear on the corner grid's
+    /// cells: the mean of the slopes of the two grid edges that meet there along the axis
+    /// (the one edge's at the unit cube's faces). Along an edge of a cell the field is linear,
+    /// so each slope is exact: this is the mean of the one-sided derivatives, the central
+    /// gradient [`Field::corner`] gives for degree 1, from two values instead of two
+    /// gradients (issue 20). Most neighbours are corners of leaves already asked for.
+    fn central_difference<C: Cells<Handle = H>>(
+        &mut self,
+        ctx: &Ctx<C>,
+        i: u32,
+        axis: usize,
+    ) -> f64 {
+        let (c, near) = (self.at[i as usize], self.near[i as usize]);
+        let step = |me: &mut Self, up: bool| {
+            let mut p = c;
+            p[axis] = if up { p[axis] + 1 } else { p[axis] - 1 };
+            let j = me.get(ctx, p, near);
+            me.d[j as usize]
+        };
+        let up = (c[axis] < ctx.full).then(|| step(self, true));
+        let down = (c[axis] > 0).then(|| step(self, false));
+        let here = self.d[i as usize];
+        let per_cell = (1u64 << ctx.max_depth) as f64;
+        match (down, up) {
+            (Some(a), Some(b)) => 0.5 * (b - a) * per_cell,
+            (None, Some(b)) => (b - here) * per_cell,
+            (Some(a), None) => (here - a) * per_cell,
+            (None, None) => 0.0,
         }
     }
 }
@@ -277,6 +325,7 @@ pub fn extract_blocks<C: Cells>(
         inv: 1.0 / (1u64 << max_depth) as f64,
         linear: opts.linear_fit,
         normals: opts.normals,
+        trilinear: field.trilinear(),
     };
     let chunks: Vec<ChunkOut> = (0..cells.block_count())
         .into_par_iter()

@@ -28,6 +28,14 @@ pub trait Field<H = ()>: Sync {
     fn value(&self, c: [u32; 3], near: H) -> f64 {
         self.corner(c, near).0
     }
+
+    /// Whether the field is trilinear on every cell of the corner grid, so that along a grid
+    /// edge it is linear and its derivative at a corner can be read from the neighbouring
+    /// corners' values. Only for a field whose [`Field::corner`] gradient is then the mean
+    /// of the one-sided derivatives there.
+    fn trilinear(&self) -> bool {
+        false
+    }
 }
 
 /// The octree as extraction sees it: its leaves, grouped in blocks, and whether a cell is

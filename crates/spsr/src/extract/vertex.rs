@@ -110,8 +110,8 @@ fn crossing_point<C: Cells>(
     let t = if ctx.linear {
         edge_root(x0, x1, 0.0, 0.0, true)
     } else {
-        let g0 = corners.grad(ctx, c.i0)[axis] * h;
-        let g1 = corners.grad(ctx, c.i1)[axis] * h;
+        let g0 = corners.slope(ctx, c.i0, axis) * h;
+        let g1 = corners.slope(ctx, c.i1, axis) * h;
         edge_root(x0, x1, g0, g1, false)
     };
     let mut p = c.lo.map(|x| x as f64 * ctx.inv);
