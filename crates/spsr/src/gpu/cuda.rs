@@ -644,7 +644,7 @@ impl Device {
             let mut kernels = Duration::ZERO;
             if sys.push {
                 let clock = Instant::now();
-                let list = self.staging.upload(s, &sys.push_order)?;
+                let runs = self.staging.upload(s, sys.push_runs.as_flattened())?;
                 let parent = self.staging.upload(s, sys.next_parent)?;
                 let v_finer = match finer_v {
                     Some(v) => v,
@@ -657,7 +657,7 @@ impl Device {
                 let clock = Instant::now();
                 let (depth, rows) = (sys.shape.depth as i32, sys.cvmass.len() as u64);
                 let mut start = 0usize;
-                for &end in &sys.push_ends {
+                for &end in &sys.push_run_ends {
                     let (first, count) = (start as u64, (end - start) as u32);
                     start = end;
                     if count == 0 {
@@ -665,7 +665,7 @@ impl Device {
                     }
                     let mut launch = s.launch_builder(&self.push_finer_v);
                     launch
-                        .arg(&list)
+                        .arg(&runs)
                         .arg(&first)
                         .arg(&count)
                         .arg(&parent)
@@ -679,7 +679,7 @@ impl Device {
                         .arg(&v_finer)
                         .arg(&mut g);
                     // SAFETY: the arguments match the kernel's parameters in order and type;
-                    // the list names broods of the next level, whose parents are nodes of this
+                    // the runs name broods of the next level, whose parents are nodes of this
                     // one, and the threads of one colour write disjoint entries of `g`.
                     unsafe { launch.launch(config(count)) }?;
                 }
@@ -687,9 +687,6 @@ impl Device {
                 kernels += clock.elapsed();
             }
             let clock = Instant::now();
-            let vstart = self.staging.upload(s, &sys.v_start)?;
-            let vslot = self.staging.upload(s, &sys.v_slot)?;
-            let vcoef = self.staging.upload(s, &sys.v_coef)?;
             let vmass = self.staging.upload(s, &sys.vmass)?;
             let vderiv = self.staging.upload(s, &sys.vderiv)?;
             let children = self.staging.upload(s, sys.children)?;
@@ -712,9 +709,6 @@ impl Device {
                 .arg(&depth)
                 .arg(&sys.shape.lo)
                 .arg(&sys.shape.hi)
-                .arg(&vstart)
-                .arg(&vslot)
-                .arg(&vcoef)
                 .arg(&vmass)
                 .arg(&vderiv)
                 .arg(&children)

@@ -414,51 +414,70 @@ __device__ __forceinline__ double coarse_fine(const double* __restrict__ t, i64 
     return t[r * 8u + (u64)(k + 3)];
 }
 
-// One launch per colour of `system::push_colours`: each thread pushes the V of one brood of
-// the next depth (list[first + thread]) into the window of its parent (system.rs
-// `push_finer_v`). Parents of one colour are at least five apart, so the threads of a launch
-// write disjoint entries, and each entry receives its terms in the CPU's order: colour by
-// colour, and within a brood by child, then z, y, x.
+// One launch per colour of system.rs `brood_tiles`: each thread pushes the broods of one tile
+// of the next depth (runs[2·(first + thread)] up to runs[2·(first + thread) + 1]) in order,
+// each brood's V into the 5×5×5 window of its parent (system.rs `push_finer_v` and
+// `push_brood`: one axis at a time, the same operations in the same order). Tiles of one
+// colour push into disjoint windows, so every entry receives its terms in the CPU's order.
 extern "C" __global__ void push_finer_v(
-    const u32* __restrict__ list, u64 first, u32 count, const u32* __restrict__ next_parent,
+    const u32* __restrict__ runs, u64 first, u32 count, const u32* __restrict__ next_parent,
     const u32* __restrict__ nbrs, const u32* __restrict__ brood_key, int depth, i64 clo,
     u64 crows, const double* __restrict__ cvmass, const double* __restrict__ cvderiv,
     const float* __restrict__ v_finer, double* g) {
     u32 t = blockIdx.x * blockDim.x + threadIdx.x;
     if (t >= count) return;
-    u32 b = list[first + t];
-    u32 p = next_parent[b];
-    i64 ip[3];
-    func_index(brood_key, depth, p, ip);
-    for (u32 c = 0; c < 8u; c++) {
-        const float* vf = v_finer + ((u64)b * 8u + c) * 3u;
-        if (vf[0] == 0.0f && vf[1] == 0.0f && vf[2] == 0.0f) continue;
-        double v0 = (double)vf[0], v1 = (double)vf[1], v2 = (double)vf[2];
-        // Per axis: the four coarse indices around the fine index o = 2·ip + bit, their
-        // window offsets, and the 1-D tables at k = o − 2I.
-        i64 rel[3][4];
-        double m[3][4], dv[3][4];
+    u32 b0 = runs[(first + t) * 2u], b1 = runs[(first + t) * 2u + 1u];
+    for (u32 b = b0; b < b1; b++) {
+        const float* vf = v_finer + (u64)b * 24u;
+        bool any = false;
+        for (int e = 0; e < 24; e++) any = any || vf[e] != 0.0f;
+        if (!any) continue;
+        u32 p = next_parent[b];
+        i64 ip[3];
+        func_index(brood_key, depth, p, ip);
+        // Per axis, coarse offset r + 2 and child bit: the tables at k = bit − 2r.
+        double m[3][5][2], dv[3][5][2];
         for (int a = 0; a < 3; a++) {
-            i64 bit = (i64)((c >> a) & 1u);
-            i64 o = 2 * ip[a] + bit;
-            for (int s = 0; s < 4; s++) {
-                i64 r = bit - 2 + s;
-                i64 ia = ip[a] + r;
-                rel[a][s] = r;
-                m[a][s] = coarse_fine(cvmass, clo, crows, ia, o - 2 * ia);
-                dv[a][s] = coarse_fine(cvderiv, clo, crows, ia, o - 2 * ia);
+            for (int r = 0; r < 5; r++) {
+                i64 ia = ip[a] + r - 2;
+                for (int bit = 0; bit < 2; bit++) {
+                    i64 k = bit - 2 * (r - 2);
+                    m[a][r][bit] = coarse_fine(cvmass, clo, crows, ia, k);
+                    dv[a][r][bit] = coarse_fine(cvderiv, clo, crows, ia, k);
+                }
             }
         }
-        for (int z = 0; z < 4; z++) {
-            for (int y = 0; y < 4; y++) {
-                double mz = m[2][z], dz = dv[2][z], my = m[1][y], dy = dv[1][y];
-                if ((mz == 0.0 && dz == 0.0) || (my == 0.0 && dy == 0.0)) continue;
-                for (int x = 0; x < 4; x++) {
-                    double mx = m[0][x], dx = dv[0][x];
-                    double val = v0 * dx * my * mz + v1 * mx * dy * mz + v2 * mx * my * dz;
+        double ax[2][2][5], ay[2][2][5], az[2][2][5];
+        for (int bz = 0; bz < 2; bz++) {
+            for (int by = 0; by < 2; by++) {
+                int c = 2 * by + 4 * bz;
+                for (int x = 0; x < 5; x++) {
+                    double m0 = m[0][x][0], m1 = m[0][x][1], d0 = dv[0][x][0], d1 = dv[0][x][1];
+                    ax[bz][by][x] = (double)vf[c * 3] * d0 + (double)vf[(c + 1) * 3] * d1;
+                    ay[bz][by][x] = (double)vf[c * 3 + 1] * m0 + (double)vf[(c + 1) * 3 + 1] * m1;
+                    az[bz][by][x] = (double)vf[c * 3 + 2] * m0 + (double)vf[(c + 1) * 3 + 2] * m1;
+                }
+            }
+        }
+        double pxy[2][5][5], pz[2][5][5];
+        for (int bz = 0; bz < 2; bz++) {
+            for (int y = 0; y < 5; y++) {
+                double m0 = m[1][y][0], m1 = m[1][y][1], d0 = dv[1][y][0], d1 = dv[1][y][1];
+                for (int x = 0; x < 5; x++) {
+                    pxy[bz][y][x] = (ax[bz][0][x] * m0 + ax[bz][1][x] * m1) +
+                                    (ay[bz][0][x] * d0 + ay[bz][1][x] * d1);
+                    pz[bz][y][x] = az[bz][0][x] * m0 + az[bz][1][x] * m1;
+                }
+            }
+        }
+        for (int z = 0; z < 5; z++) {
+            double m0 = m[2][z][0], m1 = m[2][z][1], d0 = dv[2][z][0], d1 = dv[2][z][1];
+            for (int y = 0; y < 5; y++) {
+                for (int x = 0; x < 5; x++) {
+                    double val = (pxy[0][y][x] * m0 + pxy[1][y][x] * m1) +
+                                 (pz[0][y][x] * d0 + pz[1][y][x] * d1);
                     if (val == 0.0) continue;
-                    int w = (int)((rel[0][x] + 2) + 5 * (rel[1][y] + 2) + 25 * (rel[2][z] + 2));
-                    u32 q = neighbour(nbrs, p, w);
+                    u32 q = neighbour(nbrs, p, x + 5 * y + 25 * z);
                     if (q == NONE) continue;
                     g[q] = g[q] + val;
                 }
@@ -505,18 +524,15 @@ __device__ __forceinline__ double restrict_one(const u32* __restrict__ nbrs,
     return s;
 }
 
-// Each node's constraints (system.rs `divergence_constraints`, its `row`): `G` (V of the finer
-// depths: the next depth's, which `push_finer_v` left in `g` when `pushed` is set, plus the
-// restriction of the next depth's `G`, `gf`) into `g`, and `T = G + ∫∇B_i·V_d` into `b`. Null
-// `gf`, `v` or `g` stand for none (the CPU's empty arrays); `g` is not null when `pushed` is
-// set. Each thread reads and writes only its own node's `g`.
+// Each node's constraints (system.rs `divergence_constraints`, its `rows`): `G` (V of the
+// finer depths: the next depth's, which `push_finer_v` left in `g` when `pushed` is set, plus
+// the restriction of the next depth's `G`, `gf`) into `g`, and `T = G + ∫∇B_i·V_d` into `b`,
+// the last term where a brood around the node's has a nonzero V. Null `gf`, `v` or `g` stand
+// for none (the CPU's empty arrays); `g` is not null when `pushed` is set. Each thread reads
+// and writes only its own node's `g`.
 extern "C" __global__ void constraint_rows(
     u32 count, const u32* __restrict__ nbrs, const u32* __restrict__ brood_key, int depth,
     i64 lo, i64 hi,
-    // The interior V stencils by neighbouring brood (system.rs `BroodStencil<3>`): per child
-    // position entries vstart[c]..vstart[c + 1], each a brood slot and 3 × 8 coefficients.
-    const u32* __restrict__ vstart, const u32* __restrict__ vslot,
-    const double* __restrict__ vcoef,
     // Same-depth FEM-against-V 1-D tables, rows lo..=hi, five offsets each.
     const double* __restrict__ vmass, const double* __restrict__ vderiv,
     // Each node's children brood (empty: none), and the two-scale children per index.
@@ -536,38 +552,63 @@ extern "C" __global__ void constraint_rows(
     double gg = pushed ? g[n] : 0.0;
     if (gf) gg += restrict_one(nbrs, children, nchildren, n, i, lo, ch_count, ch_j, ch_w, gf);
     double bb = gg;
-    if (v && interior(i, lo, hi, 4)) {
-        // BroodStencil::row: lane l sums the l-th nodes of the broods, component by component.
-        const u32* around = nbrs + (u64)(n >> 3) * 27u;
-        double acc[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
-        u32 pos = n & 7u;
-        for (u32 e = vstart[pos]; e < vstart[pos + 1]; e++) {
-            u32 br = around[vslot[e]];
-            if (br == NONE) continue;
-            for (int k = 0; k < 3; k++) {
-                const double* cf = vcoef + ((u64)e * 3u + k) * 8u;
-                for (int l = 0; l < 8; l++) {
-                    acc[l] += cf[l] * (double)v[((u64)br * 8u + l) * 3u + k];
-                }
+    const u32* around = nbrs + (u64)(n >> 3) * 27u;
+    bool near_v = false;
+    if (v) {
+        for (int s = 0; s < 27 && !near_v; s++) {
+            u32 q = around[s];
+            if (q == NONE) continue;
+            for (int e = 0; e < 24; e++) near_v = near_v || v[(u64)q * 24u + e] != 0.0f;
+        }
+    }
+    if (near_v) {
+        // system.rs `v_brood_term` for this node: the window's sum one axis at a time, over
+        // the 6×6×6 nodes of the 27 broods around (local coordinate 2·slot + child bit).
+        int bit[3] = {(int)(n & 1u), (int)((n >> 1) & 1u), (int)((n >> 2) & 1u)};
+        double m[3][5], dv[3][5];
+        for (int a = 0; a < 3; a++) {
+            for (int o = 0; o < 5; o++) {
+                m[a][o] = table(vmass, lo, hi, i[a], o - 2);
+                dv[a][o] = table(vderiv, lo, hi, i[a], o - 2);
             }
         }
-        bb += ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]));
-    } else if (v) {
-        for (int w = 0; w < 125; w++) {
-            u32 m = neighbour(nbrs, n, w);
-            if (m == NONE) continue;
-            const float* vm = v + (u64)m * 3u;
-            if (vm[0] == 0.0f && vm[1] == 0.0f && vm[2] == 0.0f) continue;
-            double v0 = (double)vm[0], v1 = (double)vm[1], v2 = (double)vm[2];
-            i64 o0 = w % 5 - 2, o1 = (w / 5) % 5 - 2, o2 = w / 25 - 2;
-            double mx = table(vmass, lo, hi, i[0], o0);
-            double my = table(vmass, lo, hi, i[1], o1);
-            double mz = table(vmass, lo, hi, i[2], o2);
-            double dx = table(vderiv, lo, hi, i[0], o0);
-            double dy = table(vderiv, lo, hi, i[1], o1);
-            double dz = table(vderiv, lo, hi, i[2], o2);
-            bb += v0 * dx * my * mz + v1 * mx * dy * mz + v2 * mx * my * dz;
+        double uxy[5], uz[5];
+        for (int zz = 0; zz < 5; zz++) {
+            int z = bit[2] + zz;
+            double tx[5], ty[5], tz[5];
+            for (int yy = 0; yy < 5; yy++) {
+                int y = bit[1] + yy;
+                double sx = 0.0, sy = 0.0, sz = 0.0;
+                for (int o = 0; o < 5; o++) {
+                    int x = bit[0] + o;
+                    u32 q = around[x / 2 + 3 * (y / 2) + 9 * (z / 2)];
+                    double v0 = 0.0, v1 = 0.0, v2 = 0.0;
+                    if (q != NONE) {
+                        const float* vn =
+                            v + ((u64)q * 8u + (u32)(x % 2 + 2 * (y % 2) + 4 * (z % 2))) * 3u;
+                        v0 = (double)vn[0];
+                        v1 = (double)vn[1];
+                        v2 = (double)vn[2];
+                    }
+                    sx += v0 * dv[0][o];
+                    sy += v1 * m[0][o];
+                    sz += v2 * m[0][o];
+                }
+                tx[yy] = sx;
+                ty[yy] = sy;
+                tz[yy] = sz;
+            }
+            double sxy = 0.0, s2 = 0.0;
+            for (int o = 0; o < 5; o++) {
+                sxy += tx[o] * m[1][o] + ty[o] * dv[1][o];
+                s2 += tz[o] * m[1][o];
+            }
+            uxy[zz] = sxy;
+            uz[zz] = s2;
         }
+        double s3 = 0.0;
+        for (int o = 0; o < 5; o++) s3 += uxy[o] * m[2][o] + uz[o] * dv[2][o];
+        bb = gg + s3;
     }
     if (g) g[n] = gg;
     b[n] = (float)bb;

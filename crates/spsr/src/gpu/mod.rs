@@ -219,14 +219,6 @@ pub struct LevelSystem<'a> {
 pub struct ConstraintLevel<'a> {
     /// The level's nodes.
     pub shape: LevelShape<'a>,
-    /// The interior V stencils by neighbouring brood (`system::BroodStencil<3>`): where each
-    /// child position's entries start (nine values), each entry's brood slot, and its 3 × 8
-    /// coefficients.
-    pub v_start: Vec<u32>,
-    /// See `v_start`.
-    pub v_slot: Vec<u32>,
-    /// See `v_start`.
-    pub v_coef: Vec<f64>,
     /// FEM values against same-depth V, five offsets per index `lo..=hi`.
     pub vmass: Vec<f64>,
     /// FEM derivatives against same-depth V, laid out as `vmass`.
@@ -247,10 +239,11 @@ pub struct ConstraintLevel<'a> {
     pub cvderiv: &'a [[f64; 8]],
     /// The parent node of each brood of the next level (empty without one).
     pub next_parent: &'a [u32],
-    /// The next level's broods with V to push, colour after colour (`system::push_colours`).
-    pub push_order: Vec<u32>,
-    /// Where each colour of `push_order` ends.
-    pub push_ends: Vec<usize>,
+    /// The next level's broods in tiles, colour after colour (`system::brood_tiles`): each
+    /// tile's first brood and the one after its last.
+    pub push_runs: Vec<[u32; 2]>,
+    /// Where each colour of `push_runs` ends.
+    pub push_run_ends: Vec<usize>,
     /// Whether the next level's V is pushed (the CPU's `pushed` is not empty).
     pub push: bool,
     /// V of the level's nodes (empty: none).

@@ -770,14 +770,9 @@ fn norm2(a: &[f64]) -> f64 {
 /// coefficients `x`: each function pushes into its parent window through the parent stiffness
 /// stencils (the transpose of the cascade's pull).
 ///
-/// The broods are cut into tiles: the broods whose parents lie in one aligned block of
-/// `TILE³` parent cells, contiguous in the level's Morton order. A parent window reaches two
-/// cells beyond its parent, so the windows of two tiles whose block coordinates differ by two
-/// or more along some axis never overlap; the tiles are coloured by their block coordinates
-/// modulo 2 per axis, the eight colours pushed one after another, the tiles of a colour in
-/// parallel and each tile's broods in order by one task. Every sum is therefore taken in an
-/// order that does not depend on the thread count, and a task's reads and writes stay within
-/// one neighbourhood of the tree.
+/// The broods are pushed tile by tile ([`push_tiles`]): the eight colours one after another,
+/// the tiles of a colour in parallel and each tile's broods in order by one task, so every sum
+/// is taken in an order that does not depend on the thread count.
 fn push_to_parents(op: &Op, x: &[f32]) -> Vec<f64> {
     let mut g = vec![0.0f64; op.tree.levels[op.t as usize - 1].len()];
     let colours = push_tiles(op);
@@ -808,32 +803,10 @@ fn push_to_parents(op: &Op, x: &[f32]) -> Vec<f64> {
     g
 }
 
-/// The tiles of [`push_to_parents`] in its eight colours: per colour, the brood ranges of its
-/// tiles, in the level's order. The GPU pushes the same tiles in the same order
-/// (`super::device`).
+/// The tiles of [`push_to_parents`] in its eight colours ([`crate::system::brood_tiles`]).
+/// The GPU pushes the same tiles in the same order (`super::device`).
 pub(super) fn push_tiles(op: &Op) -> Vec<Vec<std::ops::Range<u32>>> {
-    const TILE: u32 = 8;
-    let parent_level = &op.tree.levels[op.t as usize - 1];
-    let level = op.level;
-    let mut colours: Vec<Vec<std::ops::Range<u32>>> = vec![Vec::new(); 8];
-    let broods = (level.len() / 8) as u32;
-    let tile_of = |b: u32| {
-        parent_level
-            .key(level.brood_parent[b as usize])
-            .map(|k| k / TILE)
-    };
-    let mut b = 0;
-    while b < broods {
-        let tile = tile_of(b);
-        let mut e = b + 1;
-        while e < broods && tile_of(e) == tile {
-            e += 1;
-        }
-        let colour = (tile[0] % 2 + 2 * (tile[1] % 2) + 4 * (tile[2] % 2)) as usize;
-        colours[colour].push(b..e);
-        b = e;
-    }
-    colours
+    crate::system::brood_tiles(&op.tree.levels[op.t as usize - 1], op.level)
 }
 
 impl Op<'_> {

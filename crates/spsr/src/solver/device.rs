@@ -10,7 +10,7 @@ use super::{Op, Problem};
 use crate::bspline::{Boundary, Table1D};
 use crate::gpu::{ConstraintLevel, CouplingLevel, Device, LevelShape, LevelSystem, Resident};
 use crate::octree::{Level, DEPTH_OFFSET};
-use crate::system::{push_colours, BroodStencil};
+use crate::system::brood_tiles;
 
 impl Op<'_> {
     /// The device and this level's system on it, copied there on first use; `None` without a
@@ -303,31 +303,19 @@ pub(super) fn constraint_level<'a>(
     let next = p.tree.levels.get(t as usize + 1);
     let d = t - DEPTH_OFFSET;
     let (lo, hi) = (tab.range.lo, tab.range.hi);
-    let vbrood = BroodStencil::new([&tab.vstencil[0], &tab.vstencil[1], &tab.vstencil[2]]);
-    let (mut v_start, mut v_slot, mut v_coef) = (vec![0u32], vec![], vec![]);
-    for row in vbrood.rows() {
-        for (slot, coef) in row {
-            v_slot.push(u32::from(*slot));
-            v_coef.extend(coef.iter().flatten());
-        }
-        v_start.push(v_slot.len() as u32);
-    }
     let (child_count, child_index, child_weight) = child_tables(p, d, lo, hi);
     // As the CPU: the next level's V is pushed when there is a next level and V on it.
     let push = next.is_some() && !v_finer.is_empty();
-    let (mut push_order, mut push_ends) = (Vec::new(), Vec::new());
+    let (mut push_runs, mut push_run_ends) = (Vec::new(), Vec::new());
     if let (true, Some(next)) = (push, next) {
-        for list in push_colours(level, next, v_finer) {
-            push_order.extend_from_slice(&list);
-            push_ends.push(push_order.len());
+        for tiles in brood_tiles(level, next) {
+            push_runs.extend(tiles.iter().map(|r| [r.start, r.end]));
+            push_run_ends.push(push_runs.len());
         }
     }
     let (coarse_lo, cvmass) = tab.cvmass.rows();
     ConstraintLevel {
         shape: level_shape(level, d, lo, hi),
-        v_start,
-        v_slot,
-        v_coef,
         vmass: table_rows(&tab.vmass, lo, hi),
         vderiv: table_rows(&tab.vderiv, lo, hi),
         children: level.children(),
@@ -338,8 +326,8 @@ pub(super) fn constraint_level<'a>(
         cvmass,
         cvderiv: tab.cvderiv.rows().1,
         next_parent: next.map_or(&[], |n| &n.brood_parent),
-        push_order,
-        push_ends,
+        push_runs,
+        push_run_ends,
         push,
         v,
         v_finer,

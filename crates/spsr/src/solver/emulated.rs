@@ -177,9 +177,6 @@ type ConstraintRows = unsafe extern "C" fn(
     i32,
     i64,
     i64,
-    *const u32,
-    *const u32,
-    *const f64,
     *const f64,
     *const f64,
     *const u32,
@@ -658,7 +655,7 @@ fn gauss_seidel(k: &Kernels, sys: &LevelSystem, rhs: &[f32], x: &mut [f32], iter
     }
 }
 
-/// The emulated `Device::constraints`: the pushes colour by colour, then the rows.
+/// The emulated `Device::constraints`: the tiles colour by colour, then the rows.
 fn constraints(k: &Kernels, sys: &ConstraintLevel) -> (Vec<f64>, Vec<f32>) {
     let push: PushFinerV = k.get("push_finer_v");
     let rows: ConstraintRows = k.get("constraint_rows");
@@ -674,13 +671,13 @@ fn constraints(k: &Kernels, sys: &ConstraintLevel) -> (Vec<f64>, Vec<f32>) {
     let keys = sys.shape.brood_key.as_flattened().as_ptr();
     if sys.push {
         let mut start = 0usize;
-        for &end in &sys.push_ends {
+        for &end in &sys.push_run_ends {
             let count = end - start;
             k.threads(count, || {
                 // SAFETY: the kernel's arguments, over arrays of the sizes it indexes.
                 unsafe {
                     push(
-                        sys.push_order.as_ptr(),
+                        sys.push_runs.as_flattened().as_ptr(),
                         start as u64,
                         count as u32,
                         sys.next_parent.as_ptr(),
@@ -714,9 +711,6 @@ fn constraints(k: &Kernels, sys: &ConstraintLevel) -> (Vec<f64>, Vec<f32>) {
                 sys.shape.depth as i32,
                 sys.shape.lo,
                 sys.shape.hi,
-                sys.v_start.as_ptr(),
-                sys.v_slot.as_ptr(),
-                sys.v_coef.as_ptr(),
                 sys.vmass.as_ptr(),
                 sys.vderiv.as_ptr(),
                 sys.children.as_ptr(),
