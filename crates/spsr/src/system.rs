@@ -1201,7 +1201,13 @@ mod tests {
     fn brood_probes(tab: &DepthTables) -> Vec<i64> {
         let (lo, hi) = (tab.range.lo, tab.range.hi);
         let even = |i: i64| i - i.rem_euclid(2);
-        let mut p = vec![even(lo), even(lo) + 2, even((lo + hi) / 2), even(hi) - 2, even(hi)];
+        let mut p = vec![
+            even(lo),
+            even(lo) + 2,
+            even((lo + hi) / 2),
+            even(hi) - 2,
+            even(hi),
+        ];
         p.dedup();
         p
     }
@@ -1266,9 +1272,8 @@ mod tests {
             let fem = Basis::new(as_degree(d_num), boundary);
             let vb = Basis::new(Degree::Quadratic, boundary.derivative());
             let tab = DepthTables::new(fem, vb, 4);
-            let vf: [[f32; 3]; 8] = std::array::from_fn(|_| {
-                std::array::from_fn(|_| noise(&mut state))
-            });
+            let vf: [[f32; 3]; 8] =
+                std::array::from_fn(|_| std::array::from_fn(|_| noise(&mut state)));
             // Parents' indices against each end and in the middle.
             let (lo, hi) = (tab.range.lo, tab.range.hi - 1);
             for ip in [[lo, hi, lo + 1], [(lo + hi) / 2; 3], [hi, lo, hi - 1]] {

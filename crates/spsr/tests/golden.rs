@@ -134,7 +134,7 @@ fn sphere_degree_1_two_solver_cycles_by_default() {
     check(
         "sphere d7 degree 1, two cycles",
         &out.mesh,
-        0x5fce869ef464f2a6,
+        0xac008e31713111bf,
     );
 }
 

@@ -990,9 +990,6 @@ impl Device {
                     .arg(&lvl.hi)
                     .arg(&lvl.brood_parent)
                     .arg(&*pnbrs)
-                    .arg(&lvl.pstencil)
-                    .arg(&lvl.nonzero_start)
-                    .arg(&lvl.nonzero)
                     .arg(&lvl.pmass)
                     .arg(&lvl.pstiff)
                     .arg(&mut g);

@@ -620,53 +620,71 @@ extern "C" __global__ void constraint_rows(
 
 // One launch per colour of cycles.rs `push_tiles`: each thread pushes the broods of one tile
 // (runs[2·(first + thread)] up to runs[2·(first + thread) + 1]) in order, each brood's
-// children in order, through the parent stiffness stencils into `g` (cycles.rs
-// `push_to_parents` and `Op::for_each_parent_stiffness`). Tiles of one colour push into
-// disjoint windows, so every entry receives its terms in the CPU's order.
+// coefficients into its parent's 5×5×5 window one axis at a time (cycles.rs `push_to_parents`
+// and `Op::parent_stiffness_push`: the same operations in the same order). Tiles of one colour
+// push into disjoint windows, so every entry receives its terms in the CPU's order.
 extern "C" __global__ void push_to_parents(
     const u32* __restrict__ runs, u64 first, u32 count, const float* __restrict__ x,
     const u32* __restrict__ brood_key, int depth, i64 lo, i64 hi,
     const u32* __restrict__ brood_parent, const u32* __restrict__ pnbrs,
-    const double* __restrict__ pstencil, const u32* __restrict__ nonzero_start,
-    const u32* __restrict__ nonzero, const double* __restrict__ pmass,
-    const double* __restrict__ pstiff, double* g) {
+    const double* __restrict__ pmass, const double* __restrict__ pstiff, double* g) {
     u32 t = blockIdx.x * blockDim.x + threadIdx.x;
     if (t >= count) return;
     u32 b0 = runs[(first + t) * 2u], b1 = runs[(first + t) * 2u + 1u];
     for (u32 b = b0; b < b1; b++) {
-        u32 par = brood_parent[b];
+        double xs[8];
+        bool any = false;
         for (u32 c = 0; c < 8u; c++) {
-            u32 n = b * 8u + c;
-            double xn = (double)x[n];
-            if (xn == 0.0) continue;
-            i64 i[3];
-            func_index(brood_key, depth, n, i);
-            if (!in_range(i, lo, hi)) continue;
-            if (interior(i, lo, hi, 4)) {
-                u32 cc = (u32)((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2));
-                const double* ps = pstencil + cc * 125u;
-                for (u32 k = nonzero_start[cc]; k < nonzero_start[cc + 1]; k++) {
-                    int w = (int)nonzero[k];
-                    if (ps[w] == 0.0) continue;
-                    u32 q = neighbour(pnbrs, par, w);
-                    if (q != NONE) g[q] = g[q] + ps[w] * xn;
-                }
-                continue;
-            }
-            double pm[3][5], pk[3][5];
-            for (int a = 0; a < 3; a++) {
-                for (int o = 0; o < 5; o++) {
-                    pm[a][o] = table(pmass, lo, hi, i[a], o - 2);
-                    pk[a][o] = table(pstiff, lo, hi, i[a], o - 2);
+            xs[c] = (double)x[b * 8u + c];
+            any = any || xs[c] != 0.0;
+        }
+        if (!any) continue;
+        i64 i0[3];
+        func_index(brood_key, depth, b * 8u, i0);
+        for (u32 c = 0; c < 8u; c++) {
+            i64 i[3] = {i0[0] + (i64)(c & 1u), i0[1] + (i64)((c >> 1) & 1u),
+                        i0[2] + (i64)((c >> 2) & 1u)};
+            if (!in_range(i, lo, hi)) xs[c] = 0.0;
+        }
+        double m[3][2][5], k[3][2][5];
+        for (int a = 0; a < 3; a++) {
+            for (int bit = 0; bit < 2; bit++) {
+                for (int r = 0; r < 5; r++) {
+                    m[a][bit][r] = table(pmass, lo, hi, i0[a] + bit, r - 2);
+                    k[a][bit][r] = table(pstiff, lo, hi, i0[a] + bit, r - 2);
                 }
             }
-            for (int w = 0; w < 125; w++) {
-                int ox = w % 5, oy = (w / 5) % 5, oz = w / 25;
-                double k = pk[0][ox] * pm[1][oy] * pm[2][oz] + pm[0][ox] * pk[1][oy] * pm[2][oz] +
-                           pm[0][ox] * pm[1][oy] * pk[2][oz];
-                if (k == 0.0) continue;
-                u32 q = neighbour(pnbrs, par, w);
-                if (q != NONE) g[q] = g[q] + k * xn;
+        }
+        double ax[2][2][5], bx[2][2][5];
+        for (int bz = 0; bz < 2; bz++) {
+            for (int by = 0; by < 2; by++) {
+                int c = 2 * by + 4 * bz;
+                for (int r = 0; r < 5; r++) {
+                    ax[bz][by][r] = xs[c] * k[0][0][r] + xs[c + 1] * k[0][1][r];
+                    bx[bz][by][r] = xs[c] * m[0][0][r] + xs[c + 1] * m[0][1][r];
+                }
+            }
+        }
+        double pxy[2][5][5], pz[2][5][5];
+        for (int bz = 0; bz < 2; bz++) {
+            for (int y = 0; y < 5; y++) {
+                for (int r = 0; r < 5; r++) {
+                    pxy[bz][y][r] = (ax[bz][0][r] * m[1][0][y] + ax[bz][1][r] * m[1][1][y]) +
+                                    (bx[bz][0][r] * k[1][0][y] + bx[bz][1][r] * k[1][1][y]);
+                    pz[bz][y][r] = bx[bz][0][r] * m[1][0][y] + bx[bz][1][r] * m[1][1][y];
+                }
+            }
+        }
+        u32 par = brood_parent[b];
+        for (int z = 0; z < 5; z++) {
+            for (int y = 0; y < 5; y++) {
+                for (int r = 0; r < 5; r++) {
+                    double val = (pxy[0][y][r] * m[2][0][z] + pxy[1][y][r] * m[2][1][z]) +
+                                 (pz[0][y][r] * k[2][0][z] + pz[1][y][r] * k[2][1][z]);
+                    if (val == 0.0) continue;
+                    u32 q = neighbour(pnbrs, par, r + 5 * y + 25 * z);
+                    if (q != NONE) g[q] = g[q] + val;
+                }
             }
         }
     }

@@ -35,7 +35,7 @@ use super::{
 };
 use crate::octree::{for_each_node, map_nodes, neighbor_in_row, DEPTH_OFFSET, NONE};
 use crate::shared_slice::SharedSlice;
-use crate::system::restrict_one;
+use crate::system::{restrict_one, DepthTables};
 use crate::Solver;
 
 /// The relative residual of one depth's equations around one relaxation (or the base solve):
@@ -774,28 +774,31 @@ fn norm2(a: &[f64]) -> f64 {
 /// the tiles of a colour in parallel and each tile's broods in order by one task, so every sum
 /// is taken in an order that does not depend on the thread count.
 fn push_to_parents(op: &Op, x: &[f32]) -> Vec<f64> {
-    let mut g = vec![0.0f64; op.tree.levels[op.t as usize - 1].len()];
+    let parent_level = &op.tree.levels[op.t as usize - 1];
+    let mut g = vec![0.0f64; parent_level.len()];
     let colours = push_tiles(op);
     let gs = SharedSlice::new(&mut g);
     for tiles in &colours {
         tiles.par_iter().for_each(|range| {
             for b in range.clone() {
+                let xs: [f64; 8] = std::array::from_fn(|c| f64::from(x[8 * b as usize + c]));
+                if xs.iter().all(|&v| v == 0.0) {
+                    continue;
+                }
                 let par = op.level.brood_parent[b as usize];
-                for c in 0..8u32 {
-                    let n = b * 8 + c;
-                    let xn = f64::from(x[n as usize]);
-                    if xn == 0.0 {
+                let row = parent_level.brood_row(par >> 3);
+                let out = parent_stiffness_push(op.tab, op.index(8 * b), xs);
+                for (w, &val) in out.iter().enumerate() {
+                    if val == 0.0 {
                         continue;
                     }
-                    let i = op.index(n);
-                    if !op.tab.range.contains(i) {
+                    let q = neighbor_in_row(&row, par, w);
+                    if q == NONE {
                         continue;
                     }
-                    op.for_each_parent_stiffness(i, par, |q, k| {
-                        // SAFETY: within one colour, only this tile's task writes the windows
-                        // of its broods' parents (see the colouring above).
-                        unsafe { gs.set(q as usize, gs.get(q as usize) + k * xn) };
-                    });
+                    // SAFETY: within one colour, only this tile's task writes the windows of
+                    // its broods' parents (see the colouring above).
+                    unsafe { gs.set(q as usize, gs.get(q as usize) + val) };
                 }
             }
         });
@@ -809,51 +812,66 @@ pub(super) fn push_tiles(op: &Op) -> Vec<Vec<std::ops::Range<u32>>> {
     crate::system::brood_tiles(&op.tree.levels[op.t as usize - 1], op.level)
 }
 
-impl Op<'_> {
-    /// Calls `f(q, ∫∇B_i·∇B_q)` for the nonzero entries of the parent window of function `i`
-    /// (whose node's parent is `par`): the same entries the cascade's pull reads.
-    #[inline]
-    fn for_each_parent_stiffness(&self, i: [i64; 3], par: u32, mut f: impl FnMut(u32, f64)) {
-        let tab = self.tab;
-        let parent_level = &self.tree.levels[self.t as usize - 1];
-        let row = parent_level.brood_row(par >> 3);
-        if tab.is_interior(i) {
-            let c = ((i[0] & 1) | ((i[1] & 1) << 1) | ((i[2] & 1) << 2)) as usize;
-            let ps = &tab.pstencil[c];
-            for &w in &tab.pnonzero[c] {
-                let w = usize::from(w);
-                if ps[w] == 0.0 {
-                    continue;
-                }
-                let q = neighbor_in_row(&row, par, w);
-                if q != NONE {
-                    f(q, ps[w]);
-                }
-            }
-            return;
+/// `Σ_c ∫∇B_q·∇B_c x_c` over the eight children `c` of one brood (`i0`: its first node's
+/// function index, `x`: its coefficients, zero for a node without a function) for the
+/// 5×5×5 functions `q` around their parent, by window index. Each entry is a sum of three
+/// products of 1-D integrals, so the sum is taken one axis at a time over the brood's 2×2×2
+/// values, with each index's 1-D tables (boundary rows included). (Issue 20: one write per
+/// parent-window entry instead of one per child and entry.)
+pub(super) fn parent_stiffness_push(tab: &DepthTables, i0: [i64; 3], x: [f64; 8]) -> [f64; 125] {
+    let x: [f64; 8] = std::array::from_fn(|c| {
+        let i = std::array::from_fn(|a| i0[a] + ((c >> a) & 1) as i64);
+        if tab.range.contains(i) {
+            x[c]
+        } else {
+            0.0
         }
-        let mut pm = [[0.0; 5]; 3];
-        let mut ps = [[0.0; 5]; 3];
-        for a in 0..3 {
-            for o in 0..5 {
-                pm[a][o] = tab.pmass.get(i[a], o as i64 - 2);
-                ps[a][o] = tab.pstiff.get(i[a], o as i64 - 2);
-            }
-        }
-        for w in 0..125usize {
-            let (ox, oy, oz) = (w % 5, (w / 5) % 5, w / 25);
-            let k = ps[0][ox] * pm[1][oy] * pm[2][oz]
-                + pm[0][ox] * ps[1][oy] * pm[2][oz]
-                + pm[0][ox] * pm[1][oy] * ps[2][oz];
-            if k == 0.0 {
-                continue;
-            }
-            let q = neighbor_in_row(&row, par, w);
-            if q != NONE {
-                f(q, k);
+    });
+    // Per axis and child bit: the parent value and derivative tables at offsets −2..=2.
+    let mut m = [[[0.0f64; 5]; 2]; 3];
+    let mut k = [[[0.0f64; 5]; 2]; 3];
+    for a in 0..3 {
+        for bit in 0..2 {
+            for r in 0..5 {
+                m[a][bit][r] = tab.pmass.get(i0[a] + bit as i64, r as i64 - 2);
+                k[a][bit][r] = tab.pstiff.get(i0[a] + bit as i64, r as i64 - 2);
             }
         }
     }
+    // Along x: through the derivative (the x term) and the value (the others).
+    let mut ax = [[[0.0f64; 5]; 2]; 2];
+    let mut bx = [[[0.0f64; 5]; 2]; 2];
+    for bz in 0..2 {
+        for by in 0..2 {
+            let c = 2 * by + 4 * bz;
+            for r in 0..5 {
+                ax[bz][by][r] = x[c] * k[0][0][r] + x[c + 1] * k[0][1][r];
+                bx[bz][by][r] = x[c] * m[0][0][r] + x[c + 1] * m[0][1][r];
+            }
+        }
+    }
+    // Along y: the x and y terms together, the z term apart.
+    let mut pxy = [[[0.0f64; 5]; 5]; 2];
+    let mut pz = [[[0.0f64; 5]; 5]; 2];
+    for bz in 0..2 {
+        for y in 0..5 {
+            for r in 0..5 {
+                pxy[bz][y][r] = (ax[bz][0][r] * m[1][0][y] + ax[bz][1][r] * m[1][1][y])
+                    + (bx[bz][0][r] * k[1][0][y] + bx[bz][1][r] * k[1][1][y]);
+                pz[bz][y][r] = bx[bz][0][r] * m[1][0][y] + bx[bz][1][r] * m[1][1][y];
+            }
+        }
+    }
+    let mut out = [0.0f64; 125];
+    for z in 0..5 {
+        for y in 0..5 {
+            for r in 0..5 {
+                out[r + 5 * y + 25 * z] = (pxy[0][y][r] * m[2][0][z] + pxy[1][y][r] * m[2][1][z])
+                    + (pz[0][y][r] * k[2][0][z] + pz[1][y][r] * k[2][1][z]);
+            }
+        }
+    }
+    out
 }
 
 /// `M x` of the whole hierarchical system for the coefficients `xs` (per level, the base's

@@ -786,3 +786,59 @@ fn clusters_give_back_their_windows() {
     }
     assert!(checked > 10_000, "{checked} clusters checked");
 }
+
+#[test]
+fn the_parent_push_taken_one_axis_at_a_time_is_each_childs_parent_window() {
+    let mut state = 0x5851_f42d_4c95_7f2du64;
+    let mut noise = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    };
+    for degree in [Degree::Linear, Degree::Quadratic] {
+        for boundary in [Boundary::Neumann, Boundary::Dirichlet, Boundary::Free] {
+            let fem = crate::bspline::Basis::new(degree, boundary);
+            let vb = crate::bspline::Basis::new(Degree::Quadratic, boundary.derivative());
+            let tab = crate::system::DepthTables::new(fem, vb, 4);
+            let (lo, hi) = (tab.range.lo, tab.range.hi);
+            let even = |i: i64| i - i.rem_euclid(2);
+            // Broods against each end (some children outside the range) and in the middle.
+            for i0 in [
+                [even(lo), even(hi), even(lo) + 2],
+                [even((lo + hi) / 2); 3],
+                [even(hi), even(lo), even(hi) - 2],
+            ] {
+                let x: [f64; 8] = std::array::from_fn(|_| noise());
+                let got = cycles::parent_stiffness_push(&tab, i0, x);
+                let (mut want, mut scale) = ([0.0f64; 125], [0.0f64; 125]);
+                for (c, &xc) in x.iter().enumerate() {
+                    let i: [i64; 3] = std::array::from_fn(|a| i0[a] + ((c >> a) & 1) as i64);
+                    if !tab.range.contains(i) {
+                        continue;
+                    }
+                    for w in 0..125 {
+                        let o = [w % 5 - 2, w / 5 % 5 - 2, w / 25 - 2];
+                        let m: [f64; 3] = std::array::from_fn(|a| tab.pmass.get(i[a], o[a]));
+                        let k: [f64; 3] = std::array::from_fn(|a| tab.pstiff.get(i[a], o[a]));
+                        let terms = [k[0] * m[1] * m[2], m[0] * k[1] * m[2], m[0] * m[1] * k[2]];
+                        want[w as usize] += xc * terms.iter().sum::<f64>();
+                        scale[w as usize] += terms.iter().map(|t| (xc * t).abs()).sum::<f64>();
+                    }
+                }
+                for w in 0..125 {
+                    assert!(
+                        (got[w] - want[w]).abs() <= 1e-13 * scale[w],
+                        "{degree:?} {boundary:?} brood {i0:?} window {w}: {} vs {}",
+                        got[w],
+                        want[w]
+                    );
+                }
+                // The middle brood reaches at least a 3×3×3 window.
+                if i0[0] == i0[1] {
+                    assert!(scale.iter().filter(|&&s| s > 0.0).count() >= 27);
+                }
+            }
+        }
+    }
+}
