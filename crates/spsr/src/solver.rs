@@ -280,7 +280,14 @@ impl<'a> Op<'a> {
         let ps = &tab.pstencil[c];
         let pv = &tab.pvstencil[c];
         let row = parent_level.brood_row(par >> 3);
-        for &w in &tab.pnonzero[c] {
+        // Without the V term, only the entries where the stiffness is nonzero (the others
+        // would subtract zeros).
+        let window = if VEC {
+            &tab.pnonzero[c]
+        } else {
+            &tab.psnonzero[c]
+        };
+        for &w in window {
             let w = usize::from(w);
             let q = neighbor_in_row(&row, par, w);
             if q == NONE {

@@ -119,6 +119,10 @@ pub struct DepthTables {
     pub pvstencil: Box<[[[f64; 125]; 3]; 8]>,
     /// By child parity, the parent window indices where `pstencil` or `pvstencil` is nonzero.
     pub pnonzero: [Vec<u8>; 8],
+    /// The entries of `pnonzero` where `pstencil` is nonzero, in the same order: the parent
+    /// window of the coarser solution's coupling alone. (Issue 20: at degree 1 the V stencils
+    /// reach further than the stiffness ones, and most rows have no coarser V near them.)
+    pub psnonzero: [Vec<u8>; 8],
     /// FEM values of this depth against V functions one depth finer.
     pub cvmass: CoarseFine,
     /// FEM derivatives of this depth against V functions one depth finer.
@@ -237,8 +241,16 @@ impl DepthTables {
                 })
                 .collect()
         });
+        let psnonzero = std::array::from_fn(|c| {
+            pnonzero[c]
+                .iter()
+                .copied()
+                .filter(|&w| pstencil[c][usize::from(w)] != 0.0)
+                .collect()
+        });
         Self {
             pnonzero,
+            psnonzero,
             cvmass,
             cvderiv,
             range: Range { lo, hi },

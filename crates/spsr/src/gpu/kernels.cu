@@ -277,6 +277,9 @@ __device__ __forceinline__ void coarse_coupling(double s[2], bool sol, bool vec,
         const double* pv = p.pvstencil + c * 375u;
         for (u32 k = p.nonzero_start[c]; k < p.nonzero_start[c + 1]; k++) {
             int w = (int)p.nonzero[k];
+            // Without the V term, the CPU walks only the entries of nonzero stiffness
+            // (system.rs `DepthTables::psnonzero`, the same order).
+            if (!vec && ps[w] == 0.0) continue;
             u32 q = neighbour(p.nbrs, par, w);
             if (q == NONE) continue;
             if (sol) s[0] -= ps[w] * pc[q];
