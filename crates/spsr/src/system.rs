@@ -854,22 +854,38 @@ fn push_finer_v(
     tab: &DepthTables,
     v_finer: &[[f32; 3]],
 ) -> Vec<f64> {
-    let mut g = vec![0.0f64; level.len()];
-    let tiles = brood_tiles(level, next);
+    push_to_parent_windows(level, next, |b| {
+        let vf: &[[f32; 3]; 8] = v_finer[8 * b as usize..8 * b as usize + 8]
+            .try_into()
+            .expect("eight nodes");
+        if vf.iter().all(|v| *v == [0.0; 3]) {
+            return None;
+        }
+        let ip = func_index(level.key(next.brood_parent[b as usize]), d);
+        Some(push_brood(tab, ip, vf))
+    })
+}
+
+/// Sums, for every node of `parent_level`, what the broods of `level` push into their
+/// parents' 5×5×5 windows: `window(b)` gives brood `b`'s terms by window index (`None`:
+/// nothing), tile by tile ([`brood_tiles`]): the colours one after another, the tiles of a
+/// colour in parallel and each tile's broods in order, so every sum is taken in an order that
+/// does not depend on the thread count. Zero terms and absent nodes are skipped.
+pub(crate) fn push_to_parent_windows(
+    parent_level: &Level,
+    level: &Level,
+    window: impl Fn(u32) -> Option<[f64; 125]> + Sync,
+) -> Vec<f64> {
+    let mut g = vec![0.0f64; parent_level.len()];
     let gs = SharedSlice::new(&mut g);
-    for colour in &tiles {
+    for colour in &brood_tiles(parent_level, level) {
         colour.par_iter().for_each(|range| {
             for b in range.clone() {
-                let vf: &[[f32; 3]; 8] = v_finer[8 * b as usize..8 * b as usize + 8]
-                    .try_into()
-                    .expect("eight nodes");
-                if vf.iter().all(|v| *v == [0.0; 3]) {
+                let Some(out) = window(b) else {
                     continue;
-                }
-                let p = next.brood_parent[b as usize];
-                let ip = func_index(level.key(p), d);
-                let row = level.brood_row(p >> 3);
-                let out = push_brood(tab, ip, vf);
+                };
+                let p = level.brood_parent[b as usize];
+                let row = parent_level.brood_row(p >> 3);
                 for (w, &val) in out.iter().enumerate() {
                     if val == 0.0 {
                         continue;

@@ -33,8 +33,7 @@ use super::{
     coarse_cluster_values, prolong_field, prolong_solution, remove_mean, to_f32, BaseSystem, Carry,
     Laps, Op, Problem, Solution, TAU,
 };
-use crate::octree::{for_each_node, map_nodes, neighbor_in_row, DEPTH_OFFSET, NONE};
-use crate::shared_slice::SharedSlice;
+use crate::octree::{for_each_node, map_nodes, DEPTH_OFFSET};
 use crate::system::{restrict_one, DepthTables};
 use crate::Solver;
 
@@ -770,44 +769,23 @@ fn norm2(a: &[f64]) -> f64 {
 /// coefficients `x`: each function pushes into its parent window through the parent stiffness
 /// stencils (the transpose of the cascade's pull).
 ///
-/// The broods are pushed tile by tile ([`push_tiles`]): the eight colours one after another,
-/// the tiles of a colour in parallel and each tile's broods in order by one task, so every sum
-/// is taken in an order that does not depend on the thread count.
+/// Each brood's eight coefficients are pushed at once ([`parent_stiffness_push`]), tile by tile
+/// ([`crate::system::push_to_parent_windows`]), so every sum is taken in an order that does
+/// not depend on the thread count.
 fn push_to_parents(op: &Op, x: &[f32]) -> Vec<f64> {
     let parent_level = &op.tree.levels[op.t as usize - 1];
-    let mut g = vec![0.0f64; parent_level.len()];
-    let colours = push_tiles(op);
-    let gs = SharedSlice::new(&mut g);
-    for tiles in &colours {
-        tiles.par_iter().for_each(|range| {
-            for b in range.clone() {
-                let xs: [f64; 8] = std::array::from_fn(|c| f64::from(x[8 * b as usize + c]));
-                if xs.iter().all(|&v| v == 0.0) {
-                    continue;
-                }
-                let par = op.level.brood_parent[b as usize];
-                let row = parent_level.brood_row(par >> 3);
-                let out = parent_stiffness_push(op.tab, op.index(8 * b), xs);
-                for (w, &val) in out.iter().enumerate() {
-                    if val == 0.0 {
-                        continue;
-                    }
-                    let q = neighbor_in_row(&row, par, w);
-                    if q == NONE {
-                        continue;
-                    }
-                    // SAFETY: within one colour, only this tile's task writes the windows of
-                    // its broods' parents (see the colouring above).
-                    unsafe { gs.set(q as usize, gs.get(q as usize) + val) };
-                }
-            }
-        });
-    }
-    g
+    crate::system::push_to_parent_windows(parent_level, op.level, |b| {
+        let xs: [f64; 8] = std::array::from_fn(|c| f64::from(x[8 * b as usize + c]));
+        if xs.iter().all(|&v| v == 0.0) {
+            return None;
+        }
+        Some(parent_stiffness_push(op.tab, op.index(8 * b), xs))
+    })
 }
 
 /// The tiles of [`push_to_parents`] in its eight colours ([`crate::system::brood_tiles`]).
 /// The GPU pushes the same tiles in the same order (`super::device`).
+#[cfg(feature = "gpu")]
 pub(super) fn push_tiles(op: &Op) -> Vec<Vec<std::ops::Range<u32>>> {
     crate::system::brood_tiles(&op.tree.levels[op.t as usize - 1], op.level)
 }
