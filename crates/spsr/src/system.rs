@@ -957,8 +957,22 @@ pub(crate) fn push_brood(tab: &DepthTables, ip: [i64; 3], vf: &[[f32; 3]; 8]) ->
             }
         }
     }
-    let v = |c: usize, comp: usize| f64::from(vf[c][comp]);
-    // Along x: per (bz, by) and coarse x, V's x component through the derivative, y and z
+    tensor_push(&m, &dv, |c, comp| f64::from(vf[c][comp]))
+}
+
+/// The sum over a brood's eight children `c` (child bits per axis) of
+/// `v(c, 0) D_x M_y M_z + v(c, 1) M_x D_y M_z + v(c, 2) M_x M_y D_z` for each of the 5×5×5
+/// functions around their parent, by window index, where `m[a][r][bit]` and `d[a][r][bit]`
+/// are the 1-D value and derivative integrals along axis `a` between the function at offset
+/// `r − 2` and a child with bit `bit`. Taken one axis at a time: x, then y, then z.
+/// ([`push_brood`] with V's three components; the cycles' parent stiffness push with one
+/// coefficient for all three, the stiffness being the same sum of three products.)
+pub(crate) fn tensor_push(
+    m: &[[[f64; 2]; 5]; 3],
+    d: &[[[f64; 2]; 5]; 3],
+    v: impl Fn(usize, usize) -> f64,
+) -> [f64; 125] {
+    // Along x: per (bz, by) and window x, the x component through the derivative, y and z
     // through the value.
     let mut ax = [[[0.0f64; 5]; 2]; 2];
     let mut ay = [[[0.0f64; 5]; 2]; 2];
@@ -967,7 +981,7 @@ pub(crate) fn push_brood(tab: &DepthTables, ip: [i64; 3], vf: &[[f32; 3]; 8]) ->
         for by in 0..2 {
             let c = 2 * by + 4 * bz;
             for x in 0..5 {
-                let (m0, m1, d0, d1) = (m[0][x][0], m[0][x][1], dv[0][x][0], dv[0][x][1]);
+                let (m0, m1, d0, d1) = (m[0][x][0], m[0][x][1], d[0][x][0], d[0][x][1]);
                 ax[bz][by][x] = v(c, 0) * d0 + v(c + 1, 0) * d1;
                 ay[bz][by][x] = v(c, 1) * m0 + v(c + 1, 1) * m1;
                 az[bz][by][x] = v(c, 2) * m0 + v(c + 1, 2) * m1;
@@ -979,7 +993,7 @@ pub(crate) fn push_brood(tab: &DepthTables, ip: [i64; 3], vf: &[[f32; 3]; 8]) ->
     let mut pz = [[[0.0f64; 5]; 5]; 2];
     for bz in 0..2 {
         for y in 0..5 {
-            let (m0, m1, d0, d1) = (m[1][y][0], m[1][y][1], dv[1][y][0], dv[1][y][1]);
+            let (m0, m1, d0, d1) = (m[1][y][0], m[1][y][1], d[1][y][0], d[1][y][1]);
             for x in 0..5 {
                 pxy[bz][y][x] = (ax[bz][0][x] * m0 + ax[bz][1][x] * m1)
                     + (ay[bz][0][x] * d0 + ay[bz][1][x] * d1);
@@ -990,7 +1004,7 @@ pub(crate) fn push_brood(tab: &DepthTables, ip: [i64; 3], vf: &[[f32; 3]; 8]) ->
     // Along z: z's component through the derivative.
     let mut out = [0.0f64; 125];
     for z in 0..5 {
-        let (m0, m1, d0, d1) = (m[2][z][0], m[2][z][1], dv[2][z][0], dv[2][z][1]);
+        let (m0, m1, d0, d1) = (m[2][z][0], m[2][z][1], d[2][z][0], d[2][z][1]);
         for y in 0..5 {
             for x in 0..5 {
                 out[x + 5 * y + 25 * z] =

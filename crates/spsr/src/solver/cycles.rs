@@ -805,51 +805,20 @@ pub(super) fn parent_stiffness_push(tab: &DepthTables, i0: [i64; 3], x: [f64; 8]
             0.0
         }
     });
-    // Per axis and child bit: the parent value and derivative tables at offsets −2..=2.
-    let mut m = [[[0.0f64; 5]; 2]; 3];
-    let mut k = [[[0.0f64; 5]; 2]; 3];
+    // Per axis, window offset r + 2 and child bit: the parent value and derivative tables.
+    let mut m = [[[0.0f64; 2]; 5]; 3];
+    let mut k = [[[0.0f64; 2]; 5]; 3];
     for a in 0..3 {
-        for bit in 0..2 {
-            for r in 0..5 {
-                m[a][bit][r] = tab.pmass.get(i0[a] + bit as i64, r as i64 - 2);
-                k[a][bit][r] = tab.pstiff.get(i0[a] + bit as i64, r as i64 - 2);
+        for r in 0..5 {
+            for bit in 0..2 {
+                m[a][r][bit] = tab.pmass.get(i0[a] + bit as i64, r as i64 - 2);
+                k[a][r][bit] = tab.pstiff.get(i0[a] + bit as i64, r as i64 - 2);
             }
         }
     }
-    // Along x: through the derivative (the x term) and the value (the others).
-    let mut ax = [[[0.0f64; 5]; 2]; 2];
-    let mut bx = [[[0.0f64; 5]; 2]; 2];
-    for bz in 0..2 {
-        for by in 0..2 {
-            let c = 2 * by + 4 * bz;
-            for r in 0..5 {
-                ax[bz][by][r] = x[c] * k[0][0][r] + x[c + 1] * k[0][1][r];
-                bx[bz][by][r] = x[c] * m[0][0][r] + x[c + 1] * m[0][1][r];
-            }
-        }
-    }
-    // Along y: the x and y terms together, the z term apart.
-    let mut pxy = [[[0.0f64; 5]; 5]; 2];
-    let mut pz = [[[0.0f64; 5]; 5]; 2];
-    for bz in 0..2 {
-        for y in 0..5 {
-            for r in 0..5 {
-                pxy[bz][y][r] = (ax[bz][0][r] * m[1][0][y] + ax[bz][1][r] * m[1][1][y])
-                    + (bx[bz][0][r] * k[1][0][y] + bx[bz][1][r] * k[1][1][y]);
-                pz[bz][y][r] = bx[bz][0][r] * m[1][0][y] + bx[bz][1][r] * m[1][1][y];
-            }
-        }
-    }
-    let mut out = [0.0f64; 125];
-    for z in 0..5 {
-        for y in 0..5 {
-            for r in 0..5 {
-                out[r + 5 * y + 25 * z] = (pxy[0][y][r] * m[2][0][z] + pxy[1][y][r] * m[2][1][z])
-                    + (pz[0][y][r] * k[2][0][z] + pz[1][y][r] * k[2][1][z]);
-            }
-        }
-    }
-    out
+    // The stiffness is `K_x M_y M_z + M_x K_y M_z + M_x M_y K_z`: V's form with one
+    // coefficient in all three components.
+    crate::system::tensor_push(&m, &k, |c, _| x[c])
 }
 
 /// `M x` of the whole hierarchical system for the coefficients `xs` (per level, the base's
