@@ -637,8 +637,7 @@ def main():
     ap.add_argument("--full-depth", type=int, default=5)
     ap.add_argument("--scale", type=float, default=1.1)
     ap.add_argument("--no-profile", action="store_true",
-                    help="run spsr without -v: no per-stage profile and no compute time, but also none of "
-                         "the solver's residual measurements that -v adds to its time (a few to 25 %%)")
+                    help="run spsr without -v: no per-stage profile and no compute time")
     ap.add_argument("--iters", type=int, default=None,
                     help="Gauss-Seidel sweeps per depth for every tool (default: each tool's own; "
                          "PoissonRecon's 8 for the peers)")

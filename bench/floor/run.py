@@ -257,8 +257,8 @@ def report(meta, bw, results):
         "s* the traffic over the probe's bandwidth for the run's thread count, *time ÷ floor* how "
         "far the stage is from that floor, *share* the stage's part of the total (the indented "
         "rows are the parts of \"solving\"), *speed-up 1→2* the stage's 1-thread time over its "
-        "2-thread time. With `-v` the solver reports its residuals, which adds the *fixed "
-        "right-hand side* and *residual* parts (not run without `-v`). *noise* has no model (the "
+        "2-thread time. The runs are plain `-v` runs, without `--residuals` (whose measurement "
+        "would add the solver's *fixed right-hand side* and *residual* parts). *noise* has no model (the "
         "noise adaptation is being reworked elsewhere). The run's command is under each table.",
         "",
         "Target (issue 20): no stage above 25 % of the total unless it runs within 3 × of its "

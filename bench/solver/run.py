@@ -24,7 +24,8 @@ SHORT = [("cascadic", 1, 8), ("cascadic", 1, 16), ("cascadic", 2, 8), ("vcycle",
 
 def run_one(spsr, cloud, depth, degree, solver, cycles, iters, out):
     cmd = [spsr, "reconstruct", f"{DATA}/points/{cloud}.ply", "-o", out, "--depth", str(depth),
-           "--degree", str(degree), "--solver", solver, "--cycles", str(cycles), "--iters", str(iters), "-v"]
+           "--degree", str(degree), "--solver", solver, "--cycles", str(cycles), "--iters", str(iters), "-v",
+           "--residuals"]
     t = time.perf_counter()
     p = subprocess.run(cmd, capture_output=True, text=True, check=True)
     wall = time.perf_counter() - t

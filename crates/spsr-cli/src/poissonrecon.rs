@@ -64,7 +64,6 @@ const UNSUPPORTED: &[(&str, &str)] = &[
     ("polygonMesh", "spsr writes triangles only"),
     ("primalGrid", "spsr writes no voxel grid"),
     ("schedule", "use --threads"),
-    ("showResidual", "use -v for the stages"),
     ("solveDepth", "use --depth"),
     ("tempDir", "spsr always works in memory (see --max-memory)"),
     ("tree", "spsr writes no octree file"),

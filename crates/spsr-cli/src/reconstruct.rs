@@ -233,6 +233,13 @@ pub struct ReconstructArgs {
     #[arg(long, value_name = "N", allow_negative_numbers = true)]
     pub cycles: Option<u32>,
 
+    /// Measure the solver's relative residuals and print them to stderr: each depth's before
+    /// and after each relaxation, the whole system's after each cycle. Costs about one sweep
+    /// per relaxation (so -v's timings are a plain run's without it); the mesh is the same.
+    /// PoissonRecon's --showResidual [default: off]
+    #[arg(long, alias = "showResidual")]
+    pub residuals: bool,
+
     /// Solve the depths above the base (right-hand sides and relaxations) on an NVIDIA GPU,
     /// with the same mesh bit for bit: `--gpu` (or `--gpu on`) fails with exit code 3 where no
     /// GPU can be used, `--gpu auto` falls back to the CPU with a note. Needs a build with the
@@ -489,7 +496,7 @@ impl ReconstructArgs {
                 SolverArg::Wcycle => spsr::Solver::WCycle,
             },
             cycles: self.cycles,
-            report_residuals: self.common.verbose,
+            report_residuals: self.residuals,
             gpu: match self.gpu {
                 GpuArg::Off => spsr::Gpu::Off,
                 GpuArg::On => spsr::Gpu::On,
@@ -768,6 +775,9 @@ fn finish(
         if let Some(stats) = &trimmed {
             print_trim(stats, stage_time(&result.stats, "trimming"));
         }
+    }
+    if let Some(report) = &result.stats.solve {
+        print_solve_report(&mut std::io::stderr().lock(), report);
     }
     report(output, &summary(&result, start.elapsed(), spsr::peak_rss()));
     Ok(())
@@ -1211,12 +1221,9 @@ fn print_details(
         let _ = writeln!(err, "{}", line.trim_end());
     }
     let _ = writeln!(err, "  {:<32} {:>9.3} s", "total", total.as_secs_f64());
-    if let Some(report) = &stats.solve {
-        print_solve_report(&mut err, report);
-    }
 }
 
-/// The solver's residuals (`-v`): each depth's relative residual before and after each
+/// The solver's residuals (`--residuals`): each depth's relative residual before and after each
 /// relaxation, and the whole system's after each cycle.
 fn print_solve_report(err: &mut impl std::io::Write, report: &spsr::SolveReport) {
     let _ = writeln!(

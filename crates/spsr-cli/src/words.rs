@@ -8,6 +8,7 @@ pub fn flag(field: &str) -> String {
     match field {
         "weights" => "--confidence-property".into(),
         "threshold" => "--trim".into(),
+        "report_residuals" => "--residuals".into(),
         "attributes" => "attribute carrying (--no-attributes turns it off)".into(),
         "orient_neighbours" => "the orientation's neighbour count".into(),
         "scan_origins" => "the scan origins in the file".into(),
@@ -107,7 +108,7 @@ mod tests {
 
     /// Every field the library names in an `InvalidParameter` error, with the flag that sets
     /// it. Each flag is checked to exist on some subcommand.
-    const FIELDS: [(&str, &str); 22] = [
+    const FIELDS: [(&str, &str); 23] = [
         ("depth", "--depth"),
         ("full_depth", "--full-depth"),
         ("samples_per_node", "--samples-per-node"),
@@ -130,6 +131,7 @@ mod tests {
         ("size", "--size"),
         ("color", "--color"),
         ("view", "--view"),
+        ("report_residuals", "--residuals"),
     ];
 
     #[test]

@@ -329,11 +329,13 @@ fn a_poissonrecon_command_line_runs_unchanged() {
             "--threads",
             "2",
             "--verbose",
+            "--showResidual",
         ],
     );
     let err = stderr(&out);
     assert!(out.status.success(), "{err}");
     assert!(output.exists());
+    assert!(err.contains("relative residual per depth"), "{err}");
     for row in [
         "--boundary             dirichlet    flag",
         "--samples-per-node     2            flag",

@@ -455,6 +455,40 @@ fn verbose_prints_statistics() {
         assert!(err.contains(needle), "no {needle:?} in\n{err}");
     }
     assert!(err.contains(s(&output)), "{err}");
+    // The residuals cost a sweep per relaxation: -v times a plain run, without them.
+    assert!(!err.contains("relative residual"), "{err}");
+}
+
+#[test]
+fn residuals_are_measured_on_request_and_leave_the_mesh_alone() {
+    let (_dir, plain, _) = reconstruct_sphere("plain.ply", &["--full-depth", "3"]);
+    let (_dir2, measured, out) =
+        reconstruct_sphere("measured.ply", &["--residuals", "--full-depth", "3"]);
+    let err = stderr(&out);
+    assert!(out.status.success(), "{err}");
+    let line = err
+        .lines()
+        .find(|l| l.contains("relative residual per depth"))
+        .unwrap_or_else(|| panic!("no residual report in\n{err}"));
+    assert!(line.starts_with("solver      cascadic"), "{line}");
+    // The whole system's residual after each of the two degree-1 cycles, each below 1.
+    let after: Vec<f64> = err
+        .lines()
+        .filter_map(|l| l.split("whole system after cycle ").nth(1))
+        .map(|r| {
+            r.split(':')
+                .nth(1)
+                .unwrap()
+                .split_whitespace()
+                .next()
+                .unwrap()
+                .parse()
+                .unwrap()
+        })
+        .collect();
+    assert_eq!(after.len(), 2, "{err}");
+    assert!(after.iter().all(|&r| r > 0.0 && r < 1.0), "{after:?}");
+    assert_eq!(fs::read(plain).unwrap(), fs::read(measured).unwrap());
 }
 
 #[test]

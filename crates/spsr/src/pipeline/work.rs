@@ -344,7 +344,7 @@ fn right_hand_sides(s: &Sizes, d: u32) -> Work {
     )
 }
 
-/// The residual a depth's relaxation leaves, with `-v`: one sweep's reads without its writes
+/// The residual a depth's relaxation leaves, with `--residuals`: one sweep's reads without its writes
 /// (right-hand side and coefficients, 4 B each; the tree; the clusters and their χ, computed
 /// first, 84 + 8 B), and a sweep's flops plus 4 a node for the norms.
 fn residual(s: &Sizes, d: u32) -> Work {

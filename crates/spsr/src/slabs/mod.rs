@@ -193,6 +193,10 @@ fn check_supported(params: &Params) -> Result<()> {
     if params.solver == crate::Solver::WCycle {
         return refuse("solver", params.solver.name());
     }
+    // The residuals are measured over one level's whole system; a slab holds a part of it.
+    if params.report_residuals {
+        return refuse("report_residuals", "true");
+    }
     // The slabs relax on the CPU; `Gpu::Auto` falls back to it as it does without a GPU.
     if params.gpu == crate::Gpu::On {
         return refuse("gpu", "on");

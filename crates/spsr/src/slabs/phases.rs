@@ -276,7 +276,7 @@ fn tables(tree: &Octree, params: &Params) -> (Basis, Vec<Option<DepthTables>>) {
 
 /// The in-core problem ([`in_core_problem`]) as the phases solve it: one cycle at a time
 /// (cascadic cycles and V-cycles run across the slabs, [`cycle_coarse`], [`solve`];
-/// W-cycles are refused by `check_supported`), no residuals, on the CPU (`check_supported`
+/// W-cycles and residual reports are refused by `check_supported`), on the CPU (`check_supported`
 /// refuses `Gpu::On`).
 fn problem<'a>(
     tree: &'a Octree,

@@ -74,7 +74,7 @@ pub struct SolveReport {
 }
 
 /// The parts of a cycle after the first, timed for the profile (`-v`).
-/// The residuals' measurement (with `-v` only) is last: it takes what the others leave out.
+/// The residuals' measurement (with `--residuals` only) is last: it takes what the others leave out.
 const PARTS: [&str; 6] = [
     "finer coupling",
     "base depth",

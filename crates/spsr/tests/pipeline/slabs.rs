@@ -288,6 +288,24 @@ fn slabs_refuse_w_cycles_with_the_field_named() {
 }
 
 #[test]
+fn slabs_refuse_a_residual_report_with_the_field_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let cloud = torus(2_000, 0.3, 0.1, 7);
+    let params = Params {
+        report_residuals: true,
+        ..Params::default()
+    };
+    let options = SlabOptions {
+        slabs: 2,
+        work_dir: dir.path().to_path_buf(),
+    };
+    match slabs::reconstruct(Source::Cloud(&cloud), &params, &options, &|_| {}) {
+        Err(spsr::Error::InvalidParameter { field, .. }) => assert_eq!(field, "report_residuals"),
+        other => panic!("{:?}", other.map(|r| r.mesh.vertices.len())),
+    }
+}
+
+#[test]
 fn slabs_run_v_cycles_across_the_slabs() {
     // Three V-cycles: the slabs' finer depths are relaxed going down too, before the whole
     // cloud's coarse depths; the mesh is the in-core V-cycles' mesh, not the cascadic one.
