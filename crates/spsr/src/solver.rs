@@ -18,7 +18,7 @@ use crate::octree::{
 use crate::shared_slice::SharedSlice;
 use crate::system::{
     any_with_v, broods_with_v, cluster_offsets, divergence_constraints, prolong, prolong_in_place,
-    BroodStencil, Clusters, DepthTables, Prolongation,
+    BroodStencil, Clusters, DepthTables, Lanes, PlainLanes, Prolongation,
 };
 use crate::Solver;
 
@@ -145,8 +145,8 @@ impl<'a> Op<'a> {
     }
 
     /// `Σ_j L_ij x_j` for row `n`, reading coefficients through `x`.
-    #[inline]
-    fn stiffness_row(
+    #[inline(always)]
+    fn stiffness_row<L: Lanes>(
         &self,
         nbrs: &BroodRow,
         n: u32,
@@ -154,7 +154,7 @@ impl<'a> Op<'a> {
         x: &(impl Coefficients + ?Sized),
     ) -> f64 {
         if self.tab.range.interior(i, 3) {
-            return self.brood.row(nbrs, n, |b| [x.brood(b as usize)]);
+            return self.brood.row::<L>(nbrs, n, |b| [x.brood(b as usize)]);
         }
         let mut s = 0.0;
         for &(w, o) in &self.win {
@@ -171,7 +171,7 @@ impl<'a> Op<'a> {
 
     /// Calls `f(cluster, B_i(p_c))` for every screening cluster that touches function `i`
     /// (node `n`), brood by brood: one rank word per neighbouring brood gives its members.
-    #[inline]
+    #[inline(always)]
     fn for_each_cluster(&self, nbrs: &BroodRow, n: u32, i: [i64; 3], mut f: impl FnMut(u32, f64)) {
         for &(slot, mask) in &self.cbroods[(n & 7) as usize] {
             let b = nbrs[usize::from(slot)];
@@ -393,7 +393,7 @@ impl<'a> Op<'a> {
                 return 0.0;
             }
             let i = self.index(n);
-            let mut s = self.stiffness_row(nbrs, n, i, x);
+            let mut s = self.stiffness_row::<PlainLanes>(nbrs, n, i, x);
             self.for_each_cluster(nbrs, n, i, |c, bv| {
                 s += self.cl.omega[c as usize] * bv * chi[c as usize]
             });
@@ -493,34 +493,71 @@ impl<'a> Op<'a> {
     /// block the node colours one after the other: a block's data is read once per sweep
     /// rather than once per node colour. The order depends only on the tree, so the result
     /// does not depend on the thread count.
+    ///
+    /// Where the processor has AVX2 the blocks are relaxed by a copy of the same code compiled
+    /// for it ([`Wide`]): the brood sums' eight lanes go four at a time instead of two, with
+    /// the same operations in the same order, so the bits are the same.
     fn gauss_seidel_cpu<R: Copy + Into<f64> + Sync>(&self, r: &[R], x: &mut [f32], iters: u32) {
+        self.gauss_seidel_with(r, x, iters, Wide::detect());
+    }
+
+    /// [`Op::gauss_seidel_cpu`] with the instruction set chosen by the caller.
+    fn gauss_seidel_with<R: Copy + Into<f64> + Sync>(
+        &self,
+        r: &[R],
+        x: &mut [f32],
+        iters: u32,
+        wide: Wide,
+    ) {
         let blocks = self.colour_blocks();
-        let node_colours = self.node_colours();
         let residues = self.brood_residues();
         let mut chi = self.cluster_values(|n| f64::from(x[n]));
         let xs = SharedSlice::new(x);
         let cs = SharedSlice::new(&mut chi);
         for _ in 0..iters {
             for list in &blocks {
-                list.par_iter().for_each_init(Vec::new, |rows, &(b0, b1)| {
-                    // The block's rows, made once for its node colours (the deepest level
-                    // derives them).
-                    rows.clear();
-                    rows.extend((b0..b1).map(|b| *self.level.brood_row(b)));
-                    for c in 0..node_colours {
-                        for (b, nbrs) in (b0..b1).zip(rows.iter()) {
-                            let k = self.child_of_colour(c, residues.get(b as usize));
-                            if k == NO_CHILD {
-                                continue;
-                            }
-                            let n = 8 * b + u32::from(k);
-                            let (i, r) = (self.index(n), r[n as usize].into());
-                            // SAFETY: only this block's task touches the coefficients and
-                            // cluster values within two nodes of its nodes (above).
-                            unsafe { self.relax(nbrs, n, i, r, &xs, &cs) };
-                        }
-                    }
+                list.par_iter().for_each_init(Vec::new, |rows, &block| {
+                    let job = BlockJob {
+                        block,
+                        residues: &residues,
+                        r,
+                        x: &xs,
+                        chi: &cs,
+                    };
+                    // SAFETY: only this block's task touches the coefficients and cluster
+                    // values within two nodes of its nodes (above).
+                    unsafe { wide.relax_block(self, rows, &job) };
                 });
+            }
+        }
+    }
+
+    /// Relaxes the nodes of one block, colour by colour ([`Op::gauss_seidel_cpu`]). `rows`
+    /// is scratch space for the block's brood rows, made once for its node colours (the
+    /// deepest level derives them).
+    ///
+    /// # Safety
+    /// No other thread may touch the coefficients or cluster values within two nodes of the
+    /// block's nodes meanwhile.
+    #[inline(always)]
+    unsafe fn relax_block<L: Lanes, R: Copy + Into<f64>>(
+        &self,
+        rows: &mut Vec<BroodRow>,
+        job: &BlockJob<R>,
+    ) {
+        let (b0, b1) = job.block;
+        rows.clear();
+        rows.extend((b0..b1).map(|b| *self.level.brood_row(b)));
+        for c in 0..self.node_colours() {
+            for (b, nbrs) in (b0..b1).zip(rows.iter()) {
+                let k = self.child_of_colour(c, job.residues.get(b as usize));
+                if k == NO_CHILD {
+                    continue;
+                }
+                let n = 8 * b + u32::from(k);
+                let (i, r) = (self.index(n), job.r[n as usize].into());
+                // SAFETY: the caller's.
+                unsafe { self.relax::<L>(nbrs, n, i, r, job.x, job.chi) };
             }
         }
     }
@@ -594,8 +631,8 @@ impl<'a> Op<'a> {
     /// # Safety
     /// No other thread may concurrently write `x[n]`, any `x[m]` this row reads, or the
     /// cluster values of the clusters around `n`.
-    #[inline]
-    unsafe fn relax(
+    #[inline(always)]
+    unsafe fn relax<L: Lanes>(
         &self,
         nbrs: &BroodRow,
         n: u32,
@@ -607,7 +644,7 @@ impl<'a> Op<'a> {
         if !self.tab.range.contains(i) {
             return;
         }
-        let mut s = self.stiffness_row(nbrs, n, i, &Live(x));
+        let mut s = self.stiffness_row::<L>(nbrs, n, i, &Live(x));
         let mut dg = if self.tab.range.interior(i, 3) {
             self.tab.stencil[62]
         } else {
@@ -628,6 +665,74 @@ impl<'a> Op<'a> {
             chi.set(c as usize, chi.get(c as usize) + dx * bv);
         }
     }
+}
+
+/// One block of a Gauss–Seidel sweep and what its relaxation reads and writes
+/// ([`Op::relax_block`]).
+struct BlockJob<'a, R> {
+    /// The block's broods, `first..end`.
+    block: (u32, u32),
+    residues: &'a [u8],
+    r: &'a [R],
+    x: &'a SharedSlice<f32>,
+    chi: &'a SharedSlice<f64>,
+}
+
+/// Which compiled copy of the Gauss–Seidel block relaxes: the baseline one (SSE2 on x86-64),
+/// or one compiled for AVX2 where the processor has it. Both do the same operations in the
+/// same order (no fused multiply-adds: Rust does not contract), so the bits do not depend on
+/// the choice; only the brood sums' lanes go twice as wide.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Wide {
+    Baseline,
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
+}
+
+impl Wide {
+    /// The widest copy this processor runs.
+    fn detect() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            return Wide::Avx2;
+        }
+        Wide::Baseline
+    }
+
+    /// [`Op::relax_block`] in this copy.
+    ///
+    /// # Safety
+    /// That of [`Op::relax_block`].
+    #[inline]
+    unsafe fn relax_block<R: Copy + Into<f64>>(
+        self,
+        op: &Op<'_>,
+        rows: &mut Vec<BroodRow>,
+        job: &BlockJob<R>,
+    ) {
+        match self {
+            // SAFETY: the caller's.
+            Wide::Baseline => unsafe { op.relax_block::<PlainLanes, R>(rows, job) },
+            // SAFETY: the caller's; `detect` chose this copy only where AVX2 runs.
+            #[cfg(target_arch = "x86_64")]
+            Wide::Avx2 => unsafe { relax_block_avx2(op, rows, job) },
+        }
+    }
+}
+
+/// [`Op::relax_block`] compiled for AVX2 (its callees inlined into it).
+///
+/// # Safety
+/// That of [`Op::relax_block`], and the processor must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn relax_block_avx2<R: Copy + Into<f64>>(
+    op: &Op<'_>,
+    rows: &mut Vec<BroodRow>,
+    job: &BlockJob<R>,
+) {
+    // SAFETY: the caller's; AVX2 includes AVX.
+    unsafe { op.relax_block::<crate::system::AvxLanes, R>(rows, job) }
 }
 
 /// For each child position, the neighbouring brood slots holding cells within the offsets

@@ -34,7 +34,7 @@ use super::{
     Laps, Op, Problem, Solution, TAU,
 };
 use crate::octree::{for_each_node, map_nodes, DEPTH_OFFSET};
-use crate::system::{restrict_one, DepthTables};
+use crate::system::{restrict_one, DepthTables, PlainLanes};
 use crate::Solver;
 
 /// The relative residual of one depth's equations around one relaxation (or the base solve):
@@ -737,7 +737,7 @@ fn residual_squared<R: Copy + Into<f64> + Sync>(op: &Op, r: &[R], x: &[f32]) -> 
         if !op.tab.range.contains(i) {
             return 0.0;
         }
-        let mut s = op.stiffness_row(nbrs, n, i, x);
+        let mut s = op.stiffness_row::<PlainLanes>(nbrs, n, i, x);
         op.for_each_cluster(nbrs, n, i, |c, bv| {
             s += op.cl.omega[c as usize] * bv * chi[c as usize];
         });
@@ -842,7 +842,7 @@ pub(super) fn apply_stiffness(p: &Problem, xs: &[Vec<f32>]) -> Vec<Vec<f64>> {
             if !op.tab.range.contains(i) {
                 return 0.0;
             }
-            let mut s = op.stiffness_row(nbrs, n, i, &x[..]);
+            let mut s = op.stiffness_row::<PlainLanes>(nbrs, n, i, &x[..]);
             if t > tb {
                 s -= op.add_coarse_coupling::<true, false>(0.0, n, i, &prev, &[]);
             }
