@@ -945,6 +945,7 @@ fn parameters(args: &ReconstructArgs, params: &spsr::Params) -> Vec<(String, Str
             params.cycles().to_string(),
             given_or("cycles", "2 at --degree 1, 1 at --degree 2"),
         ),
+        ("residuals", on(args.residuals), src("residuals")),
         (
             "gpu",
             args.gpu

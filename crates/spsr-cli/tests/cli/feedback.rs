@@ -345,6 +345,7 @@ fn a_poissonrecon_command_line_runs_unchanged() {
         "--data-pull            16           flag",
         "--max-memory           4.00 GiB     flag",
         "--degree               2            flag",
+        "--residuals            on           flag",
     ] {
         assert!(err.contains(row), "no {row:?} in\n{err}");
     }
