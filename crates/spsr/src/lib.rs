@@ -15,6 +15,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod attributes;
+mod bounds;
 pub mod bspline;
 mod data;
 mod density;

@@ -47,7 +47,9 @@ pub trait Cells: Sync {
     fn max_depth(&self) -> u32;
     /// Number of blocks.
     fn block_count(&self) -> usize;
-    /// Calls `f(handle, depth, offset)` for every leaf of block `b`, in a fixed order.
+    /// Calls `f(handle, depth, offset)` for every leaf of block `b`, in a fixed order. It may
+    /// leave out leaves whose closure it knows the surface not to reach (χ strictly on one
+    /// side of the iso-value there): they would make no polygon, so the mesh is the same.
     fn for_each_leaf(&self, b: usize, f: &mut dyn FnMut(Self::Handle, u32, [u32; 3]));
     /// Whether the cell of `depth` and `offset` (inside the unit cube) exists and has
     /// children. The cell touches the closure of the leaf `near` and is no coarser than it.

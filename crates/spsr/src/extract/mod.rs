@@ -6,7 +6,9 @@
 //!    complete base depth), blocks in parallel. Within a block the field is evaluated once per
 //!    distinct leaf corner (keyed by its integer coordinates at `max_depth`) and cached for the
 //!    block only, so memory stays bounded by the largest block, not the tree; corners on block
-//!    boundaries are evaluated by each block that needs them.
+//!    boundaries are evaluated by each block that needs them. Subtrees on whose closed cell
+//!    χ provably stays on one side of the iso-value are not visited (`crate::bounds`; degree
+//!    1): they hold no part of the surface.
 //! 2. The boundary of each leaf is tiled by *face pieces*: a leaf face whose neighbour is
 //!    same-size or coarser is one piece; a face whose neighbour is subdivided is tiled by the
 //!    finer leaves' faces (found recursively: a square is subdivided iff the cell of its size

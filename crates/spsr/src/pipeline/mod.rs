@@ -609,7 +609,7 @@ impl<'a> Run<'a> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
     /// Points on a sphere by the golden-angle spiral, with exact outward normals.
