@@ -9,7 +9,9 @@ use std::borrow::Borrow;
 
 use crate::bspline::{Basis, Window};
 use crate::extract::Field;
-use crate::octree::{func_index, neighbor_in_row, window_index, Octree, DEPTH_OFFSET, NONE};
+use crate::octree::{
+    func_index, neighbor_in, neighbor_in_row, window_index, Octree, DEPTH_OFFSET, NONE,
+};
 use crate::solver::Solution;
 
 /// Evaluates χ from a solved hierarchy.
@@ -164,7 +166,8 @@ impl<'a> Evaluator<'a> {
         let w = w.each_ref().map(|w| w.borrow());
         let k = i64::from(self.fem.degree.get());
         let [rx, ry, rz] = w.each_ref().map(|w| live::<GRAD>(w, k));
-        let row = level.brood_row(node >> 3);
+        // One neighbour at a time: at the deepest level a brood's row is not stored but
+        // derived, all 27 slots of it, while a corner's value needs one function per axis.
         for z in rz.clone() {
             for y in ry.clone() {
                 for x in rx.clone() {
@@ -173,7 +176,7 @@ impl<'a> Evaluator<'a> {
                         w[1].first + y - own[1],
                         w[2].first + z - own[2],
                     ];
-                    let m = neighbor_in_row(&row, node, window_index(o));
+                    let m = neighbor_in(level, node, window_index(o));
                     if m == NONE {
                         continue;
                     }
