@@ -7,9 +7,10 @@
 //! - **Coarse part.** The solver keeps the cumulative solution of depths `≤ d` expanded in
 //!   depth `d`'s basis (`Solution::p`). B-splines are non-negative and sum to one away from
 //!   the cube's faces, so on `C` that part lies between the smallest and the largest of the
-//!   coefficients of the depth-`d` functions that do not vanish on `C` (the convex-hull property;
-//!   0 joins them when a function is absent). At degree 1 these are the values at `C`'s
-//!   corners, so the bound is exact.
+//!   coefficients of the depth-`d` functions that do not vanish on `C` (the convex-hull
+//!   property). Where one of those functions has no node, the coarser depths' part is not
+//!   wholly expanded there and nothing is bounded. At degree 1 these coefficients are the
+//!   values at `C`'s corners, so the bound is exact.
 //! - **Finer part.** On `C`, the functions of depth `d + 1` add at most the largest magnitude
 //!   of their coefficients among those that reach `C`, and the deeper depths at most the
 //!   largest such bound over `n`'s children, whose cells cover `C`: `F(n) = A(n) + max_c F(c)`,
