@@ -736,17 +736,24 @@ pub fn divergence_constraints(
     let d = t - DEPTH_OFFSET;
     let level = &tree.levels[t as usize];
     let next = tree.levels.get(t as usize + 1);
-    let pushed = match next {
+    // `G_t` starts as the next depth's V pushed into this level, and the restriction of
+    // `G_{t+1}` is added to it in place: one array of the level's doubles instead of two
+    // (issue 20: at the second-finest level they were the largest arrays made while V is
+    // alive, where the run's memory peaks).
+    let mut g = match next {
         Some(next) if !v_finer.is_empty() => push_finer_v(level, next, d, tab, v_finer),
         _ => Vec::new(),
     };
     // An empty `G_{t+1}` is the zero one (see the end).
     let g_finer = g_finer.filter(|g| !g.is_empty());
+    if g.is_empty() && g_finer.is_some() {
+        g = vec![0.0f64; level.len()];
+    }
     let with_v = broods_with_v(v);
-    // Brood `b`'s rows: `(G_t, T_t)` of its eight nodes. The same depth's V term is summed
-    // for the whole brood ([`v_brood_term`]) where a brood around it has a nonzero V; where
-    // none has, the term is zero and left out.
-    let rows = |b: u32, out: &mut dyn FnMut(usize, f64, f32)| {
+    // Brood `b`'s rows: `T_t` of its eight nodes, and `G_t` (`g`, the pushed V on entry) where
+    // it is kept. The same depth's V term is summed for the whole brood ([`v_brood_term`])
+    // where a brood around it has a nonzero V; where none has, the term is zero and left out.
+    let rows = |b: u32, g: &mut [f64], t: &mut [f32]| {
         let nbrs = level.brood_row(b);
         let i0 = func_index(level.key(8 * b), d);
         let vterm =
@@ -755,34 +762,36 @@ pub fn divergence_constraints(
             let n = 8 * b + k as u32;
             let i: [i64; 3] = std::array::from_fn(|a| i0[a] + ((k >> a) & 1) as i64);
             if !tab.range.contains(i) {
-                out(k, 0.0, 0.0);
+                if let Some(g) = g.get_mut(k) {
+                    *g = 0.0;
+                }
+                t[k] = 0.0;
                 continue;
             }
-            let mut g = pushed.get(n as usize).copied().unwrap_or(0.0);
+            let mut gn = g.get(k).copied().unwrap_or(0.0);
             if let (Some(gf), Some(next)) = (g_finer, next) {
-                g += restrict_one(tree, level, next, fem, d, n, i, gf);
+                gn += restrict_one(tree, level, next, fem, d, n, i, gf);
             }
-            let b = vterm.map_or(g, |vt| g + vt[k]);
-            out(k, g, b as f32);
+            if let Some(g) = g.get_mut(k) {
+                *g = gn;
+            }
+            let b = vterm.map_or(gn, |vt| gn + vt[k]);
+            t[k] = b as f32;
         }
     };
     let mut t_out = vec![0.0f32; level.len()];
-    if pushed.is_empty() && g_finer.is_none() {
+    if g.is_empty() {
         // No finer V: `G_t` is zero, and is not stored (at the finest level it would be the
         // largest array alive while the constraints are made).
         t_out.par_chunks_mut(8).enumerate().for_each(|(b, t)| {
-            rows(b as u32, &mut |k, _, x| t[k] = x);
+            rows(b as u32, &mut [], t);
         });
-        (Vec::new(), t_out)
     } else {
-        let mut g_out = vec![0.0f64; level.len()];
-        (g_out.par_chunks_mut(8).zip(t_out.par_chunks_mut(8)))
+        (g.par_chunks_mut(8).zip(t_out.par_chunks_mut(8)))
             .enumerate()
-            .for_each(|(b, (g, t))| {
-                rows(b as u32, &mut |k, gv, x| (g[k], t[k]) = (gv, x));
-            });
-        (g_out, t_out)
+            .for_each(|(b, (g, t))| rows(b as u32, g, t));
     }
+    (g, t_out)
 }
 
 /// `∫∇B_i · V_d` for the eight functions `i = i0 + k` of one brood (child position `k`), from
