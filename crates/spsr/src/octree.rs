@@ -55,10 +55,11 @@ pub struct Level {
     from_parent: Option<FromParent>,
 }
 
-/// The deepest level's rows are not stored but derived when asked from the parent level's
-/// rows and child links, which the level shares: the children of the brood's parent's 3×3×3
-/// neighbours (issue 20: at depth 10 the deepest level's rows would be a fifth of the peak
-/// memory).
+/// The largest level's rows (the deepest's, usually: [`derives_rows`]) are not stored but
+/// derived when asked from the parent level's rows and child links, which the level shares:
+/// the children of the brood's parent's 3×3×3 neighbours (issue 20: at depth 10 the deepest
+/// level's rows would be a fifth of the peak memory). A level below a deriving one stores its
+/// rows, made from the derived ones.
 #[derive(Debug, Clone)]
 struct FromParent {
     rows: Arc<[BroodRow]>,
@@ -622,6 +623,17 @@ fn child_array(len: usize, parents: &[u32]) -> Arc<[u32]> {
     unsafe { child.assume_init() }
 }
 
+/// Whether a level of `broods` broods, whose next level has `next_broods` (0: it is the
+/// deepest), derives its rows rather than storing them ([`FromParent`]): the deepest level
+/// does, and so does a level whose next level is under a quarter of its size. Each level is
+/// usually two to three times the one above it, so that is the deepest; but where the
+/// samples hardly reach the requested depth, the level above it is the largest (spot_1m at
+/// depth 11: 8.3 million nodes at depth 10, 1,792 at depth 11), and storing its rows cost 112
+/// MB of a 776 MiB peak (issue 20).
+fn derives_rows(broods: usize, next_broods: usize) -> bool {
+    next_broods == 0 || 4 * next_broods < broods
+}
+
 /// The 27 broods around each brood of a new level whose broods' parents are `parents` in
 /// `prev` (whose child array is set).
 /// Made in place in the shared slice: collecting into a `Vec` first and converting it would
@@ -674,16 +686,17 @@ impl Octree {
             if t < max_t {
                 located = locate(&req.refined[t as usize], &codes);
             }
-            let deepest = located.0.is_empty();
+            let derives = derives_rows(parents.len(), located.0.len());
             let prev = &mut levels[t as usize - 1];
             prev.child = child_array(prev.len, &parents);
             let prev = &levels[t as usize - 1];
-            // Level 1 holds the root's one brood, alone; the deepest level derives its rows.
+            // Level 1 holds the root's one brood, alone; the largest level derives its rows
+            // ([`derives_rows`]) where its parent level stores its own.
             let (rows, from_parent): (Arc<[BroodRow]>, _) = if t == 1 {
                 let mut row = [NONE; 27];
                 row[13] = 0;
                 (Arc::from(vec![row]), None)
-            } else if deepest && prev.from_parent.is_none() {
+            } else if derives && prev.from_parent.is_none() {
                 let from = FromParent {
                     rows: prev.rows.clone(),
                     child: prev.child.clone(),
@@ -1029,13 +1042,56 @@ mod tests {
     }
 
     #[test]
-    fn the_deepest_level_derives_the_rows_the_others_store() {
+    fn a_level_derives_its_rows_where_the_next_is_small_or_absent() {
         for seed in 0..4 {
             let tree = random_tree(seed, 2, 6);
-            let max = tree.levels.len() - 1;
+            let mut parent_derived = false;
             for (t, level) in tree.levels.iter().enumerate().skip(1) {
-                assert_eq!(level.from_parent.is_some(), t == max && t > 1, "level {t}");
-                assert_eq!(level.rows.is_empty(), t == max && t > 1, "level {t}");
+                let next = tree.levels.get(t + 1).map_or(0, Level::broods);
+                let derived = t > 1 && !parent_derived && derives_rows(level.broods(), next);
+                assert_eq!(level.from_parent.is_some(), derived, "level {t}");
+                assert_eq!(level.rows.is_empty(), derived, "level {t}");
+                parent_derived = derived;
+            }
+            assert_rows_agree(&tree);
+        }
+    }
+
+    #[test]
+    fn a_level_much_larger_than_the_next_derives_its_rows_and_the_next_stores_them() {
+        // A full level at depth 4 (4096 nodes) and, below it, the conforming closure of one
+        // node refined to depth 6: depths 5 and 6 are far smaller than depth 4.
+        let max_t = 6 + DEPTH_OFFSET;
+        let mut req = TreeRequest::new(max_t);
+        req.require_window(max_t, [64 + 20, 64 + 40, 64 + 30], 1);
+        let tree = Octree::build(req, 4, 4);
+        let t4 = (4 + DEPTH_OFFSET) as usize;
+        assert!(4 * tree.levels[t4 + 1].len() < tree.levels[t4].len());
+        for (t, level) in tree.levels.iter().enumerate().skip(1) {
+            let derived = t == t4 || t == tree.levels.len() - 1;
+            assert_eq!(level.from_parent.is_some(), derived, "level {t}");
+            assert_eq!(level.rows.is_empty(), derived, "level {t}");
+        }
+        assert_rows_agree(&tree);
+        // The rows, stored or derived, are those of the neighbour search: slot `s` holds the
+        // brood whose first node is two nodes along `s` from the brood's first node.
+        for (t, level) in tree.levels.iter().enumerate().skip(2) {
+            for b in 0..level.broods() as u32 {
+                for (slot, &nb) in level.brood_row(b).iter().enumerate() {
+                    let d = [slot % 3, slot / 3 % 3, slot / 9].map(|v| 2 * (v as i64 - 1));
+                    let m = tree.neighbor(t as u32, 8 * b, d);
+                    let want = if nb == NONE { NONE } else { 8 * nb };
+                    assert_eq!(m, want, "level {t} brood {b} slot {slot}");
+                }
+            }
+        }
+    }
+
+    /// Every level's rows agree between [`Level::brood_rows`], [`Level::brood_row`] and
+    /// [`Level::brood_nbr`].
+    fn assert_rows_agree(tree: &Octree) {
+        {
+            for level in tree.levels.iter().skip(1) {
                 let rows = level.brood_rows();
                 assert_eq!(rows.len(), level.broods());
                 for (b, row) in rows.iter().enumerate() {
