@@ -27,7 +27,8 @@ fn proc_kib(text: &str, key: &str) -> Option<u64> {
 /// Hands the memory freed so far back to the operating system. glibc's allocator keeps freed
 /// blocks of up to 32 MiB in its per-thread arenas for reuse; between the phases of a slab
 /// run, which each free everything they built, that kept memory (about half the live memory
-/// at depth 11) would otherwise add to the next phase's peak. Elsewhere it does nothing.
+/// at depth 11) would otherwise add to the next phase's peak, and so would the extraction's
+/// scratch to the mesh check's (`pipeline::reconstruct_input`). Elsewhere it does nothing.
 pub fn release_free_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     {
