@@ -1090,15 +1090,13 @@ mod tests {
     /// Every level's rows agree between [`Level::brood_rows`], [`Level::brood_row`] and
     /// [`Level::brood_nbr`].
     fn assert_rows_agree(tree: &Octree) {
-        {
-            for level in tree.levels.iter().skip(1) {
-                let rows = level.brood_rows();
-                assert_eq!(rows.len(), level.broods());
-                for (b, row) in rows.iter().enumerate() {
-                    assert_eq!(*row, *level.brood_row(b as u32));
-                    for (slot, &nb) in row.iter().enumerate() {
-                        assert_eq!(level.brood_nbr(b as u32, slot), nb);
-                    }
+        for level in tree.levels.iter().skip(1) {
+            let rows = level.brood_rows();
+            assert_eq!(rows.len(), level.broods());
+            for (b, row) in rows.iter().enumerate() {
+                assert_eq!(*row, *level.brood_row(b as u32));
+                for (slot, &nb) in row.iter().enumerate() {
+                    assert_eq!(level.brood_nbr(b as u32, slot), nb);
                 }
             }
         }
