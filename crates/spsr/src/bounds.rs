@@ -29,7 +29,7 @@ use rayon::prelude::*;
 
 use crate::bspline::Basis;
 use crate::octree::{
-    func_index, neighbor_in_row, window_index, BroodRow, Octree, DEPTH_OFFSET, NONE,
+    func_index, neighbor_in, neighbor_in_row, window_index, BroodRow, Octree, DEPTH_OFFSET, NONE,
 };
 use crate::solver::Solution;
 
@@ -42,11 +42,11 @@ pub struct CellBounds<'a> {
     sol: &'a Solution,
     iso: f64,
     /// A depth's functions that do not vanish on the closed cell of index `i`: `i + own.0 ..=
-    /// i + own.1` per axis.
-    own: (i64, i64),
+    /// i + own.1` per axis, as window indices ([`window_index`]).
+    own: Vec<usize>,
     /// The finer depth's functions that reach the closed cell of index `i` are children of the
-    /// nodes `i + up.0 ..= i + up.1` per axis.
-    up: (i64, i64),
+    /// nodes `i + up.0 ..= i + up.1` per axis, as window indices.
+    up: Vec<usize>,
     /// Per tree level, per brood: the largest magnitude of its nodes' coefficients (empty
     /// where the level has none).
     largest: Vec<Vec<f32>>,
@@ -77,8 +77,8 @@ impl<'a> CellBounds<'a> {
             tree,
             sol,
             iso,
-            own,
-            up,
+            own: cube(own).map(window_index).collect(),
+            up: cube(up).map(window_index).collect(),
             largest,
             finer: vec![Vec::new(); levels],
         };
@@ -107,10 +107,11 @@ impl<'a> CellBounds<'a> {
             return false;
         }
         let p = &self.sol.p[t as usize];
-        let row = level.brood_row(n >> 3);
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-        for o in cube(self.own) {
-            let m = neighbor_in_row(&row, n, window_index(o));
+        // Neighbour by neighbour: where a level's rows are derived, a whole row is dearer than
+        // the few slots needed here.
+        for &w in &self.own {
+            let m = neighbor_in(level, n, w);
             if m == NONE {
                 // The coarser depths' part is not wholly in this depth's functions here.
                 return false;
@@ -119,7 +120,11 @@ impl<'a> CellBounds<'a> {
             lo = lo.min(v);
             hi = hi.max(v);
         }
-        let f = self.finer_part(t, n, &row);
+        let f = if level.row_has_children(n >> 3) {
+            self.finer_part(t, n, &level.brood_row(n >> 3))
+        } else {
+            0.0 // as `finer_part` finds
+        };
         let margin = MARGIN * (lo.abs().max(hi.abs()) + f + self.iso.abs());
         lo - f - margin > self.iso || hi + f + margin < self.iso
     }
@@ -131,10 +136,14 @@ impl<'a> CellBounds<'a> {
         let (Some(largest), Some(finer)) = (self.largest.get(t + 1), self.finer.get(t + 1)) else {
             return 0.0;
         };
+        if !level.row_has_children(n >> 3) {
+            // Neither `n` nor any node the row reaches has children.
+            return 0.0;
+        }
         let mut a = 0.0f32;
         if !largest.is_empty() {
-            for o in cube(self.up) {
-                let m = neighbor_in_row(row, n, window_index(o));
+            for &w in &self.up {
+                let m = neighbor_in_row(row, n, w);
                 if m != NONE {
                     let b = level.child(m);
                     if b != NONE {
@@ -156,6 +165,9 @@ impl<'a> CellBounds<'a> {
         (0..level.broods() as u32)
             .into_par_iter()
             .map(|b| {
+                if !level.row_has_children(b) {
+                    return 0.0;
+                }
                 let row = level.brood_row(b);
                 let f = (0..8).fold(0.0f64, |m, k| m.max(self.finer_part(t, 8 * b + k, &row)));
                 round_up(f)

@@ -197,8 +197,11 @@ impl<'a> Evaluator<'a> {
         if coeff.is_empty() {
             return;
         }
-        let d = t - DEPTH_OFFSET;
         let level = &self.tree.levels[t as usize];
+        if !level.row_has_children(node >> 3) {
+            return;
+        }
+        let d = t - DEPTH_OFFSET;
         let own = func_index(level.key(node), d);
         let w = win(d + 1);
         let w = w.each_ref().map(|w| w.borrow());

@@ -22,6 +22,7 @@
 //! - the level of tree depth 0 is the virtual root alone; level 1 is its single brood.
 
 use std::borrow::Cow;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
 use rayon::prelude::*;
@@ -53,6 +54,9 @@ pub struct Level {
     rows: Arc<[BroodRow]>,
     /// Where the rows are derived: the parent level's rows and child links.
     from_parent: Option<FromParent>,
+    /// The broods whose rows hold a node with children ([`Level::row_has_children`]); empty
+    /// at the deepest level.
+    near_children: BroodSet,
 }
 
 /// The largest level's rows (the deepest's, usually: [`derives_rows`]) are not stored but
@@ -172,6 +176,41 @@ impl Level {
             Some(row) => RowRef::Stored(row),
             None => RowRef::Made(self.derived_row(b)),
         }
+    }
+
+    /// Whether some brood of brood `b`'s row ([`Level::brood_row`]) holds a node with
+    /// children. When not, no node that the row reaches has children: whatever looks through
+    /// the row at the next level (a finer depth's functions near a node, refined cells around
+    /// a leaf) finds nothing there, and can stop before making the row. Where the samples
+    /// hardly reach the deepest level, almost every brood of the level above it is such a
+    /// brood (issue 20: spot_1m at depth 11).
+    #[inline]
+    pub fn row_has_children(&self, b: u32) -> bool {
+        if self.near_children.is_empty() {
+            return !self.child.is_empty();
+        }
+        self.near_children.contains(b)
+    }
+
+    /// The broods whose rows ([`Level::brood_row`]) hold one of the nodes `nodes` (in
+    /// increasing order). Rows are symmetric (brood `a` is in `b`'s row iff `b` is in `a`'s:
+    /// their parents are neighbours), so each brood holding one of the nodes adds the broods of
+    /// its own row.
+    pub fn broods_reaching(&self, nodes: &[u32]) -> BroodSet {
+        let words: Vec<AtomicU64> = (0..self.broods().div_ceil(64))
+            .map(|_| AtomicU64::new(0))
+            .collect();
+        (0..nodes.len())
+            .into_par_iter()
+            .filter(|&i| i == 0 || nodes[i] >> 3 != nodes[i - 1] >> 3)
+            .for_each(|i| {
+                for &r in self.brood_row(nodes[i] >> 3).iter() {
+                    if r != NONE {
+                        words[(r / 64) as usize].fetch_or(1 << (r % 64), Ordering::Relaxed);
+                    }
+                }
+            });
+        BroodSet(words.into_iter().map(AtomicU64::into_inner).collect())
     }
 
     /// The brood in slot `slot` around brood `b` ([`Level::brood_row`]).
@@ -651,6 +690,24 @@ fn brood_neighbours(prev: &Level, parents: &[u32]) -> Arc<[[u32; 27]]> {
     unsafe { rows.assume_init() }
 }
 
+/// A set of a level's broods, one bit each ([`Level::broods_reaching`]).
+#[derive(Debug, Default, Clone)]
+pub struct BroodSet(Vec<u64>);
+
+impl BroodSet {
+    /// Whether brood `b` is in the set.
+    #[inline]
+    pub fn contains(&self, b: u32) -> bool {
+        self.0
+            .get((b / 64) as usize)
+            .is_some_and(|w| w >> (b % 64) & 1 != 0)
+    }
+
+    fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+}
+
 impl Octree {
     /// Builds the tree from the requested nodes: makes levels of unit depth `≤ full_depth`
     /// complete, closes the request under ancestry, and enforces the conforming property at
@@ -713,7 +770,12 @@ impl Octree {
                 brood_parent: parents,
                 rows,
                 from_parent,
+                near_children: BroodSet::default(),
             });
+        }
+        for t in 1..levels.len().saturating_sub(1) {
+            let near = levels[t].broods_reaching(&levels[t + 1].brood_parent);
+            levels[t].near_children = near;
         }
         Octree { levels }
     }
@@ -1083,6 +1145,55 @@ mod tests {
                     let want = if nb == NONE { NONE } else { 8 * nb };
                     assert_eq!(m, want, "level {t} brood {b} slot {slot}");
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn a_brood_row_has_children_iff_one_of_its_broods_holds_a_refined_node() {
+        let mut trees: Vec<Octree> = (0..3).map(|seed| random_tree(seed, 2, 6)).collect();
+        // A level far larger than the next (the case the flags are for).
+        let max_t = 6 + DEPTH_OFFSET;
+        let mut req = TreeRequest::new(max_t);
+        req.require_window(max_t, [64 + 20, 64 + 40, 64 + 30], 1);
+        trees.push(Octree::build(req, 4, 4));
+        for tree in &trees {
+            let last = tree.levels.len() - 1;
+            let mut some_without = false;
+            for (t, level) in tree.levels.iter().enumerate().skip(1) {
+                for b in 0..level.broods() as u32 {
+                    let want = t < last
+                        && level
+                            .brood_row(b)
+                            .iter()
+                            .any(|&r| r != NONE && (0..8).any(|k| level.child(8 * r + k) != NONE));
+                    assert_eq!(level.row_has_children(b), want, "level {t} brood {b}");
+                    some_without |= t < last && !want;
+                }
+            }
+            assert!(
+                some_without,
+                "every brood of the tree is near a refined node"
+            );
+        }
+    }
+
+    #[test]
+    fn the_broods_reaching_some_nodes_are_those_whose_rows_hold_one() {
+        let tree = random_tree(7, 2, 6);
+        let mut s = 11u64;
+        for (t, level) in tree.levels.iter().enumerate().skip(2) {
+            let mut nodes: Vec<u32> = (0..level.len() as u32)
+                .filter(|_| splitmix(&mut s).is_multiple_of(16))
+                .collect();
+            nodes.dedup();
+            let set = level.broods_reaching(&nodes);
+            for b in 0..level.broods() as u32 {
+                let want = level
+                    .brood_row(b)
+                    .iter()
+                    .any(|&r| r != NONE && nodes.iter().any(|&n| n >> 3 == r));
+                assert_eq!(set.contains(b), want, "level {t} brood {b}");
             }
         }
     }

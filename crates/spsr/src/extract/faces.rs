@@ -253,8 +253,11 @@ impl<C: Cells> Walk<'_, C> {
     }
 
     /// Pushes the leaf corners strictly inside the dyadic segment `side`, in order from its start.
+    /// A leaf with no refined cell of its own depth around it (`around == 0`) has no such
+    /// corners: its faces are not subdivided, and the cells around its own sides are of its
+    /// depth, all among those `around` covers.
     fn split_side(&self, sc: &mut Scratch<C::Handle>, side: Side) {
-        if side.len <= 1 || !self.segment_split(side) {
+        if side.len <= 1 || self.here.around == 0 || !self.segment_split(side) {
             return;
         }
         let half = side.len / 2;

@@ -226,7 +226,7 @@ impl Cells for TreeCells<'_> {
         let level = &self.tree.levels[t as usize];
         let next = self.tree.levels.get(t as usize + 1);
         let mut mask = 0;
-        if next.is_none() {
+        if next.is_none() || !level.row_has_children(n >> 3) {
             return 0;
         }
         let row = level.brood_row(n >> 3);
