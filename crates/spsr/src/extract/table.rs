@@ -10,7 +10,7 @@
 //! number of groups of 8 slots (not a power of two: rounding up to one left the table of a
 //! million-point mesh at depth 10 a third full, 134 MB made by one thread; issue 20).
 
-use std::sync::atomic::{AtomicU32, AtomicU64, AtomicUsize, Ordering::Relaxed};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering::Relaxed};
 
 use rayon::prelude::*;
 
@@ -23,15 +23,14 @@ struct Slot {
     val: AtomicU32,
 }
 
-/// Concurrent insert-only hash table (linear probing).
+/// Concurrent insert-only hash table (linear probing), made for a known number of keys
+/// ([`Table::with_capacity`]). It keeps no count of its keys: a shared count was one atomic
+/// add per key on a cache line that every thread wrote, and filling the table of a
+/// 2.4-million-vertex mesh took 0.25 s on two threads against 0.18 s on one (issue 20).
 pub(super) struct Table {
     slots: Vec<Slot>,
     /// Groups of 8 slots.
     groups: usize,
-    /// Keys inserted so far, and the most the table accepts (a load factor of 0.8) before
-    /// `insert` reports it full.
-    len: AtomicUsize,
-    limit: usize,
 }
 
 /// A strong 64-bit mixer (the MurmurHash3 finaliser).
@@ -70,12 +69,7 @@ impl Table {
                 val: AtomicU32::new(u32::MAX),
             })
             .collect();
-        Table {
-            slots,
-            groups,
-            len: AtomicUsize::new(0),
-            limit: cap / 5 * 4,
-        }
+        Table { slots, groups }
     }
 
     /// The slot after `i`, wrapping round.
@@ -88,7 +82,8 @@ impl Table {
         }
     }
 
-    /// Inserts `key` if absent; returns its slot, or `None` when the table is full.
+    /// Inserts `key` if absent; returns its slot, or `None` when every slot holds another key
+    /// (more keys than the table was made for).
     #[inline]
     pub(super) fn insert(&self, key: u64) -> Option<u32> {
         let mut i = start(key, self.groups);
@@ -99,14 +94,8 @@ impl Table {
                 return Some(i as u32);
             }
             if cur == EMPTY {
-                if self.len.load(Relaxed) >= self.limit {
-                    return None;
-                }
                 match s.compare_exchange(EMPTY, key, Relaxed, Relaxed) {
-                    Ok(_) => {
-                        self.len.fetch_add(1, Relaxed);
-                        return Some(i as u32);
-                    }
+                    Ok(_) => return Some(i as u32),
                     Err(actual) if actual == key => return Some(i as u32),
                     Err(_) => {}
                 }
@@ -149,5 +138,51 @@ impl Table {
     #[inline]
     pub(super) fn val(&self, slot: u32) -> u32 {
         self.slots[slot as usize].val.load(Relaxed)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Packed keys of `n` distinct points (20 bits per axis).
+    fn point_keys(n: u64) -> Vec<u64> {
+        (0..n)
+            .map(|i| (i % 97) | (i / 97 % 89) << 20 | (i / (97 * 89)) << 40)
+            .collect()
+    }
+
+    #[test]
+    fn keys_inserted_from_many_threads_each_get_one_slot_and_their_value() {
+        let keys = point_keys(50_000);
+        let table = Table::with_capacity(keys.len());
+        // Every key twice, from all threads at once.
+        keys.par_iter().chain(keys.par_iter()).for_each(|&k| {
+            let slot = table.insert(k).expect("room for every key");
+            table.set(slot, (k % 1_000_003) as u32);
+        });
+        let mut slots: Vec<u32> = keys.iter().map(|&k| table.slot(k).unwrap()).collect();
+        for &k in &keys {
+            assert_eq!(table.insert(k), table.slot(k));
+            assert_eq!(table.get(k), Some((k % 1_000_003) as u32));
+        }
+        slots.sort_unstable();
+        slots.dedup();
+        assert_eq!(slots.len(), keys.len());
+        assert_eq!(table.get(point_keys(50_001)[50_000]), None);
+    }
+
+    #[test]
+    fn a_full_table_refuses_a_new_key_and_keeps_its_own() {
+        let table = Table::with_capacity(8);
+        let cap = table.slots.len() as u64;
+        let keys = point_keys(cap + 1);
+        for &k in &keys[..cap as usize] {
+            assert!(table.insert(k).is_some());
+        }
+        assert_eq!(table.insert(keys[cap as usize]), None);
+        for &k in &keys[..cap as usize] {
+            assert!(table.slot(k).is_some());
+        }
     }
 }
