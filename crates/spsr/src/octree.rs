@@ -980,6 +980,19 @@ impl NodeRank {
 }
 
 #[cfg(test)]
+impl Octree {
+    /// A test tree whose deepest depths the samples hardly reach: depth 4 complete (4096
+    /// nodes) and, below it, the conforming closure of one node refined to depth 6, so that
+    /// depths 5 and 6 are far smaller than depth 4.
+    pub(crate) fn full_depth_4_and_one_path_to_6() -> Octree {
+        let max_t = 6 + DEPTH_OFFSET;
+        let mut req = TreeRequest::new(max_t);
+        req.require_window(max_t, [64 + 20, 64 + 40, 64 + 30], 1);
+        Octree::build(req, 4, 4)
+    }
+}
+
+#[cfg(test)]
 mod tests {
     use super::*;
     use rustc_hash::FxHashSet;
@@ -1121,12 +1134,7 @@ mod tests {
 
     #[test]
     fn a_level_much_larger_than_the_next_derives_its_rows_and_the_next_stores_them() {
-        // A full level at depth 4 (4096 nodes) and, below it, the conforming closure of one
-        // node refined to depth 6: depths 5 and 6 are far smaller than depth 4.
-        let max_t = 6 + DEPTH_OFFSET;
-        let mut req = TreeRequest::new(max_t);
-        req.require_window(max_t, [64 + 20, 64 + 40, 64 + 30], 1);
-        let tree = Octree::build(req, 4, 4);
+        let tree = Octree::full_depth_4_and_one_path_to_6();
         let t4 = (4 + DEPTH_OFFSET) as usize;
         assert!(4 * tree.levels[t4 + 1].len() < tree.levels[t4].len());
         for (t, level) in tree.levels.iter().enumerate().skip(1) {
@@ -1153,10 +1161,7 @@ mod tests {
     fn a_brood_row_has_children_iff_one_of_its_broods_holds_a_refined_node() {
         let mut trees: Vec<Octree> = (0..3).map(|seed| random_tree(seed, 2, 6)).collect();
         // A level far larger than the next (the case the flags are for).
-        let max_t = 6 + DEPTH_OFFSET;
-        let mut req = TreeRequest::new(max_t);
-        req.require_window(max_t, [64 + 20, 64 + 40, 64 + 30], 1);
-        trees.push(Octree::build(req, 4, 4));
+        trees.push(Octree::full_depth_4_and_one_path_to_6());
         for tree in &trees {
             let last = tree.levels.len() - 1;
             let mut some_without = false;

@@ -1427,13 +1427,7 @@ mod tests {
 
     #[test]
     fn the_restriction_is_zero_outside_the_reach_of_a_sparse_finer_g() {
-        use crate::octree::TreeRequest;
-        // Depth 4 complete, and below it the closure of one node refined to depth 6: the
-        // levels of depths 5 and 6 are far smaller than depth 4's.
-        let max_t = 6 + DEPTH_OFFSET;
-        let mut req = TreeRequest::new(max_t);
-        req.require_window(max_t, [64 + 20, 64 + 40, 64 + 30], 1);
-        let tree = Octree::build(req, 4, 4);
+        let tree = Octree::full_depth_4_and_one_path_to_6();
         let mut state = 0x5851_f42d_4c95_7f2du64;
         for (d_num, boundary) in BASES {
             let fem = Basis::new(as_degree(d_num), boundary);
