@@ -192,6 +192,18 @@ impl Level {
         self.near_children.contains(b)
     }
 
+    /// How many broods [`Level::row_has_children`] accepts.
+    pub fn broods_near_children(&self) -> usize {
+        if self.near_children.is_empty() {
+            return if self.child.is_empty() {
+                0
+            } else {
+                self.len / 8
+            };
+        }
+        self.near_children.len()
+    }
+
     /// The broods whose rows ([`Level::brood_row`]) hold one of the nodes `nodes` (in
     /// increasing order). Rows are symmetric (brood `a` is in `b`'s row iff `b` is in `a`'s:
     /// their parents are neighbours), so each brood holding one of the nodes adds the broods of
@@ -705,6 +717,11 @@ impl BroodSet {
 
     fn is_empty(&self) -> bool {
         self.0.is_empty()
+    }
+
+    /// Number of broods in the set.
+    fn len(&self) -> usize {
+        self.0.iter().map(|w| w.count_ones() as usize).sum()
     }
 }
 

@@ -1169,6 +1169,28 @@ pub fn prolong<const K: usize, T: Send>(
         .collect()
 }
 
+/// [`prolong`] of one coefficient on the broods `keep` accepts, zero on the others. The
+/// zeros are a fresh zeroed allocation that is never written, so that where `keep` accepts
+/// few broods the pages that hold only zeros are never made resident.
+pub fn prolong_broods(
+    at: Prolongation,
+    coarse: impl Fn(u32) -> f64 + Sync,
+    add: impl Fn(usize) -> f64 + Sync,
+    keep: impl Fn(u32) -> bool + Sync,
+) -> Vec<f64> {
+    let mut out = vec![0.0f64; at.tree.levels[at.t as usize].len()];
+    out.par_chunks_mut(8)
+        .enumerate()
+        .filter(|&(b, _)| keep(b as u32))
+        .for_each(|(b, nodes)| {
+            for (k, o) in nodes.iter_mut().enumerate() {
+                let n = 8 * b as u32 + k as u32;
+                *o = prolong_one(at, &|q| [coarse(q)], n, || [add(n as usize)])[0];
+            }
+        });
+    out
+}
+
 /// [`prolong`] with `add` read from and the result written to `out`, in place (one entry
 /// per node of level `t`): the same sums, without a second array of the level alive.
 pub fn prolong_in_place<const K: usize, T: Send>(

@@ -30,7 +30,8 @@
 use rayon::prelude::*;
 
 use super::{
-    coarse_cluster_values, prolong_field, prolong_solution, remove_mean, to_f32, BaseSystem, Carry,
+    coarse_cluster_values, deepest_reads_little, prolong_field, prolong_solution,
+    prolong_solution_f32, prolong_solution_for_deepest, remove_mean, to_f32, BaseSystem, Carry,
     Laps, Op, Problem, Solution, TAU,
 };
 use crate::octree::{for_each_node, map_nodes, DEPTH_OFFSET};
@@ -111,6 +112,10 @@ struct Cycles<'a> {
     pcum: Vec<Vec<f64>>,
     /// `U_t`, the finer depths' gradient coupling, of each level below the deepest.
     u: Vec<Vec<f64>>,
+    /// Whether the deepest level's parent keeps its cumulative solution only where the deepest
+    /// level reads it ([`prolong_solution_for_deepest`]): in one piece, where nothing else
+    /// reads it (the slabs' carry and parts read it whole).
+    sparse_top: bool,
     /// Whether this is the last cycle of a solve that keeps no state after it (in one piece,
     /// no residuals reported, not W-cycles): each level's fixed part `b` is then last read
     /// by its relaxation going up, which writes its right-hand side over it.
@@ -141,6 +146,7 @@ pub(super) fn solve(
     let base = BaseSystem::new(p);
     let b_base = base.right_hand_side(std::mem::take(&mut tcons[tb]));
     let mut c = Cycles::empty(p, b_base, base);
+    c.sparse_top = max > tb + 1 && deepest_reads_little(c.op(max - 1));
     c.report = p.report.then(|| SolveReport {
         solver: p.solver,
         iters: p.iters,
@@ -183,7 +189,11 @@ pub(super) fn solve(
     sol.x[tb] = to_f32(&c.x_base);
     sol.p[tb] = to_f32(&c.x_base);
     for t in tb + 1..=max {
-        if t < max {
+        if t + 1 == max && c.sparse_top {
+            // The deepest level's parent whole, from the final coarser solution (the same
+            // bits as the sums kept near the deepest level).
+            sol.p[t] = prolong_solution_f32(c.op(t), &c.pcum[t - 1], &c.x[t]);
+        } else if t < max {
             sol.p[t] = to_f32(&c.pcum[t]);
         }
         sol.x[t] = std::mem::take(&mut c.x[t]);
@@ -247,7 +257,7 @@ impl<'a> Cycles<'a> {
                 laps.lap(format!("depth {dd}: residual"));
             }
             if t < max {
-                self.pcum[t] = prolong_solution(op, &self.pcum[t - 1], &x);
+                self.pcum[t] = self.cumulative(t, &x);
             }
             if t < max || keep_top {
                 vc = prolong_field(op, &vc, std::mem::take(&mut v[t]));
@@ -287,9 +297,20 @@ impl<'a> Cycles<'a> {
         self.relax(t, "up");
         let clock = std::time::Instant::now();
         if t < self.max {
-            self.pcum[t] = prolong_solution(self.op(t), &self.pcum[t - 1], &self.x[t]);
+            self.pcum[t] = self.cumulative(t, &self.x[t]);
         }
         self.parts[PROLONG] += clock.elapsed();
+    }
+
+    /// The cumulative solution of level `t < max` with its coefficients `x`: whole, or for
+    /// the deepest level's parent with [`Cycles::sparse_top`] only where the deepest level
+    /// reads it.
+    fn cumulative(&self, t: usize, x: &[f32]) -> Vec<f64> {
+        if self.sparse_top && t + 1 == self.max {
+            prolong_solution_for_deepest(self.op(t), &self.pcum[t - 1], x)
+        } else {
+            prolong_solution(self.op(t), &self.pcum[t - 1], x)
+        }
     }
 
     /// `U_{t−1}` from level `t`'s solution and `u_t` ([`coupling_below_of`]).
@@ -526,6 +547,7 @@ impl<'a> Cycles<'a> {
             x_base: Vec::new(),
             pcum: vec![Vec::new(); nlev],
             u: vec![Vec::new(); nlev],
+            sparse_top: false,
             last_use: false,
             report: None,
             parts: [std::time::Duration::ZERO; PARTS.len()],

@@ -156,15 +156,37 @@ pub(super) struct Fixture {
 
 impl Fixture {
     fn new(degree: Degree, boundary: Boundary, point_weight: Option<f64>) -> Self {
+        Self::of(sphere(20_000), 7, degree, boundary, point_weight)
+    }
+
+    /// A sparse sphere with a small patch sampled densely enough to reach depth 7, which the
+    /// rest does not: the deepest level holds a few broods under a whole level.
+    fn with_deep_patch(degree: Degree, boundary: Boundary) -> Self {
+        let mut cloud = sphere(5_000);
+        let patch = sphere(2_000_000);
+        let near_pole = (0..patch.positions.len()).filter(|&i| patch.normals[i][2] > 0.9995);
+        for i in near_pole {
+            cloud.positions.push(patch.positions[i]);
+            cloud.normals.push(patch.normals[i]);
+        }
+        Self::of(cloud, 7, degree, boundary, None)
+    }
+
+    fn of(
+        cloud: PointCloud,
+        depth: u32,
+        degree: Degree,
+        boundary: Boundary,
+        point_weight: Option<f64>,
+    ) -> Self {
         let params = Params {
-            depth: 7,
+            depth,
             full_depth: 3,
             degree,
             boundary,
             point_weight,
             ..Params::default()
         };
-        let cloud = sphere(20_000);
         let prepared = prepare::prepare(&cloud, &params).unwrap();
         let sampled = density::sample(prepared.points, prepared.carried, &params);
         let refined = tree::build(&sampled, &params, cloud.positions.len()).unwrap();
@@ -531,6 +553,58 @@ fn the_cycles_give_the_same_bits_on_one_and_four_threads() {
             })
         };
         assert_eq!(run(1), run(4), "{solver:?}");
+    }
+}
+
+#[test]
+fn the_deepest_levels_parent_kept_near_it_alone_gives_the_same_bits() {
+    for degree in [Degree::Linear, Degree::Quadratic] {
+        let f = Fixture::with_deep_patch(degree, Boundary::Neumann);
+        let p = f.problem();
+        let max = f.max_level();
+        let top = Op::new(&p, max - 1);
+        let near = top.level.broods_near_children();
+        assert!(
+            deepest_reads_little(&top) && near > 0,
+            "{degree:?}: {near} of {} broods near the deepest level",
+            top.level.len() / 8
+        );
+        // Where it is kept, it is the whole prolongation's; elsewhere zero.
+        let pc = pseudo_random(f.tree.levels[max as usize - 2].len(), 3);
+        let x = to_f32(&pseudo_random(top.level.len(), 4));
+        let whole = prolong_solution(&top, &pc, &x);
+        let kept = prolong_solution_for_deepest(&top, &pc, &x);
+        for (n, (w, k)) in whole.iter().zip(&kept).enumerate() {
+            let expected = if top.level.row_has_children(n as u32 / 8) {
+                *w
+            } else {
+                0.0
+            };
+            assert_eq!(k.to_bits(), expected.to_bits(), "{degree:?}: node {n}");
+        }
+        assert_eq!(
+            prolong_solution_f32(&top, &pc, &x),
+            to_f32(&whole),
+            "{degree:?}"
+        );
+        // The solve, with every solver, is the same with the parent level kept whole.
+        for (solver, cycles) in [
+            (Solver::Cascadic, 1),
+            (Solver::Cascadic, 2),
+            (Solver::VCycle, 2),
+            (Solver::WCycle, 2),
+        ] {
+            let p = Problem {
+                solver,
+                cycles,
+                ..f.problem()
+            };
+            let near = solution_bits(&solve(&p, f.v.clone()));
+            KEEP_WHOLE.store(true, std::sync::atomic::Ordering::Relaxed);
+            let whole = solution_bits(&solve(&p, f.v.clone()));
+            KEEP_WHOLE.store(false, std::sync::atomic::Ordering::Relaxed);
+            assert_eq!(near, whole, "{degree:?} {solver:?} {cycles}");
+        }
     }
 }
 
