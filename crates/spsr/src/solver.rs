@@ -15,7 +15,7 @@ use crate::octree::{
     brood_offset, for_each_node, func_index, map_nodes, neighbor_in_row, window_index, BroodRow,
     Level, Octree, DEPTH_OFFSET, NONE,
 };
-use crate::shared_slice::SharedSlice;
+use crate::shared_slice::{written_zeros, SharedSlice};
 use crate::system::{
     any_with_v, broods_with_v, cluster_offsets, divergence_constraints, prolong, prolong_broods,
     prolong_in_place, BroodStencil, Clusters, DepthTables, Lanes, PlainLanes, Prolongation,
@@ -1178,7 +1178,7 @@ pub fn cascade(
         laps.lap(format!("depth {dd}: right-hand side"));
         let mut x = std::mem::take(&mut previous[t]);
         if x.len() != op.level.len() {
-            x = vec![0.0f32; op.level.len()];
+            x = written_zeros(op.level.len());
         }
         op.gauss_seidel(&r, &mut x, p.iters);
         drop(r);

@@ -7,14 +7,12 @@
 
 use rayon::prelude::*;
 
-use crate::shared_slice::split_into;
-
 use crate::bspline::{table, Basis, Integrand, Table1D};
 use crate::octree::{
     brood_offset, func_index, neighbor_in_row, window_index, BroodRow, BroodSet, Level, NodeRank,
     Octree, DEPTH_OFFSET, NONE,
 };
-use crate::shared_slice::SharedSlice;
+use crate::shared_slice::{split_into, written_zeros, SharedSlice};
 
 /// Inclusive index ranges of a basis at one depth, and range checks.
 #[derive(Debug, Clone, Copy)]
@@ -751,7 +749,7 @@ pub fn divergence_constraints(
         _ => None,
     };
     if g.is_empty() && g_finer.is_some() {
-        g = vec![0.0f64; level.len()];
+        g = written_zeros(level.len());
     }
     let with_v = broods_with_v(v);
     // Brood `b`'s rows: `T_t` of its eight nodes, and `G_t` (`g`, the pushed V on entry) where
@@ -955,7 +953,10 @@ pub(crate) fn push_to_parent_windows(
     level: &Level,
     window: impl Fn(u32) -> Option<[f64; 125]> + Sync,
 ) -> Vec<f64> {
-    let mut g = vec![0.0f64; parent_level.len()];
+    // Written first (`written_zeros`): the tiles' sums read before they write. Where the
+    // finer level is sparse, pages that no window reaches become resident too: spot_1m at
+    // depth 11 peaked 5 MB higher (641 against 636 MB), for a stage 0.4 s faster.
+    let mut g = written_zeros(parent_level.len());
     let gs = SharedSlice::new(&mut g);
     for colour in &brood_tiles(parent_level, level) {
         colour.par_iter().for_each(|range| {

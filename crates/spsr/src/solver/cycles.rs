@@ -245,7 +245,7 @@ impl<'a> Cycles<'a> {
                 vc = Vec::new();
             }
             laps.lap(format!("depth {dd}: right-hand sides"));
-            let mut x = vec![0.0f32; op.level.len()];
+            let mut x = crate::shared_slice::written_zeros(op.level.len());
             op.gauss_seidel(&r, &mut x, p.iters);
             self.work += f64::from(p.iters) * op.level.len() as f64;
             laps.lap(format!("depth {dd}: Gauss-Seidel"));
