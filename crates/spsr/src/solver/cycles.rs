@@ -35,6 +35,7 @@ use super::{
     Laps, Op, Problem, Solution, TAU,
 };
 use crate::octree::{for_each_node, map_nodes, DEPTH_OFFSET};
+use crate::shared_slice::written_zeros;
 use crate::system::{restrict_one, DepthTables, PlainLanes};
 use crate::Solver;
 
@@ -245,7 +246,7 @@ impl<'a> Cycles<'a> {
                 vc = Vec::new();
             }
             laps.lap(format!("depth {dd}: right-hand sides"));
-            let mut x = crate::shared_slice::written_zeros(op.level.len());
+            let mut x = written_zeros(op.level.len());
             op.gauss_seidel(&r, &mut x, p.iters);
             self.work += f64::from(p.iters) * op.level.len() as f64;
             laps.lap(format!("depth {dd}: Gauss-Seidel"));
