@@ -21,7 +21,9 @@ use crate::system::{
     prolong_in_place, BroodStencil, Clusters, DepthTables, Lanes, PlainLanes, Prolongation,
 };
 use crate::Solver;
+use base_matrix::BaseMatrix;
 
+mod base_matrix;
 mod cycles;
 #[cfg(feature = "gpu")]
 mod device;
@@ -412,70 +414,108 @@ impl<'a> Op<'a> {
     }
 
     /// The level's matrix `L + S` with one fixed-width row per node (the stiffness window's
-    /// slots; `NONE` columns where a neighbour is missing or not an unknown). Worth building
-    /// for the base solve, whose conjugate gradients apply the operator a hundred times.
+    /// slots; `NONE` columns where a neighbour is missing or not an unknown).
+    #[cfg(test)]
     fn assemble(&self, valid: &[bool]) -> FixedRows {
         let width = self.win.len();
-        let mut slot_of = [usize::MAX; 125];
-        for (k, &(w, _)) in self.win.iter().enumerate() {
-            slot_of[w] = k;
-        }
-        let k = usize::from(self.degree);
         let len = self.level.len();
-        // Rows are written in place: a row of its own per node would double the matrix while
-        // it is gathered (at degree 2, 125 slots of 12 bytes per node of the complete base
-        // level: 49 MB at depth 5).
         let mut out = FixedRows {
             width,
             cols: vec![NONE; len * width],
             vals: vec![0.0; len * width],
         };
+        let slot_of = self.slot_of();
         out.cols
             .par_chunks_mut(width)
             .zip(out.vals.par_chunks_mut(width))
             .enumerate()
             .for_each(|(n, (cols, vals))| {
-                let n = n as u32;
-                if !valid[n as usize] {
-                    return;
+                if valid[n] {
+                    self.assemble_row(n as u32, valid, &slot_of, cols, vals);
                 }
-                let i = self.index(n);
-                let interior = self.tab.range.interior(i, 3);
-                let nbrs = self.level.brood_row(n >> 3);
-                for (slot, &(w, o)) in self.win.iter().enumerate() {
-                    let m = neighbor_in_row(&nbrs, n, w);
-                    if m != NONE && valid[m as usize] {
-                        cols[slot] = m;
-                        vals[slot] = if interior {
-                            self.tab.stencil[w]
-                        } else {
-                            self.tab.stiffness(i, o)
-                        };
-                    }
-                }
-                self.for_each_cluster(&nbrs, n, i, |c, bv| {
-                    let c = c as usize;
-                    let w_c = self.cl.omega[c] * bv;
-                    let f = self.cl.first(c, i);
-                    let v = |a, k| f64::from(self.cl.axis_value(c, a, k));
-                    for z in 0..=k {
-                        for y in 0..=k {
-                            for x in 0..=k {
-                                let o = [
-                                    f[0] + x as i64 - i[0],
-                                    f[1] + y as i64 - i[1],
-                                    f[2] + z as i64 - i[2],
-                                ];
-                                let slot = slot_of[window_index(o)];
-                                if slot != usize::MAX && cols[slot] != NONE {
-                                    vals[slot] += w_c * v(0, x) * v(1, y) * v(2, z);
-                                }
-                            }
-                        }
-                    }
-                });
             });
         out
+    }
+
+    /// Each window position's slot in an assembled row (`usize::MAX` outside the window).
+    fn slot_of(&self) -> [usize; 125] {
+        let mut slot_of = [usize::MAX; 125];
+        for (k, &(w, _)) in self.win.iter().enumerate() {
+            slot_of[w] = k;
+        }
+        slot_of
+    }
+
+    /// Row `n` (an unknown) of the level's matrix `L + S` into `cols` and `vals` (one slot per
+    /// window position, [`Op::slot_of`]; given as `NONE` and zeros): the neighbours that are
+    /// unknowns, with their stiffness and the screening of the clusters around the function.
+    fn assemble_row(
+        &self,
+        n: u32,
+        valid: &[bool],
+        slot_of: &[usize; 125],
+        cols: &mut [u32],
+        vals: &mut [f64],
+    ) {
+        let k = usize::from(self.degree);
+        let i = self.index(n);
+        let interior = self.tab.range.interior(i, 3);
+        let nbrs = self.level.brood_row(n >> 3);
+        for (slot, &(w, o)) in self.win.iter().enumerate() {
+            let m = neighbor_in_row(&nbrs, n, w);
+            if m != NONE && valid[m as usize] {
+                cols[slot] = m;
+                vals[slot] = if interior {
+                    self.tab.stencil[w]
+                } else {
+                    self.tab.stiffness(i, o)
+                };
+            }
+        }
+        self.for_each_cluster(&nbrs, n, i, |c, bv| {
+            let c = c as usize;
+            let w_c = self.cl.omega[c] * bv;
+            let f = self.cl.first(c, i);
+            let v = |a, k| f64::from(self.cl.axis_value(c, a, k));
+            for z in 0..=k {
+                for y in 0..=k {
+                    for x in 0..=k {
+                        let o = [
+                            f[0] + x as i64 - i[0],
+                            f[1] + y as i64 - i[1],
+                            f[2] + z as i64 - i[2],
+                        ];
+                        let slot = slot_of[window_index(o)];
+                        if slot != usize::MAX && cols[slot] != NONE {
+                            vals[slot] += w_c * v(0, x) * v(1, y) * v(2, z);
+                        }
+                    }
+                }
+            }
+        });
+    }
+
+    /// The level's matrix `L + S` for conjugate gradients: the rows that are the plain
+    /// interior stencil applied on a grid, the others assembled ([`BaseMatrix`]).
+    fn base_matrix(&self, valid: &[bool]) -> BaseMatrix {
+        let index: Vec<Option<[i64; 3]>> = (0..self.level.len() as u32)
+            .map(|n| valid[n as usize].then(|| self.index(n)))
+            .collect();
+        let window: Vec<([i64; 3], f64)> = self
+            .win
+            .iter()
+            .map(|&(w, o)| (o, self.tab.stencil[w]))
+            .collect();
+        let range = self.tab.range;
+        let slot_of = self.slot_of();
+        BaseMatrix::new(
+            |n, cols: &mut [u32], vals: &mut [f64]| {
+                self.assemble_row(n as u32, valid, &slot_of, cols, vals)
+            },
+            &index,
+            (range.lo, range.hi),
+            &window,
+        )
     }
 
     /// `iters` Gauss–Seidel sweeps ([`Op::gauss_seidel_cpu`]), on the GPU when the problem
@@ -858,18 +898,13 @@ struct FixedRows {
 }
 
 impl FixedRows {
-    /// `y = A x`.
+    /// `y = A x` (the tests' reference for [`BaseMatrix::apply`]).
+    #[cfg(test)]
     fn apply(&self, x: &[f64]) -> Vec<f64> {
         self.cols
             .par_chunks(self.width)
             .zip(self.vals.par_chunks(self.width))
-            .map(|(c, v)| {
-                c.iter()
-                    .zip(v)
-                    .filter(|(&c, _)| c != NONE)
-                    .map(|(&c, &v)| v * x[c as usize])
-                    .sum()
-            })
+            .map(|(c, v)| base_matrix::row_sum(c, v, x))
             .collect()
     }
 }
@@ -1314,7 +1349,7 @@ struct BaseSystem<'a> {
     valid: Vec<bool>,
     diag: Vec<f32>,
     /// The assembled matrix; `None` for a base level solved matrix-free.
-    matrix: Option<FixedRows>,
+    matrix: Option<BaseMatrix>,
 }
 
 impl<'a> BaseSystem<'a> {
@@ -1326,7 +1361,7 @@ impl<'a> BaseSystem<'a> {
         // A base level of up to 2^18 nodes (depth 5: 46,656) is assembled once; larger ones
         // (a deep --full-depth) are applied matrix-free to bound memory.
         let diag = op.diagonal();
-        let matrix = (op.level.len() <= 1 << 18).then(|| op.assemble(&valid));
+        let matrix = (op.level.len() <= 1 << 18).then(|| op.base_matrix(&valid));
         BaseSystem {
             op,
             valid,

@@ -337,6 +337,51 @@ fn the_assembled_matrix_is_the_matrix_free_operator_and_symmetric() {
     }
 }
 
+/// The base matrix's rows on the grid and assembled give the assembled matrix's products to
+/// the bit, on every kind of row, at the base level (complete: rows of every kind) and at the
+/// finest (not complete: every row assembled), for vectors with exact zeros of both signs.
+#[test]
+fn the_base_matrix_applies_the_assembled_matrix_to_the_bit() {
+    let mut kinds = [0usize; 4];
+    for (what, f) in fixtures() {
+        let p = f.problem();
+        for t in [f.base_level, f.max_level()] {
+            let op = Op::new(&p, t);
+            let valid = valid_nodes(&op);
+            let (a, split) = (op.assemble(&valid), op.base_matrix(&valid));
+            let k = split.kinds();
+            if t == f.base_level {
+                kinds.iter_mut().zip(k).for_each(|(s, k)| *s += k);
+            } else {
+                assert_eq!(k[1] + k[2], 0, "{what}, level {t}: rows on a grid");
+            }
+            let random = masked_random(&valid, 5);
+            let zeros: Vec<f64> = random
+                .iter()
+                .enumerate()
+                .map(|(n, &x)| match n % 5 {
+                    0 => 0.0,
+                    1 => -0.0,
+                    _ => x,
+                })
+                .collect();
+            for x in [random, zeros] {
+                let (want, got) = (a.apply(&x), split.apply(&x));
+                assert_eq!(want.len(), got.len());
+                for (n, (w, g)) in want.iter().zip(&got).enumerate() {
+                    assert_eq!(
+                        w.to_bits(),
+                        g.to_bits(),
+                        "{what}, level {t}, row {n}: {w} against {g}"
+                    );
+                }
+            }
+        }
+    }
+    // Empty, stencil, own-valued and assembled rows all occurred.
+    assert!(kinds.iter().all(|&k| k > 0), "kinds of rows {kinds:?}");
+}
+
 #[test]
 fn the_base_solve_meets_its_tolerance() {
     for (what, f) in fixtures() {
