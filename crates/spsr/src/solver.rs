@@ -949,14 +949,21 @@ fn to_f32(v: &[f64]) -> Vec<f32> {
     v.par_iter().map(|&x| x as f32).collect()
 }
 
+/// Elements a chunk of the deterministic dot products ([`dot`]).
+const DOT_CHUNK: usize = 4096;
+
 /// Deterministic dot product: fixed-size chunks summed in order.
 fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.par_chunks(4096)
-        .zip(b.par_chunks(4096))
-        .map(|(x, y)| x.iter().zip(y).map(|(p, q)| p * q).sum::<f64>())
-        .collect::<Vec<f64>>()
-        .iter()
-        .sum()
+    chunk_sums(
+        a.par_chunks(DOT_CHUNK)
+            .zip(b.par_chunks(DOT_CHUNK))
+            .map(|(x, y)| x.iter().zip(y).map(|(p, q)| p * q).sum::<f64>()),
+    )
+}
+
+/// The sum of per-chunk sums, in chunk order whatever the threads ([`dot`]).
+fn chunk_sums(parts: impl IndexedParallelIterator<Item = f64>) -> f64 {
+    parts.collect::<Vec<f64>>().iter().sum()
 }
 
 /// Conjugate gradients on `op`, preconditioned by its diagonal (Jacobi), to relative residual
@@ -997,20 +1004,31 @@ fn conjugate_gradients(
             break;
         }
         let alpha = rz / pap;
-        x.par_iter_mut()
-            .zip(&p)
-            .for_each(|(xi, pi)| *xi += alpha * pi);
-        r.par_iter_mut()
-            .zip(&ap)
-            .for_each(|(ri, ai)| *ri -= alpha * ai);
-        if dot(&r, &r) <= target {
+        // x += αp and r −= αAp, and ‖r‖² summed as `dot` sums it, in one pass.
+        let rr = chunk_sums(
+            x.par_chunks_mut(DOT_CHUNK)
+                .zip(r.par_chunks_mut(DOT_CHUNK))
+                .zip(p.par_chunks(DOT_CHUNK).zip(ap.par_chunks(DOT_CHUNK)))
+                .map(|((x, r), (p, ap))| {
+                    x.iter_mut().zip(p).for_each(|(xi, pi)| *xi += alpha * pi);
+                    r.iter_mut().zip(ap).for_each(|(ri, ai)| *ri -= alpha * ai);
+                    r.iter().map(|v| v * v).sum::<f64>()
+                }),
+        );
+        if rr <= target {
             break;
         }
-        z.par_iter_mut()
-            .zip(&r)
-            .zip(&inv)
-            .for_each(|((zi, ri), mi)| *zi = ri * mi);
-        let rz_new = dot(&r, &z);
+        // z = M⁻¹r, and r·z summed as `dot` sums it, in one pass.
+        let rz_new = chunk_sums(
+            z.par_chunks_mut(DOT_CHUNK)
+                .zip(r.par_chunks(DOT_CHUNK).zip(inv.par_chunks(DOT_CHUNK)))
+                .map(|(z, (r, m))| {
+                    z.iter_mut()
+                        .zip(r.iter().zip(m))
+                        .for_each(|(zi, (ri, mi))| *zi = ri * mi);
+                    r.iter().zip(z.iter()).map(|(p, q)| p * q).sum::<f64>()
+                }),
+        );
         let beta = rz_new / rz;
         rz = rz_new;
         p.par_iter_mut()
