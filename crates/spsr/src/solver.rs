@@ -495,8 +495,9 @@ impl<'a> Op<'a> {
         });
     }
 
-    /// The level's matrix `L + S` for conjugate gradients: the rows that are the plain
-    /// interior stencil applied on a grid, the others assembled ([`BaseMatrix`]).
+    /// The level's matrix `L + S` for conjugate gradients ([`BaseMatrix`]): the rows whose
+    /// window holds only unknowns applied on a grid (from the interior stencil where nothing
+    /// screens them), the boundary rows assembled.
     fn base_matrix(&self, valid: &[bool]) -> BaseMatrix {
         let index: Vec<Option<[i64; 3]>> = (0..self.level.len() as u32)
             .map(|n| valid[n as usize].then(|| self.index(n)))
