@@ -22,8 +22,10 @@ use crate::system::{
 };
 use crate::Solver;
 use base_matrix::BaseMatrix;
+use base_multigrid::BaseMultigrid;
 
 mod base_matrix;
+mod base_multigrid;
 mod cycles;
 #[cfg(feature = "gpu")]
 mod device;
@@ -977,6 +979,23 @@ fn conjugate_gradients(
     max_iter: usize,
     tol: f64,
 ) -> Vec<f64> {
+    conjugate_gradients_with(apply, diag, None, b, valid, max_iter, tol)
+}
+
+/// `z = M⁻¹ r` for preconditioned conjugate gradients.
+type Preconditioner<'a> = dyn Fn(&[f64]) -> Vec<f64> + 'a;
+
+/// [`conjugate_gradients`] preconditioned by `precondition` (`z = M⁻¹ r`, symmetric) in
+/// place of the diagonal where given.
+fn conjugate_gradients_with(
+    apply: impl Fn(&[f64]) -> Vec<f64>,
+    diag: &[f32],
+    precondition: Option<&Preconditioner>,
+    b: &[f64],
+    valid: &[bool],
+    max_iter: usize,
+    tol: f64,
+) -> Vec<f64> {
     let n = b.len();
     let inv: Vec<f64> = diag
         .iter()
@@ -991,7 +1010,10 @@ fn conjugate_gradients(
         .collect();
     let mut x = vec![0.0; n];
     let mut r = b.to_vec();
-    let mut z: Vec<f64> = r.iter().zip(&inv).map(|(r, m)| r * m).collect();
+    let mut z: Vec<f64> = match precondition {
+        Some(m) => m(&r),
+        None => r.iter().zip(&inv).map(|(r, m)| r * m).collect(),
+    };
     let mut p = z.clone();
     let mut rz = dot(&r, &z);
     let target = tol * tol * dot(&r, &r);
@@ -1019,17 +1041,22 @@ fn conjugate_gradients(
         if rr <= target {
             break;
         }
-        // z = M⁻¹r, and r·z summed as `dot` sums it, in one pass.
-        let rz_new = chunk_sums(
-            z.par_chunks_mut(DOT_CHUNK)
-                .zip(r.par_chunks(DOT_CHUNK).zip(inv.par_chunks(DOT_CHUNK)))
-                .map(|(z, (r, m))| {
-                    z.iter_mut()
-                        .zip(r.iter().zip(m))
-                        .for_each(|(zi, (ri, mi))| *zi = ri * mi);
-                    r.iter().zip(z.iter()).map(|(p, q)| p * q).sum::<f64>()
-                }),
-        );
+        let rz_new = if let Some(m) = precondition {
+            z = m(&r);
+            dot(&r, &z)
+        } else {
+            // z = M⁻¹r, and r·z summed as `dot` sums it, in one pass.
+            chunk_sums(
+                z.par_chunks_mut(DOT_CHUNK)
+                    .zip(r.par_chunks(DOT_CHUNK).zip(inv.par_chunks(DOT_CHUNK)))
+                    .map(|(z, (r, m))| {
+                        z.iter_mut()
+                            .zip(r.iter().zip(m))
+                            .for_each(|(zi, (ri, mi))| *zi = ri * mi);
+                        r.iter().zip(z.iter()).map(|(p, q)| p * q).sum::<f64>()
+                    }),
+            )
+        };
         let beta = rz_new / rz;
         rz = rz_new;
         p.par_iter_mut()
@@ -1369,6 +1396,9 @@ struct BaseSystem<'a> {
     diag: Vec<f32>,
     /// The assembled matrix; `None` for a base level solved matrix-free.
     matrix: Option<BaseMatrix>,
+    /// The V-cycle that preconditions the conjugate gradients on an assembled base level
+    /// (`None`: the diagonal does).
+    multigrid: Option<BaseMultigrid>,
 }
 
 impl<'a> BaseSystem<'a> {
@@ -1381,11 +1411,18 @@ impl<'a> BaseSystem<'a> {
         // (a deep --full-depth) are applied matrix-free to bound memory.
         let diag = op.diagonal();
         let matrix = (op.level.len() <= 1 << 18).then(|| op.base_matrix(&valid));
+        let multigrid = matrix.as_ref().and_then(|_| {
+            let index: Vec<Option<[i64; 3]>> = (0..op.level.len() as u32)
+                .map(|n| valid[n as usize].then(|| op.index(n)))
+                .collect();
+            BaseMultigrid::new(p.fem, op.d, &index, &diag, op.cl, op.singular)
+        });
         BaseSystem {
             op,
             valid,
             diag,
             matrix,
+            multigrid,
         }
     }
 
@@ -1413,7 +1450,15 @@ impl<'a> BaseSystem<'a> {
     /// Conjugate gradients from zero to a relative residual of `tol`.
     fn solve_to(&self, b: &[f64], tol: f64) -> Vec<f64> {
         match &self.matrix {
-            Some(a) => conjugate_gradients(|x| a.apply(x), &self.diag, b, &self.valid, 3000, tol),
+            Some(a) => {
+                let apply = |x: &[f64]| a.apply(x);
+                let vcycle = self
+                    .multigrid
+                    .as_ref()
+                    .map(|mg| move |r: &[f64]| mg.precondition(&apply, r));
+                let pre = vcycle.as_ref().map(|v| v as &Preconditioner);
+                conjugate_gradients_with(apply, &self.diag, pre, b, &self.valid, 3000, tol)
+            }
             None => conjugate_gradients(
                 |x| self.op.apply(x, &self.valid),
                 &self.diag,
