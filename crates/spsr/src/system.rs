@@ -283,8 +283,9 @@ impl DepthTables {
     }
 }
 
+/// `∫∇B_i·∇B_{i+o}` of the tensor-product functions from the 1-D mass and stiffness tables.
 #[inline]
-fn stiffness_3d(mass: &Table1D, stiff: &Table1D, i: [i64; 3], o: [i64; 3]) -> f64 {
+pub(crate) fn stiffness_3d(mass: &Table1D, stiff: &Table1D, i: [i64; 3], o: [i64; 3]) -> f64 {
     let m = [
         mass.get(i[0], o[0]),
         mass.get(i[1], o[1]),

@@ -25,9 +25,11 @@
 
 use rayon::prelude::*;
 
-use crate::bspline::{table, Basis, Integrand, Table1D};
+use crate::bspline::{table, Basis, Integrand};
 use crate::octree::NONE;
-use crate::system::Clusters;
+use crate::system::{stiffness_3d, Clusters};
+
+use super::{conjugate_gradients, remove_mean};
 
 /// Damping of the Jacobi sweeps.
 const OMEGA: f64 = 0.7;
@@ -61,6 +63,8 @@ struct Grid {
 pub(super) struct BaseMultigrid {
     /// Grid point of each node of the base level (`NONE` for nodes that are not unknowns).
     point: Vec<u32>,
+    /// Whether each node of the base level is an unknown.
+    valid: Vec<bool>,
     /// Points per axis of the base level's box.
     side: usize,
     /// Inverse diagonal of the base level's rows, per node.
@@ -125,6 +129,7 @@ impl BaseMultigrid {
             (fine_lo, fine_side) = (coarse_lo, coarse_side);
         }
         (!grids.is_empty()).then_some(BaseMultigrid {
+            valid: point.iter().map(|&g| g != NONE).collect(),
             point,
             side,
             inv,
@@ -164,7 +169,7 @@ impl BaseMultigrid {
             jacobi(&mut z, r, &self.inv, apply);
         }
         if self.singular {
-            remove_mean_of(&mut z, &self.point);
+            remove_mean(&mut z, &self.valid);
         }
         z
     }
@@ -175,7 +180,7 @@ impl BaseMultigrid {
         let stencil = Stencil::new(g.side, self.radius);
         let apply = |x: &[f64]| stencil.apply(&g.rows, &stencil.pad(x));
         if l + 1 == self.grids.len() {
-            return coarsest(&apply, r, self.singular);
+            return coarsest(g, &apply, r, self.singular);
         }
         let mut z = first_sweep(&r, &g.inv);
         for _ in 1..SWEEPS {
@@ -365,7 +370,7 @@ fn rows(
             let sl = sl as i64;
             let o = [sl % w - k, (sl / w) % w - k, sl / (w * w) - k];
             if inside([c[0] + o[0], c[1] + o[1], c[2] + o[2]]) {
-                *v = stiffness(&mass, &stiff, i, o);
+                *v = stiffness_3d(&mass, &stiff, i, o);
             }
         }
     });
@@ -399,12 +404,6 @@ fn rows(
         }
     }
     rows.into_iter().map(|v| v as f32).collect()
-}
-
-fn stiffness(mass: &Table1D, stiff: &Table1D, i: [i64; 3], o: [i64; 3]) -> f64 {
-    let m: [f64; 3] = std::array::from_fn(|a| mass.get(i[a], o[a]));
-    let k: [f64; 3] = std::array::from_fn(|a| stiff.get(i[a], o[a]));
-    k[0] * m[1] * m[2] + m[0] * k[1] * m[2] + m[0] * m[1] * k[2]
 }
 
 /// `Rᵀ`-weighted sums from the finer grid (`fine_side` per axis) onto the coarse grid `g`,
@@ -485,54 +484,17 @@ fn prolong(coarse: &[f64], fine_side: usize, g: &Grid) -> Vec<f64> {
 /// The coarsest grid's correction: conjugate gradients to a relative residual of 1e-10 (a
 /// few hundred unknowns). A singular system's right-hand side is made consistent first (the
 /// constants, the kernel, taken out).
-fn coarsest(apply: &dyn Fn(&[f64]) -> Vec<f64>, mut b: Vec<f64>, singular: bool) -> Vec<f64> {
+fn coarsest(
+    g: &Grid,
+    apply: &dyn Fn(&[f64]) -> Vec<f64>,
+    mut b: Vec<f64>,
+    singular: bool,
+) -> Vec<f64> {
+    let every = vec![true; b.len()];
     if singular {
-        let mean = b.iter().sum::<f64>() / b.len().max(1) as f64;
-        b.iter_mut().for_each(|v| *v -= mean);
+        remove_mean(&mut b, &every);
     }
-    let dot = |a: &[f64], b: &[f64]| -> f64 { a.iter().zip(b).map(|(a, b)| a * b).sum() };
-    let mut x = vec![0.0; b.len()];
-    let mut r = b.to_vec();
-    let mut p = r.clone();
-    let mut rr = dot(&r, &r);
-    let target = 1e-20 * rr;
-    for _ in 0..4 * b.len().max(1) {
-        if rr <= target || rr == 0.0 {
-            break;
-        }
-        let ap = apply(&p);
-        let pap = dot(&p, &ap);
-        if pap <= 0.0 || !pap.is_finite() {
-            break;
-        }
-        let alpha = rr / pap;
-        for k in 0..x.len() {
-            x[k] += alpha * p[k];
-            r[k] -= alpha * ap[k];
-        }
-        let next = dot(&r, &r);
-        let beta = next / rr;
-        rr = next;
-        for k in 0..p.len() {
-            p[k] = r[k] + beta * p[k];
-        }
-    }
-    x
-}
-
-/// Takes the mean off the unknowns' entries.
-fn remove_mean_of(z: &mut [f64], point: &[u32]) {
-    let (mut sum, mut count) = (0.0, 0usize);
-    for (z, &g) in z.iter().zip(point) {
-        if g != NONE {
-            sum += z;
-            count += 1;
-        }
-    }
-    let mean = sum / count.max(1) as f64;
-    for (z, &g) in z.iter_mut().zip(point) {
-        if g != NONE {
-            *z -= mean;
-        }
-    }
+    let width = g.rows.len() / b.len().max(1);
+    let diag: Vec<f32> = g.rows.chunks(width.max(1)).map(|r| r[width / 2]).collect();
+    conjugate_gradients(apply, &diag, &b, &every, 4 * b.len().max(1), 1e-10)
 }
