@@ -997,8 +997,10 @@ fn conjugate_gradients_with(
     tol: f64,
 ) -> Vec<f64> {
     let n = b.len();
+    // The diagonal's inverse, where it preconditions.
     let inv: Vec<f64> = diag
         .iter()
+        .take(if precondition.is_none() { n } else { 0 })
         .zip(valid)
         .map(|(&d, &v)| {
             if v && d > 0.0 {
@@ -1396,8 +1398,7 @@ struct BaseSystem<'a> {
     diag: Vec<f32>,
     /// The assembled matrix; `None` for a base level solved matrix-free.
     matrix: Option<BaseMatrix>,
-    /// The V-cycle that preconditions the conjugate gradients on an assembled base level
-    /// (`None`: the diagonal does).
+    /// The V-cycle that preconditions the conjugate gradients (`None`: the diagonal does).
     multigrid: Option<BaseMultigrid>,
 }
 
@@ -1411,12 +1412,10 @@ impl<'a> BaseSystem<'a> {
         // (a deep --full-depth) are applied matrix-free to bound memory.
         let diag = op.diagonal();
         let matrix = (op.level.len() <= 1 << 18).then(|| op.base_matrix(&valid));
-        let multigrid = matrix.as_ref().and_then(|_| {
-            let index: Vec<Option<[i64; 3]>> = (0..op.level.len() as u32)
-                .map(|n| valid[n as usize].then(|| op.index(n)))
-                .collect();
-            BaseMultigrid::new(p.fem, op.d, &index, &diag, op.cl, op.singular)
-        });
+        let index: Vec<Option<[i64; 3]>> = (0..op.level.len() as u32)
+            .map(|n| valid[n as usize].then(|| op.index(n)))
+            .collect();
+        let multigrid = BaseMultigrid::new(p.fem, op.d, &index, &diag, op.cl, op.singular);
         BaseSystem {
             op,
             valid,
@@ -1449,25 +1448,13 @@ impl<'a> BaseSystem<'a> {
 
     /// Conjugate gradients from zero to a relative residual of `tol`.
     fn solve_to(&self, b: &[f64], tol: f64) -> Vec<f64> {
-        match &self.matrix {
-            Some(a) => {
-                let apply = |x: &[f64]| a.apply(x);
-                let vcycle = self
-                    .multigrid
-                    .as_ref()
-                    .map(|mg| move |r: &[f64]| mg.precondition(&apply, r));
-                let pre = vcycle.as_ref().map(|v| v as &Preconditioner);
-                conjugate_gradients_with(apply, &self.diag, pre, b, &self.valid, 3000, tol)
-            }
-            None => conjugate_gradients(
-                |x| self.op.apply(x, &self.valid),
-                &self.diag,
-                b,
-                &self.valid,
-                3000,
-                tol,
-            ),
-        }
+        let apply = |x: &[f64]| self.apply(x);
+        let vcycle = self
+            .multigrid
+            .as_ref()
+            .map(|mg| move |r: &[f64]| mg.precondition(&apply, r));
+        let pre = vcycle.as_ref().map(|v| v as &Preconditioner);
+        conjugate_gradients_with(apply, &self.diag, pre, b, &self.valid, 3000, tol)
     }
 
     /// `A x`.

@@ -394,8 +394,8 @@ fn the_base_matrix_applies_the_assembled_matrix_to_the_bit() {
 }
 
 /// At degree 1 a V-cycle over the complete depths below the base level preconditions its
-/// conjugate gradients: 20 iterations reach the tolerance, where the diagonal is still far from
-/// it, and the two solutions agree to it. The V-cycle is symmetric and positive, as conjugate
+/// conjugate gradients, on the assembled matrix and matrix-free alike: 20 iterations reach the
+/// tolerance, where the diagonal is still far from it, and the two solutions agree to it. The V-cycle is symmetric and positive, as conjugate
 /// gradients need. On base levels of depth 5 (three coarser grids), screened with each
 /// boundary, and unscreened (singular); at degree 2 there is none.
 #[test]
@@ -427,6 +427,16 @@ fn the_base_multigrid_reaches_the_tolerance_in_few_iterations() {
         let pre = |r: &[f64]| mg.precondition(&apply, r);
         let x = conjugate_gradients_with(apply, &base.diag, Some(&pre), &b, &base.valid, 20, 1e-7);
         assert!(residual(&x) <= 1.01e-7, "{what}: {}", residual(&x));
+        // The same on the matrix-free operator (base levels too large to assemble).
+        let free = |x: &[f64]| base.op.apply(x, &base.valid);
+        let pre_free = |r: &[f64]| mg.precondition(&free, r);
+        let y =
+            conjugate_gradients_with(free, &base.diag, Some(&pre_free), &b, &base.valid, 20, 1e-7);
+        assert!(
+            residual(&y) <= 1.01e-7,
+            "{what}, matrix-free: {}",
+            residual(&y)
+        );
         let xj = conjugate_gradients(apply, &base.diag, &b, &base.valid, 20, 1e-7);
         assert!(
             residual(&xj) > 1e-5,
