@@ -12,7 +12,8 @@ and depth.
 Inputs are read from ../shared/data (points/ and real/); "our own" noisy clouds are made from the
 clean shared clouds with a fixed seed (cached in ~/.cache/spsr-bench-inputs): Gaussian noise of
 0.5 % of the diagonal on spot and the rocker arm, and a ramp of 0 to 0.6 % along y on the fandisk
-(normals perturbed in step, as the shared ramp). The reference runs through bench/peers/python_peers.py
+(normals perturbed in step, as the shared ramp); `--inputs unseen` runs the clouds of UNSEEN
+instead, made the same way (`_noiseramp_x`/`_z`: ramps along x or z; `_noise1p0`: 1 % noise). The reference runs through bench/peers/python_peers.py
 (pypoisson2) with its own defaults: degree 1, point weight 2, 1.5 samples per node, full depth 5,
 scale 1.1, 8 iterations, Neumann. Tools alternate order run by run.
 """
@@ -37,7 +38,18 @@ CLEAN = ["bunny_100k", "spot_100k", "fandisk_100k", "rocker_arm_100k"]
 # Real scanner data without a ground truth (../shared/data/real): scored against their own points.
 REAL = ["real/kitten", "real/oni", "real/cube"]
 RAMPS = ["bunny_100k_noiseramp", "fandisk_100k_noiseramp"]
+# Clouds none of the constants were chosen on (the generalisation check of
+# bench/results/issue16-unseen.md): ramps on other shapes and along other axes, uniform noise on
+# the torus and on a million points, and noise of 1 % of the diagonal.
+UNSEEN = ["spot_100k_noiseramp", "rocker_arm_100k_noiseramp", "bunny_100k_noiseramp_x",
+          "bunny_100k_noiseramp_z", "sphere_200k_noiseramp", "torus_200k_noise0p5",
+          "fandisk_100k_noise1p0", "spot_1m_noise0p5"]
 SINGLE_S = [1.5, 3, 5, 10, 20]
+
+
+def is_ramp(name):
+    """Whether an input's noise grows across it (then it is also run at every single S)."""
+    return name in RAMPS or "_noiseramp" in name
 
 
 def read_ply(path):
@@ -63,15 +75,20 @@ def make_own(data, name):
     out = os.path.join(CACHE, name + ".ply")
     if os.path.exists(out):
         return out
-    base = name.rsplit("_noise", 1)[0]
+    base, kind = name.rsplit("_noise", 1)
     p, n = read_ply(os.path.join(data, "points", base + ".ply"))
     rng = np.random.default_rng(16)
     diag = float(np.linalg.norm(p.max(0) - p.min(0)))
-    if name.endswith("noiseramp"):
-        t = (p[:, 1] - p[:, 1].min()) / np.ptp(p[:, 1])
+    if kind.startswith("ramp"):
+        # "ramp" grows along y, as the shared ramp; "ramp_x" and "ramp_z" along those axes.
+        axis = {"ramp": 1, "ramp_x": 0, "ramp_z": 2}[kind]
+        t = (p[:, axis] - p[:, axis].min()) / np.ptp(p[:, axis])
         sigma, tilt = 0.006 * diag * t[:, None], 0.24 * t[:, None]
     else:
-        sigma, tilt = 0.005 * diag, 0.2
+        # "0p5": sigma 0.5 % of the diagonal; normals tilted in step, as the shared sets
+        # (s = 0.1 at 0.25 %, 0.2 at 0.5 %).
+        level = float(kind.replace("p", ".")) / 100
+        sigma, tilt = level * diag, 0.2 * level / 0.005
     p = p + rng.normal(size=p.shape) * sigma
     n = n + rng.normal(size=n.shape) * tilt
     n /= np.linalg.norm(n, axis=1, keepdims=True)
@@ -93,6 +110,9 @@ def source(data, name):
         cloud = make_own(data, name)
     meta = json.load(open(meta_path))
     gt = meta.get("ground_truth") or meta.get("reference_mesh") or meta.get("gt")
+    if gt is None and meta.get("shape") in ("sphere", "torus"):
+        # The analytic shapes' fine reference triangulations (../shared/data/gt).
+        gt = meta["shape"] + ".ply"
     gt_path = os.path.join(data, "gt", os.path.basename(gt)) if gt else None
     return cloud, gt_path
 
@@ -161,6 +181,7 @@ def run_tool(tool, cloud, depth, out):
 
 
 def main():
+    global SPSR
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", default=os.path.join(ROOT, "..", "shared", "data"))
     ap.add_argument("--inputs", nargs="+", default=NOISY + CLEAN + REAL)
@@ -168,11 +189,15 @@ def main():
     ap.add_argument("--reps", type=int, default=1)
     ap.add_argument("--samples", type=int, default=300_000)
     ap.add_argument("--name", default="issue16-noise")
+    ap.add_argument("--spsr", default=SPSR, help="the spsr binary (another build's, to compare)")
     ap.add_argument("--reuse-reference", metavar="JSON",
                     help="take PoissonRecon's rows (its mesh is deterministic) from an earlier run's "
                          "JSON in bench/results instead of running it again; its times are then that "
                          "run's, not this one's")
     args = ap.parse_args()
+    SPSR = os.path.abspath(args.spsr)
+    if args.inputs == ["unseen"]:
+        args.inputs = UNSEEN
     reused = {}
     if args.reuse_reference:
         for r in json.load(open(args.reuse_reference)):
@@ -186,7 +211,7 @@ def main():
         cloud, gt = source(args.data, name)
         for depth in args.depths:
             tools = ["spsr", "spsr-off"] + ([] if args.reuse_reference else ["reference"])
-            if name in RAMPS:
+            if is_ramp(name):
                 tools += [f"spsr-S{s:g}" for s in SINGLE_S if s != 1.5]
             for rep in range(args.reps):
                 order = tools if k % 2 == 0 else tools[::-1]
@@ -235,7 +260,7 @@ def table(rows):
         ratio = f"{cs / cf:.3f}" if cs and cf else "—"
         singles = [(t, first[(inp, d, t)]["chamfer"]) for t in ["spsr-off"] + [f"spsr-S{x:g}" for x in SINGLE_S if x != 1.5]
                    if (inp, d, t) in first and first[(inp, d, t)].get("chamfer")]
-        if inp in RAMPS and singles:
+        if is_ramp(inp) and singles:
             bt, bc = min(singles, key=lambda x: x[1])
             best = f"{1e4 * bc:.2f} (S={'1.5' if bt == 'spsr-off' else bt[6:]})"
             rbest = f"{cs / bc:.3f}" if cs else "—"
