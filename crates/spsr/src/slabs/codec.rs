@@ -10,6 +10,7 @@ use super::phases::{CoarsePart, SlabSamples, Solved};
 use crate::data::KeyedSums;
 use crate::density::{DepthAndArea, Sample};
 use crate::extract::Part;
+use crate::pipeline::noise;
 use crate::solver::{Carry, CycleState};
 use crate::system::ClusterSum;
 use crate::{Error, Result};
@@ -417,7 +418,7 @@ impl Record for Histogram {
 
 /// A slab's samples (its own and its padding's), kept between its phases.
 impl Record for SlabSamples {
-    const TAG: &'static [u8; 8] = b"spsrSMP3";
+    const TAG: &'static [u8; 8] = b"spsrSMP4";
     fn put(&self, o: &mut Out) -> std::io::Result<()> {
         o.list(&self.samples, |o, x| {
             x.pos.iter().try_for_each(|&c| o.f64(c))?;
@@ -430,9 +431,10 @@ impl Record for SlabSamples {
             o.f64(q.screen)
         })?;
         o.list(&self.measured, |o, m| match m {
-            Some((sigma, d)) => {
-                o.u32(*d)?;
-                o.f64(*sigma)
+            Some(m) => {
+                o.u32(m.depth)?;
+                o.f64(m.sigma)?;
+                o.f64(m.coarser)
             }
             None => o.u32(u32::MAX),
         })?;
@@ -458,7 +460,11 @@ impl Record for SlabSamples {
             if d == u32::MAX {
                 Ok(None)
             } else {
-                Ok(Some((i.f64()?, d)))
+                Ok(Some(noise::MeasuredNoise {
+                    depth: d,
+                    sigma: i.f64()?,
+                    coarser: i.f64()?,
+                }))
             }
         })?;
         let values = i.list(8, In::f64)?;
