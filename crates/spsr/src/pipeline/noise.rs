@@ -45,7 +45,7 @@
 //! estimator is queried again at that larger count ([`Density::query_scaled`]), which gives
 //! the sample both its lower depth and the area weight of that depth, exactly what an
 //! explicit `--samples-per-node` that large would give it. Where the noise is well below the
-//! spacing nothing changes; where it is larger the cells grow with it, by at most 1.5 levels.
+//! spacing nothing changes; where it is larger the cells grow with it, by at most 1.5 levels (2.5 on smooth shapes, below).
 //! (An earlier version lowered only the depth, `d − ½ log2(1 + r²)`, and kept the area weight
 //! of the density's own depth. That weight is read from the finest cells, where noise
 //! scatters the samples through the volume and the count per cell is low and uneven; the
