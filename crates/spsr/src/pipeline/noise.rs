@@ -892,13 +892,19 @@ fn cholesky_solve<const N: usize>(mut a: [[f64; N]; N], mut b: [f64; N]) -> Opti
 /// The second smoothing pass is this many depths coarser than the first.
 const SECOND_SMOOTHING: u32 = 2;
 
-/// Smooths the noise: each sample takes the median noise of the measured samples (those
-/// not NaN) in the 3×3×3 cells around it at depth `d`; `empty` where none was measured.
+/// Smooths the noise and what goes with it: for each of the `N` per-sample values, each
+/// sample takes the median of the measured samples' values (those not NaN) in the 3×3×3
+/// cells around it at depth `d`; that value's `empty` where none was measured.
 ///
 /// The samples are grouped by cell through one parallel sort of their cells' Morton codes
-/// (not a map filled sample by sample, which was serial); a median does not depend on the
-/// order of its values, so neither does the result.
-fn smooth(samples: &[Sample], sigma: &[f64], d: u32, empty: f64) -> Vec<f64> {
+/// (not a map filled sample by sample, which was serial), once for all the values; a median
+/// does not depend on the order of its values, so neither does the result.
+fn smooth<const N: usize>(
+    samples: &[Sample],
+    values: [&[f64]; N],
+    d: u32,
+    empty: [f64; N],
+) -> [Vec<f64>; N] {
     let mut sorted: Vec<(u64, u32)> = samples
         .par_iter()
         .enumerate()
@@ -911,35 +917,38 @@ fn smooth(samples: &[Sample], sigma: &[f64], d: u32, empty: f64) -> Vec<f64> {
         .map(|&(a, _)| sorted[a as usize].0)
         .collect();
     let index = CodeIndex::new(&codes, d);
-    let medians: Vec<f64> = codes
+    let medians: Vec<[f64; N]> = codes
         .par_iter()
         .map_init(Vec::new, |buf: &mut Vec<f64>, &code| {
-            buf.clear();
             let c = morton::decode(code).map(|v| v as i64);
-            for_each_neighbour(c, |q| {
-                let Some(k) = index.get(code_of_cell(q)) else {
-                    return;
-                };
-                let (a, b) = cells[k];
-                let values = sorted[a as usize..b as usize]
-                    .iter()
-                    .map(|&(_, i)| sigma[i as usize]);
-                buf.extend(values.filter(|v| !v.is_nan()));
-            });
-            if buf.is_empty() {
-                return empty;
-            }
-            let m = buf.len() / 2;
-            *buf.select_nth_unstable_by(m, f64::total_cmp).1
+            std::array::from_fn(|v| {
+                buf.clear();
+                for_each_neighbour(c, |q| {
+                    let Some(k) = index.get(code_of_cell(q)) else {
+                        return;
+                    };
+                    let (a, b) = cells[k];
+                    let around = sorted[a as usize..b as usize]
+                        .iter()
+                        .map(|&(_, i)| values[v][i as usize]);
+                    buf.extend(around.filter(|x| !x.is_nan()));
+                });
+                if buf.is_empty() {
+                    return empty[v];
+                }
+                let m = buf.len() / 2;
+                *buf.select_nth_unstable_by(m, f64::total_cmp).1
+            })
         })
         .collect();
-    samples
+    let at: Vec<usize> = samples
         .par_iter()
         .map(|s| {
             let k = index.get(code_of_cell(cell_of(s.pos, d)));
-            medians[k.expect("a sample's cell")]
+            k.expect("a sample's cell")
         })
-        .collect()
+        .collect();
+    std::array::from_fn(|v| at.par_iter().map(|&k| medians[k][v]).collect())
 }
 
 /// Lowers each sample's splat depth as far as its local noise needs (stage 2b) and says what
@@ -1044,14 +1053,21 @@ pub fn adapt_measured(
             .saturating_sub(1)
             .max(1)
     });
-    let sigma = smooth(samples, &raw, smooth_depth, 0.0);
-    let sigma = smooth(
+    // The shape's ratio counts only where the noise does; where no noisy sample is near,
+    // the shape is not known to be a quadratic.
+    let coarser: Vec<f64> = measured
+        .iter()
+        .map(|m| m.filter(|m| m.sigma > 0.0).map_or(f64::NAN, |m| m.coarser))
+        .collect();
+    let empty = [0.0, f64::INFINITY];
+    let [sigma, coarser] = smooth(samples, [&raw, &coarser], smooth_depth, empty);
+    let [sigma, coarser] = smooth(
         samples,
-        &sigma,
+        [&sigma, &coarser],
         smooth_depth.saturating_sub(SECOND_SMOOTHING).max(1),
-        0.0,
+        empty,
     );
-    let caps = caps(samples, measured, &sigma, depths, max_depth, smooth_depth);
+    let caps = caps(&coarser);
     let mut sigmas: Vec<f64> = raw.into_iter().filter(|s| !s.is_nan()).collect();
     let median = median_by(&mut sigmas, f64::total_cmp).unwrap_or(0.0);
     let lowered: Vec<f64> = depths
@@ -1085,42 +1101,14 @@ pub fn adapt_measured(
     }
 }
 
-/// Each sample's cap on the multiplication of its samples per node: [`SMOOTH_MAX_FACTOR`]
-/// where its shape is still a quadratic one depth coarser than its noise was measured at
-/// ([`MeasuredNoise::coarser`] at most [`STILL_QUADRATIC`], smoothed as the noise is, over the
-/// samples whose noise counts), [`MAX_FACTOR`] elsewhere. Where no sample's noise asks for
-/// more than `MAX_FACTOR` (clean clouds), nothing is smoothed.
-fn caps(
-    samples: &[Sample],
-    measured: &[Option<MeasuredNoise>],
-    sigma: &[f64],
-    depths: &[DepthAndArea],
-    max_depth: u32,
-    smooth_depth: u32,
-) -> Vec<f64> {
-    let top = f64::from(max_depth);
-    let wants_more = sigma
-        .par_iter()
-        .zip(depths)
-        .any(|(&s, q)| samples_per_node_factor(s, q.depth.min(top), f64::INFINITY) > MAX_FACTOR);
-    if !wants_more {
-        return vec![MAX_FACTOR; samples.len()];
-    }
-    let coarser: Vec<f64> = measured
-        .iter()
-        .map(|m| m.filter(|m| m.sigma > 0.0).map_or(f64::NAN, |m| m.coarser))
-        .collect();
-    // Where no noisy sample is near, the shape is not known to be a quadratic.
-    let coarser = smooth(samples, &coarser, smooth_depth, f64::INFINITY);
-    let coarser = smooth(
-        samples,
-        &coarser,
-        smooth_depth.saturating_sub(SECOND_SMOOTHING).max(1),
-        f64::INFINITY,
-    );
+/// Each sample's cap on the multiplication of its samples per node, from its smoothed
+/// [`MeasuredNoise::coarser`]: [`SMOOTH_MAX_FACTOR`] where its shape is still a quadratic
+/// one depth coarser than its noise was measured at (at most [`STILL_QUADRATIC`]),
+/// [`MAX_FACTOR`] elsewhere.
+fn caps(coarser: &[f64]) -> Vec<f64> {
     coarser
-        .into_par_iter()
-        .map(|c| {
+        .par_iter()
+        .map(|&c| {
             if c <= STILL_QUADRATIC {
                 SMOOTH_MAX_FACTOR
             } else {
