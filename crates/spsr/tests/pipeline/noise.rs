@@ -315,7 +315,7 @@ fn add_noise(cloud: &mut PointCloud, sigma: f64, seed: u64) {
 
 /// How far strong noise is smoothed depends on the shape under it: a sphere is still a
 /// quadratic at twice the scale its noise is measured at, so its noise is smoothed past the
-/// cap of 8 times the samples per node that protects thin parts and features. Under that cap
+/// cap of 6 times the samples per node that protects thin parts and features. Under a cap of 8
 /// alone, sampling the same noisy sphere more densely gave a worse surface (finer cells, and
 /// no more smoothing allowed): a mean distance of 0.00171 from 200,000 points against 0.00140
 /// from 100,000.
@@ -332,8 +332,8 @@ fn a_denser_sampling_of_a_noisy_smooth_shape_is_not_worse() {
         e_dense < e_sparse,
         "200,000 points: {e_dense}; 100,000: {e_sparse}"
     );
-    // Far nearer the sphere than the most smoothing the cap of 8 gives anywhere: 12 samples
-    // per node everywhere.
+    // Far nearer the sphere than 12 samples per node everywhere, more smoothing than the cap
+    // of 6 gives anywhere (9).
     let twelve = Params {
         samples_per_node: 12.0,
         ..params(Noise::Off)
