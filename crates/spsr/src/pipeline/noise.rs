@@ -81,7 +81,7 @@
 //! not hold. Where it leaves at most `STILL_QUADRATIC = 1.1` times the measuring depth's
 //! residual (smoothed over the noisy samples around, as the noise is), the cap is
 //! `SMOOTH_MAX_FACTOR = 32` instead of 6 (cells up to 2.3 times as wide again). Measured on
-//! clouds none of the constants were chosen on (docs/noise.md, *Clouds it was not tuned on*):
+//! clouds none of the constants had been chosen on then (docs/noise.md, *Eight more clouds*):
 //! the sphere's noise ramp 13–29 % nearer the truth (the cap had held it at 1.20–1.24 × the
 //! best single `--samples-per-node`, S = 20), the torus with 0.5 % noise 5–33 % nearer, the
 //! million-point spot with 0.5 % noise 1–5 % nearer, and every other noisy cloud, shared or
