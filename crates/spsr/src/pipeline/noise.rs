@@ -69,10 +69,12 @@
 //! 12, with half its screening): strong noise was smoothed too far, and a larger cap made it
 //! worse. The cap of 6 alone helped the ramps by 1–3 % and cost spot with 0.5 % noise 4 %;
 //! with the screening's power raised to 1/2 as well, the noisy clouds at depths 8 to 10 are
-//! 0.91–1.01 × their distance before: the bunny's ramp 0.95–0.96 ×, spot's 0.95 ×, the
+//! 0.94–1.01 × their distance before: the bunny's ramp 0.95–0.96 ×, spot's 0.95 ×, the
 //! 0.5 %-noise bunny 0.94 ×, the rocker arm's and the fandisk's ramps 1.00–1.01 ×. Caps of
 //! 4 and 5, `κ` of 2–5 and other shapes of the mapping (`1 + (κσ/h)^p`, `p` = 1 or 1.5) were
-//! no better on the whole.
+//! no better on the whole. The cap of 6 loses on the million-point bunny's ramp (2 % at
+//! depths 9 and 10), whose finer density depth needs a larger factor for the same cells
+//! (docs/noise.md, *A denser ramp*): a cap that grows with the density is the next step.
 //!
 //! What does separate them is whether the shape is still a quadratic at a coarser scale
 //! ([`MeasuredNoise::coarser`]): the quadratic height field fitted over the plane of the measuring
