@@ -213,8 +213,9 @@ pub struct ReconstructArgs {
     pub scale: f64,
 
     /// Gauss-Seidel sweeps per depth in each solver cycle: 8 with one cycle as PoissonRecon 6
-    /// and 18 and the 2013 paper, 4 with more (the same 8 per depth in all) [default: 8 for
-    /// one cycle, 4 for more]
+    /// and 18 and the 2013 paper, 4 with more. With more than one cycle the deepest depth's
+    /// first relaxation makes half as many (rounded up): the last cycle relaxes it again
+    /// [default: 8 for one cycle, 4 for more]
     #[arg(long, value_name = "N", allow_negative_numbers = true)]
     pub iters: Option<u32>,
 
@@ -1227,9 +1228,17 @@ fn print_details(
 /// The solver's residuals (`--residuals`): each depth's relative residual before and after each
 /// relaxation, and the whole system's after each cycle.
 fn print_solve_report(err: &mut impl std::io::Write, report: &spsr::SolveReport) {
+    let first = if report.first_deepest_iters == report.iters {
+        String::new()
+    } else {
+        format!(
+            " ({} in the deepest depth's first)",
+            report.first_deepest_iters
+        )
+    };
     let _ = writeln!(
         err,
-        "solver      {}, {} sweeps per relaxation; relative residual per depth (before -> after):",
+        "solver      {}, {} sweeps per relaxation{first}; relative residual per depth (before -> after):",
         report.solver.name(),
         report.iters
     );

@@ -33,8 +33,9 @@ pub struct Params {
     /// Default 1.1, as PoissonRecon 6 and 18.
     pub scale: f64,
     /// Gauss–Seidel sweeps per depth in each of the solver's cycles. `None` (default): 8
-    /// with one cycle, as PoissonRecon 6 and 18 and the paper, and 4 with more (the default
-    /// two cycles then make the same 8 sweeps per depth); see [`Params::iters`].
+    /// with one cycle, as PoissonRecon 6 and 18 and the paper, and 4 with more; see
+    /// [`Params::iters`]. With more than one cycle the deepest depth's first relaxation
+    /// makes half as many ([`Params::first_deepest_iters`]).
     pub iters: Option<u32>,
     /// Each point's weight in the fit (ALGORITHM.md §3.4). Default uniform.
     pub weights: PointWeights,
@@ -266,6 +267,18 @@ impl Params {
     /// for one cycle (PoissonRecon 18's) and 4 for more.
     pub fn iters(&self) -> u32 {
         self.iters.unwrap_or(if self.cycles() > 1 { 4 } else { 8 })
+    }
+
+    /// The sweeps of the deepest depth's first relaxation: [`Params::iters`] with one cycle;
+    /// with more, half of it (rounded up). That relaxation only sets up the coupling the
+    /// deepest depth hands down to the coarser depths; the last cycle relaxes it again from
+    /// there, and its sweeps are the ones the mesh keeps (docs/solver.md, *The default*).
+    pub fn first_deepest_iters(&self) -> u32 {
+        if self.cycles() > 1 {
+            self.iters().div_ceil(2)
+        } else {
+            self.iters()
+        }
     }
 
     /// The screening weight α actually used.

@@ -65,6 +65,14 @@ pub struct Problem<'a> {
     pub base_level: u32,
     /// Gauss–Seidel sweeps per level.
     pub iters: u32,
+    /// The tree's deepest level, whose first relaxation makes [`Problem::first_deepest_iters`]
+    /// sweeps (`u32::MAX` for a problem that stops above it: a slab's coarse levels).
+    pub deepest_level: u32,
+    /// The sweeps of that level's first relaxation ([`Params::first_deepest_iters`]; the
+    /// later cycles' relaxations make [`Problem::iters`]).
+    ///
+    /// [`Params::first_deepest_iters`]: crate::Params::first_deepest_iters
+    pub first_deepest_iters: u32,
     /// Whether constants are in the kernel (Neumann/free boundary without screening).
     pub singular: bool,
     /// Shape of the cycles over the depths.
@@ -78,6 +86,18 @@ pub struct Problem<'a> {
     pub progress: &'a (dyn Fn(&str) + Sync),
     /// The GPU that relaxes the levels above the base, if any (`crate::gpu`).
     pub gpu: Option<&'a Device>,
+}
+
+impl Problem<'_> {
+    /// The sweeps of level `t`'s first relaxation: [`Problem::iters`], or
+    /// [`Problem::first_deepest_iters`] at the reconstruction's deepest level.
+    fn first_iters(&self, t: usize) -> u32 {
+        if t as u32 == self.deepest_level {
+            self.first_deepest_iters
+        } else {
+            self.iters
+        }
+    }
 }
 
 /// Operator of one level.
@@ -1260,10 +1280,13 @@ pub fn cascade(
         }
         laps.lap(format!("depth {dd}: right-hand side"));
         let mut x = std::mem::take(&mut previous[t]);
-        if x.len() != op.level.len() {
+        let iters = if x.len() == op.level.len() {
+            p.iters
+        } else {
             x = written_zeros(op.level.len());
-        }
-        op.gauss_seidel(&r, &mut x, p.iters);
+            p.first_iters(t)
+        };
+        op.gauss_seidel(&r, &mut x, iters);
         drop(r);
         laps.lap(format!("depth {dd}: Gauss-Seidel"));
         // Cumulative solution and V at this level, for the next level. The deepest level

@@ -129,12 +129,19 @@ fn sphere_degree_1_two_solver_cycles_by_default() {
         noise: Noise::Off,
         ..Params::default()
     };
-    assert_eq!((params.cycles(), params.iters()), (2, 4));
+    assert_eq!(
+        (
+            params.cycles(),
+            params.iters(),
+            params.first_deepest_iters()
+        ),
+        (2, 4, 2)
+    );
     let out = spsr::reconstruct(&cloud, &params).unwrap();
     check(
         "sphere d7 degree 1, two cycles",
         &out.mesh,
-        0xf84d37cfc99483d0,
+        0x2ea937c1f4ac69a9,
     );
 }
 

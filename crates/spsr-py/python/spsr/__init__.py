@@ -705,7 +705,9 @@ def reconstruct(
         Bounding cube side = largest side of the points' bounding box * scale.
     iters : int, optional
         Gauss-Seidel sweeps per depth in each solver cycle. Default 8 with one cycle (as
-        PoissonRecon and the 2013 paper), 4 with more (the same 8 per depth in all).
+        PoissonRecon and the 2013 paper), 4 with more. With more than one cycle the
+        deepest depth's first relaxation makes half as many (rounded up): the last cycle
+        relaxes it again.
     solver : {"cascadic", "vcycle", "wcycle"}, default "cascadic"
         Shape of the solver's cycles over the depths: coarse to fine (PoissonRecon's
         cascade), V-cycles (each depth also relaxed going down, its residual passed to the

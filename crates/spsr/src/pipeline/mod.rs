@@ -368,6 +368,7 @@ fn reconstruct_input(
         base_depth: params.base_depth().max(1).min(params.depth),
         degree: params.degree.get(),
         iters: params.iters(),
+        first_deepest_iters: params.first_deepest_iters(),
         splat_levels: if params.two_level_splat { 2 } else { 1 },
         vertices: extracted.0,
         faces: extracted.1,

@@ -88,6 +88,8 @@ pub(crate) fn problem<'a>(
         clusters,
         base_level: base_level(params),
         iters: params.iters(),
+        deepest_level: (tree.levels.len() as u32).saturating_sub(1),
+        first_deepest_iters: params.first_deepest_iters(),
         singular: params.alpha() == 0.0 && params.boundary != Boundary::Dirichlet,
         solver: params.solver,
         cycles: params.cycles(),

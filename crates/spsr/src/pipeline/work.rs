@@ -73,6 +73,8 @@ pub struct Sizes {
     pub degree: u8,
     /// Gauss–Seidel sweeps per depth.
     pub iters: u32,
+    /// The sweeps of the deepest depth's first relaxation (`Params::first_deepest_iters`).
+    pub first_deepest_iters: u32,
     /// Depths each sample is splatted into (1, or 2 with `two_level_splat`).
     pub splat_levels: usize,
     /// Vertices and triangles of the extracted mesh.
@@ -363,7 +365,13 @@ fn residual(s: &Sizes, d: u32) -> Work {
 /// functions it touches.
 fn gauss_seidel(s: &Sizes, d: u32) -> Work {
     let (n, c) = (s.nodes(d), s.clusters(d));
-    let sweeps = f64::from(s.iters);
+    // The profile's per-depth laps are the first pass's (the deepest depth's makes fewer
+    // sweeps when more cycles follow); later cycles are laps of their own.
+    let sweeps = f64::from(if d as usize + 1 == s.nodes_per_depth.len() {
+        s.first_deepest_iters
+    } else {
+        s.iters
+    });
     let sweep = Work::new(
         n * (12.0 + NODE_TABLE_BYTES) + c * (56.0 + 16.0),
         n * (2.0 * s.stencil() + 4.0) + c * s.support() * 10.0,
@@ -454,6 +462,7 @@ mod tests {
             base_depth: 5,
             degree,
             iters: 8,
+            first_deepest_iters: 8,
             splat_levels: 1,
             vertices: 500_000,
             faces: 1_000_000,

@@ -288,6 +288,9 @@ fn problem<'a>(
     Problem {
         cycles: 1,
         report: false,
+        // The coarse levels' problems stop above the deepest level; a slab's own finer
+        // levels ([`solve`]) name theirs.
+        deepest_level: u32::MAX,
         ..in_core_problem(tree, fem, tables, clusters, params, None, &|_| {})
     }
 }
@@ -1055,9 +1058,14 @@ pub fn solve(
     let fem = Basis::new(params.degree, params.boundary);
     let screening = system::screening(&tree, fem, &points, Vec::new(), 0, coarse.mean_area, params);
     let (_, tabs) = tables(&tree, params);
-    let p = problem(&tree, fem, &tabs, &screening.clusters, params);
-    let (mut sol, carry) = coarse_onto(&tree, coarse, params, tc);
     let max_level = tree.depth_count() - 1;
+    // The slab's deepest level is the whole cloud's but where the slab's samples stop
+    // shallower; there its first relaxation makes fewer sweeps than the one-piece run's.
+    let p = Problem {
+        deepest_level: max_level,
+        ..problem(&tree, fem, &tabs, &screening.clusters, params)
+    };
+    let (mut sol, carry) = coarse_onto(&tree, coarse, params, tc);
     if tc < max_level {
         // The finer levels' constraints, from phase 2 (the same tree there: the whole
         // cloud's coarse levels add no finer node).

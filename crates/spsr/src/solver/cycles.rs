@@ -62,6 +62,8 @@ pub struct SolveReport {
     pub solver: Solver,
     /// Gauss–Seidel sweeps per relaxation.
     pub iters: u32,
+    /// Gauss–Seidel sweeps of the deepest depth's first relaxation.
+    pub first_deepest_iters: u32,
     /// Every relaxation in order.
     pub depths: Vec<DepthResidual>,
     /// After each cycle, the relative residual of the whole hierarchical system,
@@ -151,6 +153,7 @@ pub(super) fn solve(
     c.report = p.report.then(|| SolveReport {
         solver: p.solver,
         iters: p.iters,
+        first_deepest_iters: p.first_deepest_iters,
         ..SolveReport::default()
     });
     // The first cycle is timed by parts, with the cascade's names (issue 20's profile).
@@ -247,8 +250,9 @@ impl<'a> Cycles<'a> {
             }
             laps.lap(format!("depth {dd}: right-hand sides"));
             let mut x = written_zeros(op.level.len());
-            op.gauss_seidel(&r, &mut x, p.iters);
-            self.work += f64::from(p.iters) * op.level.len() as f64;
+            let iters = p.first_iters(t);
+            op.gauss_seidel(&r, &mut x, iters);
+            self.work += f64::from(iters) * op.level.len() as f64;
             laps.lap(format!("depth {dd}: Gauss-Seidel"));
             if self.report.is_some() {
                 let clock = std::time::Instant::now();

@@ -234,6 +234,8 @@ impl Fixture {
             clusters: &self.clusters,
             base_level: self.base_level,
             iters: 8,
+            deepest_level: self.max_level(),
+            first_deepest_iters: 8,
             singular: self.singular,
             solver: crate::Solver::Cascadic,
             cycles: 1,
