@@ -272,7 +272,8 @@ impl Params {
     /// The sweeps of the deepest depth's first relaxation: [`Params::iters`] with one cycle;
     /// with more, half of it (rounded up). That relaxation only sets up the coupling the
     /// deepest depth hands down to the coarser depths; the last cycle relaxes it again from
-    /// there, and its sweeps are the ones the mesh keeps (docs/solver.md, *The default*).
+    /// there, and its sweeps are the ones the mesh keeps (docs/solver.md, *The deepest
+    /// depth's first relaxation*).
     pub fn first_deepest_iters(&self) -> u32 {
         if self.cycles() > 1 {
             self.iters().div_ceil(2)
