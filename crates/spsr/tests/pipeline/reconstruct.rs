@@ -13,6 +13,18 @@ fn radial_errors(mesh: &spsr::Mesh, c: [f64; 3], r: f64) -> Vec<f64> {
         .collect()
 }
 
+/// Signed distance of each vertex to the torus about the z axis (major radius `big`, minor
+/// `small`).
+fn torus_errors(mesh: &spsr::Mesh, big: f64, small: f64) -> Vec<f64> {
+    mesh.vertices
+        .iter()
+        .map(|v| {
+            let rho = (v[0] * v[0] + v[1] * v[1]).sqrt();
+            ((rho - big).powi(2) + v[2] * v[2]).sqrt() - small
+        })
+        .collect()
+}
+
 #[test]
 fn sphere_at_depth_8_is_closed_genus_0_and_within_a_tenth_of_a_cell() {
     let (c, r) = ([0.1, -0.2, 0.3], 1.0);
@@ -57,14 +69,9 @@ fn torus_at_depth_8_is_closed_genus_1_and_within_a_tenth_of_a_cell() {
     assert_eq!(topo.components, 1);
     assert_eq!(topo.euler, 0);
     let cell = 2.2 * (big + small) / 256.0;
-    let max = out
-        .mesh
-        .vertices
-        .iter()
-        .map(|v| {
-            let rho = (v[0] * v[0] + v[1] * v[1]).sqrt();
-            (((rho - big).powi(2) + v[2] * v[2]).sqrt() - small).abs()
-        })
+    let max = torus_errors(&out.mesh, big, small)
+        .into_iter()
+        .map(f64::abs)
         .fold(0.0f64, f64::max);
     assert!(max <= 0.1 * cell, "max error {max} = {} cells", max / cell);
 }
@@ -485,16 +492,11 @@ fn the_default_cycles_land_nearer_the_truth_than_the_cascade() {
     let (big, small) = (1.0, 0.35);
     let cloud = torus(100_000, big, small, 4);
     let error = |p: &Params| {
-        let mesh = reconstruct(&cloud, p).unwrap().mesh;
-        mean(
-            mesh.vertices
-                .iter()
-                .map(|v| {
-                    let rho = (v[0] * v[0] + v[1] * v[1]).sqrt();
-                    ((rho - big).powi(2) + v[2] * v[2]).sqrt() - small
-                })
-                .collect(),
-        )
+        mean(torus_errors(
+            &reconstruct(&cloud, p).unwrap().mesh,
+            big,
+            small,
+        ))
     };
     let (two, one) = (error(&default), error(&cascade));
     assert!(two < one, "torus: two cycles {two}, the cascade {one}");
