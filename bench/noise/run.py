@@ -13,7 +13,8 @@ Inputs are read from ../shared/data (points/ and real/); "our own" noisy clouds 
 clean shared clouds with a fixed seed (cached in ~/.cache/spsr-bench-inputs): Gaussian noise of
 0.5 % of the diagonal on spot and the rocker arm, and a ramp of 0 to 0.6 % along y on the fandisk
 (normals perturbed in step, as the shared ramp); `--inputs unseen` runs the clouds of UNSEEN
-instead, made the same way (`_noiseramp_x`/`_z`: ramps along x or z; `_noise1p0`: 1 % noise). The reference runs through bench/peers/python_peers.py
+instead, made the same way (`_noiseramp_x`/`_z`: ramps along x or z; `_noise1p0`: 1 % noise), and
+`--inputs dense` the million-point clouds of DENSE (`_gt1m`: sampled from a ground-truth mesh). The reference runs through bench/peers/python_peers.py
 (pypoisson2) with its own defaults: degree 1, point weight 2, 1.5 samples per node, full depth 5,
 scale 1.1, 8 iterations, Neumann. Tools alternate order run by run.
 """
@@ -46,6 +47,11 @@ RAMPS = ["bunny_100k_noiseramp", "fandisk_100k_noiseramp"]
 UNSEEN = ["spot_100k_noiseramp", "rocker_arm_100k_noiseramp", "bunny_100k_noiseramp_x",
           "bunny_100k_noiseramp_z", "sphere_200k_noiseramp", "torus_200k_noise0p5",
           "fandisk_100k_noise1p0", "spot_1m_noise0p5"]
+# Million-point noisy clouds (docs/noise.md, "Denser clouds"): the cap that protects features
+# grows with the density depth, which only clouds this dense reach. "_gt1m" clouds are a million
+# points sampled from the shared ground-truth mesh (make_from_mesh), then made noisy as the others.
+DENSE = ["bunny_1m_noiseramp", "spot_1m_noise0p5", "rocker_arm_gt1m_noiseramp",
+         "fandisk_gt1m_noiseramp", "torus_gt1m_noiseramp", "bunny_gt1m_noise0p5"]
 SINGLE_S = [1.5, 3, 5, 10, 20]
 
 
@@ -71,6 +77,19 @@ def write_ply(path, p, n):
     os.replace(tmp, path)
 
 
+def sample_mesh(path, count, rng):
+    """`count` points area-uniform on the mesh at `path`, with its faces' normals."""
+    v, f = read_mesh_ply(path)
+    v, f = np.asarray(v, float), np.asarray(f, np.int64)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    cross = np.cross(b - a, c - a)
+    area = np.linalg.norm(cross, axis=1)
+    t = rng.choice(len(f), size=count, p=area / area.sum())
+    r1, r2 = np.sqrt(rng.random(count)), rng.random(count)
+    p = a[t] * (1 - r1)[:, None] + b[t] * (r1 * (1 - r2))[:, None] + c[t] * (r1 * r2)[:, None]
+    return p, cross[t] / area[t][:, None]
+
+
 def make_own(data, name):
     """Our own noisy clouds (see the module docstring)."""
     os.makedirs(CACHE, exist_ok=True)
@@ -78,8 +97,13 @@ def make_own(data, name):
     if os.path.exists(out):
         return out
     base, kind = name.rsplit("_noise", 1)
-    p, n = read_ply(os.path.join(data, "points", base + ".ply"))
-    rng = np.random.default_rng(16)
+    if base.endswith("_gt1m"):
+        # The seed these clouds were first made with (docs/noise.md, "Denser clouds").
+        rng = np.random.default_rng(1609)
+        p, n = sample_mesh(os.path.join(data, "gt", base[:-len("_gt1m")] + ".ply"), 1_000_000, rng)
+    else:
+        p, n = read_ply(os.path.join(data, "points", base + ".ply"))
+        rng = np.random.default_rng(16)
     diag = float(np.linalg.norm(p.max(0) - p.min(0)))
     if kind.startswith("ramp"):
         # "ramp" grows along y, as the shared ramp; "ramp_x" and "ramp_z" along those axes.
@@ -106,6 +130,9 @@ def source(data, name):
     elif os.path.exists(os.path.join(data, "points", name + ".ply")):
         meta_path = os.path.join(data, "points", name + ".json")
         cloud = os.path.join(data, "points", name + ".ply")
+    elif name.rsplit("_noise", 1)[0].endswith("_gt1m"):
+        mesh = name.rsplit("_noise", 1)[0][:-len("_gt1m")]
+        return make_own(data, name), os.path.join(data, "gt", mesh + ".ply")
     else:
         base = name.rsplit("_noise", 1)[0]
         meta_path = os.path.join(data, "points", base + ".json")
@@ -200,6 +227,8 @@ def main():
     SPSR = os.path.abspath(args.spsr)
     if args.inputs == ["unseen"]:
         args.inputs = UNSEEN
+    elif args.inputs == ["dense"]:
+        args.inputs = DENSE
     reused = {}
     if args.reuse_reference:
         for r in json.load(open(args.reuse_reference)):

@@ -72,9 +72,9 @@
 //! 0.94–1.01 × their distance before: the bunny's ramp 0.95–0.96 ×, spot's 0.95 ×, the
 //! 0.5 %-noise bunny 0.94 ×, the rocker arm's and the fandisk's ramps 1.00–1.01 ×. Caps of
 //! 4 and 5, `κ` of 2–5 and other shapes of the mapping (`1 + (κσ/h)^p`, `p` = 1 or 1.5) were
-//! no better on the whole. The cap of 6 loses on the million-point bunny's ramp (2 % at
+//! no better on the whole. The cap of 6 lost on the million-point bunny's ramp (2 % at
 //! depths 9 and 10), whose finer density depth needs a larger factor for the same cells
-//! (docs/noise.md, *A denser ramp*): a cap that grows with the density is the next step.
+//! (docs/noise.md, *A denser ramp*); it now grows with the density (*Denser clouds*, below).
 //!
 //! What does separate them is whether the shape is still a quadratic at a coarser scale
 //! ([`MeasuredNoise::coarser`]): the quadratic height field fitted over the plane of the measuring
@@ -91,6 +91,28 @@
 //! 1.25 in place of 1.1, the bunny's ramp along z lost 1 %. (Measured first outside spsr, with
 //! bench/noise/scale_residual.py: at twice the measuring scale the residual of the sphere's
 //! noisiest samples grows by 9 %, that of spot, the rocker arm and the bunny by 27–80 %.)
+//!
+//! **Denser clouds.** The cap of 6 was chosen on clouds of 100,000 points, whose density
+//! depths lie near 7.5. A denser cloud's density depth is finer, so the same noise needs a
+//! larger factor to reach cells as wide, and its extra samples average the noise further
+//! within each cell. Balancing the two errors of a cell of width `w` (the noise left after
+//! averaging its samples, variance `σ²/(ρw²)` at areal density `ρ`, against the shape's bend
+//! across it, `∝ w⁴`) puts the best width at `w ∝ σ^(1/3) ρ^(-1/6)`: it deepens by a third of a
+//! level for each level the density deepens, so the lowering below the density's depth should
+//! grow by two thirds of a level. Where the shape is not known to be smooth, the cap grows by
+//! half that ([`dense_cap`]): the splat may be lowered a further `DENSE_LEVELS = ½` level for
+//! each level of density depth past `DENSE_FROM = 7.5` (the cap doubles per level). The
+//! screening keeps the cap of 6's share, `6^(-1/2)`: where the tree's depth already holds the
+//! splat (a million points at depth 8), a larger factor would only lower the screening, and
+//! that cost the million-point bunny's ramp 4 % there (2.78 against 2.67 × 10⁻⁴ of the
+//! diagonal, with a third of a level). Measured on six noisy clouds of a million points (the
+//! bunny's ramp and spot's 0.5 % noise, and four sampled from the ground-truth meshes: noise
+//! ramps on the rocker arm, the fandisk and the torus, 0.5 % noise on the bunny) at depths 8
+//! to 10, against the fixed cap: 0.754–1.008 × the distance to the truth, 0.947 × on average
+//! (the rocker arm's ramp 0.75 × at depth 9, the torus's 0.84 ×, spot 0.91 ×, the bunny
+//! 0.94 ×; docs/noise.md, *Denser clouds*). A third of a level was 0.747–1.003 × and gained
+//! less (0.968 × on average); two thirds cost the fandisk's ramp up to 10 %. The
+//! 100,000-point noisy clouds, whose density depths are near 7.5, moved by at most 0.4 %.
 //!
 //! **Screening.** The screening term pulls χ towards ½ at every sample, with the sample's
 //! weight; a noisy sample pulls towards a position that is off by its noise. So a sample whose
@@ -140,8 +162,16 @@ const THICK_DEPTH: u32 = 6;
 const CELLS_PER_NOISE: f64 = 3.0;
 
 /// The largest multiplication of a sample's samples per node: its splat depth is lowered by
-/// at most 1.3 levels (see the module docs).
+/// at most 1.3 levels, more in denser clouds ([`dense_cap`]; see the module docs).
 const MAX_FACTOR: f64 = 6.0;
+
+/// The density depth past which [`MAX_FACTOR`] grows with the density ([`dense_cap`]): about
+/// that of the 100,000-point clouds the cap was chosen on.
+const DENSE_FROM: f64 = 7.5;
+
+/// How much further, in levels, a sample's splat may be lowered for each level its density
+/// depth lies past [`DENSE_FROM`] ([`dense_cap`]).
+const DENSE_LEVELS: f64 = 0.5;
 
 /// The largest multiplication where the shape is still a quadratic one depth coarser than
 /// the noise was measured at (see [`STILL_QUADRATIC`]): the splat depth may then be lowered
@@ -1083,21 +1113,21 @@ pub fn adapt_measured(
         smooth_depth.saturating_sub(SECOND_SMOOTHING).max(1),
         empty,
     );
-    let caps = caps(&coarser);
+    let caps = caps(&coarser, depths);
     let mut sigmas: Vec<f64> = raw.into_iter().filter(|s| !s.is_nan()).collect();
     let median = median_by(&mut sigmas, f64::total_cmp).unwrap_or(0.0);
     let lowered: Vec<f64> = depths
         .par_iter_mut()
         .zip(samples.par_iter().zip(sigma.par_iter().zip(&caps)))
         .map(|(q, (sample, (&s, &cap)))| {
-            let factor = samples_per_node_factor(s, q.depth.min(f64::from(max_depth)), cap);
+            let factor = samples_per_node_factor(s, q.depth.min(f64::from(max_depth)), cap.splat);
             if factor <= 1.0 {
                 return 0.0;
             }
             let scaled = density.query_scaled(sample.pos, factor);
             let drop = (q.depth - scaled.depth).max(0.0);
             *q = DepthAndArea {
-                screen: factor.powf(-SCREEN_POWER),
+                screen: factor.min(cap.screen).powf(-SCREEN_POWER),
                 ..scaled
             };
             drop
@@ -1117,21 +1147,46 @@ pub fn adapt_measured(
     }
 }
 
-/// Each sample's cap on the multiplication of its samples per node, from its smoothed
-/// [`MeasuredNoise::coarser`]: [`SMOOTH_MAX_FACTOR`] where its shape is still a quadratic
-/// one depth coarser than its noise was measured at (at most [`STILL_QUADRATIC`]),
-/// [`MAX_FACTOR`] elsewhere.
-fn caps(coarser: &[f64]) -> Vec<f64> {
+/// A sample's caps on the multiplication of its samples per node ([`caps`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Cap {
+    /// On the factor its splat depth and area are queried at.
+    splat: f64,
+    /// On the factor its screening is lowered by.
+    screen: f64,
+}
+
+/// Each sample's caps, from its smoothed [`MeasuredNoise::coarser`] and its density depth
+/// (`depths`, before the adaptation): [`SMOOTH_MAX_FACTOR`] for both where its shape is still
+/// a quadratic one depth coarser than its noise was measured at (at most
+/// [`STILL_QUADRATIC`]); elsewhere [`dense_cap`] on the splat and [`MAX_FACTOR`] on the
+/// screening.
+fn caps(coarser: &[f64], depths: &[DepthAndArea]) -> Vec<Cap> {
     coarser
         .par_iter()
-        .map(|&c| {
+        .zip(depths)
+        .map(|(&c, q)| {
             if c <= STILL_QUADRATIC {
-                SMOOTH_MAX_FACTOR
+                Cap {
+                    splat: SMOOTH_MAX_FACTOR,
+                    screen: SMOOTH_MAX_FACTOR,
+                }
             } else {
-                MAX_FACTOR
+                Cap {
+                    splat: dense_cap(q.depth),
+                    screen: MAX_FACTOR,
+                }
             }
         })
         .collect()
+}
+
+/// The cap on the splat's factor of a sample whose shape is not known to be smooth, at
+/// density depth `d`: [`MAX_FACTOR`] up to [`DENSE_FROM`], and past it a further
+/// [`DENSE_LEVELS`] of a level of lowering for each level of density depth (see the module
+/// docs, *Denser clouds*).
+fn dense_cap(d: f64) -> f64 {
+    MAX_FACTOR * 4f64.powf(DENSE_LEVELS * (d - DENSE_FROM).max(0.0))
 }
 
 /// How many times its density's samples per node a sample of noise `σ` is splatted with,

@@ -65,6 +65,18 @@ pub fn torus(n: usize, big: f64, small: f64, seed: u64) -> PointCloud {
     PointCloud::new(pos, nor).unwrap()
 }
 
+/// Signed distance of each vertex to the torus about the z axis (major radius `big`, minor
+/// `small`).
+pub fn torus_errors(mesh: &spsr::Mesh, big: f64, small: f64) -> Vec<f64> {
+    mesh.vertices
+        .iter()
+        .map(|v| {
+            let rho = (v[0] * v[0] + v[1] * v[1]).sqrt();
+            ((rho - big).powi(2) + v[2] * v[2]).sqrt() - small
+        })
+        .collect()
+}
+
 /// `n` points area-uniform on the faces of the box `[-h, h]`, exact outward face normals.
 pub fn boxed(n: usize, h: [f64; 3], seed: u64) -> PointCloud {
     let mut rng = Rng(seed);

@@ -13,18 +13,6 @@ fn radial_errors(mesh: &spsr::Mesh, c: [f64; 3], r: f64) -> Vec<f64> {
         .collect()
 }
 
-/// Signed distance of each vertex to the torus about the z axis (major radius `big`, minor
-/// `small`).
-fn torus_errors(mesh: &spsr::Mesh, big: f64, small: f64) -> Vec<f64> {
-    mesh.vertices
-        .iter()
-        .map(|v| {
-            let rho = (v[0] * v[0] + v[1] * v[1]).sqrt();
-            ((rho - big).powi(2) + v[2] * v[2]).sqrt() - small
-        })
-        .collect()
-}
-
 #[test]
 fn sphere_at_depth_8_is_closed_genus_0_and_within_a_tenth_of_a_cell() {
     let (c, r) = ([0.1, -0.2, 0.3], 1.0);
