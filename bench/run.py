@@ -234,21 +234,28 @@ def sample_gt(name, gt_path, count, cache):
     path = os.path.join(cache, f"{name}.ply")
     if os.path.exists(path):
         return path
-    v, f = read_mesh_ply(gt_path)
+    rng = np.random.default_rng([20261124, zlib.crc32(name.encode())])
+    pts, nrm = surface_samples(*read_mesh_ply(gt_path), count, rng)
+    write_points_ply(path, pts, nrm, f"generated {name}: {count} points area-uniform on {os.path.basename(gt_path)}, triangle normals")
+    return path
+
+
+def surface_samples(v, f, count, rng):
+    """`count` points area-uniform on the triangles `f` of the vertices `v`, each with its
+    triangle's unit normal, drawn from `rng`."""
+    import numpy as np
+
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     cross = np.cross(b - a, c - a)
     area = np.linalg.norm(cross, axis=1)
     keep = area > 0
     a, b, c, cross, area = a[keep], b[keep], c[keep], cross[keep], area[keep]
-    rng = np.random.default_rng([20261124, zlib.crc32(name.encode())])
     tri = rng.choice(len(area), size=count, p=area / area.sum())
     r1, r2 = rng.random(count), rng.random(count)
     s = np.sqrt(r1)
     u, w = 1 - s, s * r2
     pts = u[:, None] * a[tri] + (s * (1 - r2))[:, None] * b[tri] + w[:, None] * c[tri]
-    nrm = cross[tri] / area[tri, None]
-    write_points_ply(path, pts, nrm, f"generated {name}: {count} points area-uniform on {os.path.basename(gt_path)}, triangle normals")
-    return path
+    return pts, cross[tri] / area[tri, None]
 
 
 def resolve_input(name, data, cache):

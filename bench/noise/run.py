@@ -49,7 +49,7 @@ UNSEEN = ["spot_100k_noiseramp", "rocker_arm_100k_noiseramp", "bunny_100k_noiser
           "fandisk_100k_noise1p0", "spot_1m_noise0p5"]
 # Million-point noisy clouds (docs/noise.md, "Denser clouds"): the cap that protects features
 # grows with the density depth, which only clouds this dense reach. "_gt1m" clouds are a million
-# points sampled from the shared ground-truth mesh (make_from_mesh), then made noisy as the others.
+# points sampled from the shared ground-truth mesh (make_own), then made noisy as the others.
 DENSE = ["bunny_1m_noiseramp", "spot_1m_noise0p5", "rocker_arm_gt1m_noiseramp",
          "fandisk_gt1m_noiseramp", "torus_gt1m_noiseramp", "bunny_gt1m_noise0p5"]
 SINGLE_S = [1.5, 3, 5, 10, 20]
@@ -77,19 +77,6 @@ def write_ply(path, p, n):
     os.replace(tmp, path)
 
 
-def sample_mesh(path, count, rng):
-    """`count` points area-uniform on the mesh at `path`, with its faces' normals."""
-    v, f = read_mesh_ply(path)
-    v, f = np.asarray(v, float), np.asarray(f, np.int64)
-    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    cross = np.cross(b - a, c - a)
-    area = np.linalg.norm(cross, axis=1)
-    t = rng.choice(len(f), size=count, p=area / area.sum())
-    r1, r2 = np.sqrt(rng.random(count)), rng.random(count)
-    p = a[t] * (1 - r1)[:, None] + b[t] * (r1 * (1 - r2))[:, None] + c[t] * (r1 * r2)[:, None]
-    return p, cross[t] / area[t][:, None]
-
-
 def make_own(data, name):
     """Our own noisy clouds (see the module docstring)."""
     os.makedirs(CACHE, exist_ok=True)
@@ -100,7 +87,8 @@ def make_own(data, name):
     if base.endswith("_gt1m"):
         # The seed these clouds were first made with (docs/noise.md, "Denser clouds").
         rng = np.random.default_rng(1609)
-        p, n = sample_mesh(os.path.join(data, "gt", base[:-len("_gt1m")] + ".ply"), 1_000_000, rng)
+        mesh = read_mesh_ply(os.path.join(data, "gt", base[:-len("_gt1m")] + ".ply"))
+        p, n = harness().surface_samples(*mesh, 1_000_000, rng)
     else:
         p, n = read_ply(os.path.join(data, "points", base + ".ply"))
         rng = np.random.default_rng(16)
@@ -146,13 +134,18 @@ def source(data, name):
     return cloud, gt_path
 
 
-def read_mesh_ply(path):
-    """The harness's PLY mesh reader (bench/run.py), loaded by path: this file is also run.py."""
+def harness():
+    """The harness (bench/run.py), loaded by path: this file is also run.py."""
     import importlib.util
     spec = importlib.util.spec_from_file_location("bench_run", os.path.join(ROOT, "bench", "run.py"))
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    return mod.read_mesh_ply(path)
+    return mod
+
+
+def read_mesh_ply(path):
+    """The harness's PLY mesh reader."""
+    return harness().read_mesh_ply(path)
 
 
 def score_real(mesh, cloud, samples):
