@@ -172,8 +172,8 @@ pub struct Density {
 /// samples in it.
 pub type Cell = ([i64; 3], f64, [f64; 3]);
 
-/// Where a sample sits in the hierarchy: its fractional depth and its area weight, and the
-/// share of its weight its screening keeps.
+/// Where a sample sits in the hierarchy: its fractional depth and its area weight, the share
+/// of its weight its screening keeps, and the finest depth its screening reaches.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DepthAndArea {
     /// Estimated splat depth (may be fractional).
@@ -184,6 +184,21 @@ pub struct DepthAndArea {
     /// attributes' field: 1, except for samples the noise stage finds noisy
     /// (`pipeline::noise`).
     pub screen: f64,
+    /// The finest depth whose screening clusters take the sample ([`ALL_DEPTHS`]: every
+    /// depth). Only a sample the noise stage finds noisy is held coarser: finer clusters
+    /// would average too few samples to hold its noise (`pipeline::noise`, *Screening
+    /// depth*).
+    pub screen_depth: u32,
+}
+
+/// [`DepthAndArea::screen_depth`] of a sample screened at every depth of the tree.
+pub const ALL_DEPTHS: u32 = u32::MAX;
+
+impl DepthAndArea {
+    /// Whether the noise stage held the sample's screening coarser than the tree's depth.
+    pub fn screened_coarser(&self) -> bool {
+        self.screen_depth != ALL_DEPTHS
+    }
 }
 
 impl Density {
@@ -245,6 +260,11 @@ impl Density {
         self.query_for(p, max_depth, self.samples_per_node)
     }
 
+    /// The samples per node the estimator targets (`--samples-per-node`).
+    pub fn samples_per_node(&self) -> f64 {
+        self.samples_per_node
+    }
+
     /// As [`Density::query`], for `factor` times the samples per node: the depth and area
     /// weight an explicit `--samples-per-node` that much larger would give the sample (the
     /// noise stage's per-sample choice, `pipeline::noise`).
@@ -269,6 +289,7 @@ impl Density {
                 depth: f64::from(d) + 0.5 * (fine / s).log2(),
                 area: width2(d) / fine,
                 screen: 1.0,
+                screen_depth: ALL_DEPTHS,
             };
         }
         while d > 0 {
@@ -290,6 +311,7 @@ impl Density {
                     depth,
                     area,
                     screen: 1.0,
+                    screen_depth: ALL_DEPTHS,
                 };
             }
             fine = coarse;
@@ -299,6 +321,7 @@ impl Density {
             depth: 0.0,
             area: if fine > 0.0 { 1.0 / fine } else { 1.0 },
             screen: 1.0,
+            screen_depth: ALL_DEPTHS,
         }
     }
 }

@@ -450,6 +450,7 @@ pub(crate) fn solve_implicit(
         density,
         depths,
     } = sampled;
+    let screen_depths = system::screen_depths(&depths);
     drop(depths);
     // Only the per-vertex density reads the density after the splatting.
     let density = params.density.then_some(density);
@@ -466,6 +467,7 @@ pub(crate) fn solve_implicit(
     let points = system::SamplePoints {
         positions: samples.iter().map(|s| s.pos).collect(),
         weights,
+        screen_depths,
     };
     drop(samples);
     let fem = Basis::new(params.degree, params.boundary);

@@ -127,6 +127,35 @@
 //! the screening of noisy samples had been tried before the samples per node were queried
 //! again, and was worse on the ramps then.)
 //!
+//! **Screening depth.** A sample is screened by the cluster of every node that holds it, down
+//! to its deepest node; a cluster's point is the mean of its samples. Below a noisy sample's
+//! splat the clusters hold few samples (about `S · 4^(d_s − d)` at depth `d`, with `S` samples
+//! per node at the density's depth `d_s`), so their means keep most of the noise and pull χ
+//! towards it cell by cell: the bumps the coarse splat was chosen to avoid. So a noisy
+//! sample is screened only down to the finest depth whose clusters average its noise to at
+//! most `SCREEN_AVERAGING = 1` cell width ([`screen_depth`]: `σ / √(S · 4^(d_s − d)) ≤ 2^-d`),
+//! half a cell (`SMOOTH_SCREEN_AVERAGING`) where the shape is smooth enough for the cap of 32,
+//! since coarser screening loses nothing there; and around it the tree is refined
+//! [`REFINE_BELOW_NOISY_SPLAT`] = 1 depth below its splat: χ is smooth there, and the finer
+//! functions and cells carry that smooth surface more closely than cells of the splat's width
+//! (a clean bunny meshed at depth 7 is 1.2–1.9 × 10⁻⁴ of the diagonal from the truth, at depth
+//! 8 0.5–0.7). Either alone lost (bench/noise/run.py's clouds at depth 9): the screening cut
+//! at the splat with the tree as it was, 1–2 % on the ramps; the finer tree with the finer
+//! clusters screening, 1–6 %, since they then pull χ to the noise. Together, on the shared
+//! and own noisy clouds of bench/noise/run.py at depths 8 to 10 (2026-12-08): 0.91–0.99 × their
+//! distance before (the bunny's ramp 0.97 ×, the 0.5 %-noise bunny 0.95 ×, spot with 0.5 %
+//! noise 0.91 ×); clean clouds and real scans have no noisy samples and are the same bytes
+//! (docs/noise.md, *Screening depth*, has the other clouds). The
+//! constants (measured on the same clouds at depths 8 to 10): refining two depths gained about
+//! 1 % more at 2–3 times the time. One averaging for all shapes: 1 cost the sphere's ramp 2–5 %
+//! at depths 8 and 9 and a sphere of 100,000 points with noise of 0.02 of its radius 18 % at
+//! depth 9 (its splats lie up to 2.5 levels coarser, and the clusters between their depth and
+//! the one 1 allows still follow the noise); 0.7 cost the million-point bunny with 0.5 % noise
+//! 3 % at depth 8 (over 0.8 × PoissonRecon) and the 0.5 %-noise bunny 2–4 %; ½ lost up to 4 %
+//! on the 0.5 %-noise bunny. Cutting every noisy sample's screening at its splat depth instead
+//! cost the million-point clouds 4 % at depth 8, where their clusters at the tree's depth
+//! already hold many samples.
+//!
 //! **Smoothing the estimate.** The noise is smoothed first, twice:
 //! each sample takes the median noise of the measured samples in the 3×3×3 cells around it
 //! one level above the typical measuring depth, then the median of those medians two levels
@@ -136,7 +165,7 @@ use rayon::prelude::*;
 
 use rustc_hash::FxHashMap;
 
-use crate::density::{cell_of, Density, DepthAndArea, Sample};
+use crate::density::{cell_of, Density, DepthAndArea, Sample, ALL_DEPTHS};
 use crate::morton;
 use crate::normals::estimate::{eigen_sym3, Sym3};
 
@@ -1128,6 +1157,13 @@ pub fn adapt_measured(
             let drop = (q.depth - scaled.depth).max(0.0);
             *q = DepthAndArea {
                 screen: factor.min(cap.screen).powf(-SCREEN_POWER),
+                screen_depth: screen_depth(
+                    q.depth,
+                    s,
+                    density.samples_per_node(),
+                    cap.averaging,
+                    max_depth,
+                ),
                 ..scaled
             };
             drop
@@ -1154,6 +1190,9 @@ struct Cap {
     splat: f64,
     /// On the factor its screening is lowered by.
     screen: f64,
+    /// The noise its screening clusters' means may keep, in widths of their cells
+    /// ([`screen_depth`]).
+    averaging: f64,
 }
 
 /// Each sample's caps, from its smoothed [`MeasuredNoise::coarser`] and its density depth
@@ -1170,11 +1209,13 @@ fn caps(coarser: &[f64], depths: &[DepthAndArea]) -> Vec<Cap> {
                 Cap {
                     splat: SMOOTH_MAX_FACTOR,
                     screen: SMOOTH_MAX_FACTOR,
+                    averaging: SMOOTH_SCREEN_AVERAGING,
                 }
             } else {
                 Cap {
                     splat: dense_cap(q.depth),
                     screen: MAX_FACTOR,
+                    averaging: SCREEN_AVERAGING,
                 }
             }
         })
@@ -1197,6 +1238,30 @@ fn samples_per_node_factor(sigma: f64, d: f64, cap: f64) -> f64 {
     (1.0 + r * r).min(cap)
 }
 
+/// The finest depth whose screening clusters take a noisy sample of noise `σ` whose density
+/// gives it depth `d` at `spn` samples per node ([`DepthAndArea::screen_depth`]): the finest
+/// depth at which a cluster averages enough samples that the noise left in its mean position
+/// is at most `averaging` ([`SCREEN_AVERAGING`], or [`SMOOTH_SCREEN_AVERAGING`] on smooth
+/// shapes) of its cell's width. A cluster at depth `d'` holds about `spn · 4^(d − d')`
+/// samples, whose mean is off by `σ / √(spn · 4^(d − d'))`; that is at most `a 2^-d'` for
+/// `d' ≤ (d + log2(a √spn / σ)) / 2`. [`ALL_DEPTHS`] where that is the tree's depth
+/// `max_depth` or finer (see the module docs, *Screening depth*).
+fn screen_depth(d: f64, sigma: f64, spn: f64, averaging: f64, max_depth: u32) -> u32 {
+    let finest = 0.5 * (d + (averaging * spn.sqrt() / sigma).log2());
+    if finest.is_nan() || finest >= f64::from(max_depth) {
+        return ALL_DEPTHS;
+    }
+    finest.floor().max(0.0) as u32
+}
+
+/// The noise a noisy sample's screening clusters may keep in their mean positions, in widths
+/// of their cells ([`screen_depth`]).
+const SCREEN_AVERAGING: f64 = 1.0;
+
+/// [`SCREEN_AVERAGING`] where the shape is still a quadratic one depth coarser (the samples
+/// whose splat may go to [`SMOOTH_MAX_FACTOR`]): there coarser screening loses no shape.
+const SMOOTH_SCREEN_AVERAGING: f64 = 0.5;
+
 /// A noisy sample's screening keeps `factor^-SCREEN_POWER` of its weight, where `factor` is
 /// the multiplication of its samples per node ([`samples_per_node_factor`]; see the module
 /// docs).
@@ -1212,4 +1277,73 @@ fn median_by<T: Copy>(v: &mut [T], cmp: impl FnMut(&T, &T) -> std::cmp::Ordering
     }
     let m = v.len() / 2;
     Some(*v.select_nth_unstable_by(m, cmp).1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The noise left in the mean position of a cluster at depth `k`, which holds about
+    /// `spn · 4^(d − k)` samples of noise `sigma` whose density gives them depth `d`.
+    fn left_in_cluster(sigma: f64, d: f64, spn: f64, k: u32) -> f64 {
+        sigma / (spn * 4f64.powf(d - f64::from(k))).sqrt()
+    }
+
+    /// The width of a cell at depth `k`.
+    fn cell(k: u32) -> f64 {
+        0.5f64.powi(k as i32)
+    }
+
+    #[test]
+    fn a_noisy_sample_is_screened_down_to_the_finest_depth_whose_clusters_average_its_noise() {
+        // Noise of 0.2 to 2 % of the cube at the density depths of 100,000 to 1,000,000
+        // points, and a cloud at 5 samples per node.
+        for (sigma, d, spn) in [
+            (2e-3, 7.6, 1.5),
+            (5e-3, 7.6, 1.5),
+            (8e-3, 7.6, 1.5),
+            (5e-3, 9.2, 1.5),
+            (2e-2, 6.5, 1.5),
+            (5e-3, 7.6, 5.0),
+        ] {
+            let k = screen_depth(d, sigma, spn, SCREEN_AVERAGING, 12);
+            assert!(k < 12, "σ {sigma}, depth {d}: {k}");
+            let tolerance = 1.0 + 1e-12;
+            assert!(
+                left_in_cluster(sigma, d, spn, k) <= tolerance * SCREEN_AVERAGING * cell(k),
+                "σ {sigma}, depth {d}: at depth {k} the clusters keep too much of the noise"
+            );
+            assert!(
+                left_in_cluster(sigma, d, spn, k + 1) > SCREEN_AVERAGING * cell(k + 1),
+                "σ {sigma}, depth {d}: depth {} would average it too",
+                k + 1
+            );
+        }
+    }
+
+    #[test]
+    fn more_noise_is_screened_no_finer_and_faint_noise_at_every_depth() {
+        let mut last = ALL_DEPTHS;
+        for i in 0..60 {
+            let sigma = 1e-6 * 1.3f64.powi(i);
+            let k = screen_depth(7.6, sigma, 1.5, SCREEN_AVERAGING, 10);
+            assert!(k <= last, "σ {sigma}: depth {k} after {last}");
+            last = k;
+        }
+        assert!(last < 5, "{last}");
+        // Noise the clusters of the tree's own depth already average is screened everywhere.
+        assert_eq!(
+            screen_depth(7.6, 1e-6, 1.5, SCREEN_AVERAGING, 10),
+            ALL_DEPTHS
+        );
+        assert_eq!(
+            screen_depth(9.2, 1e-3, 1.5, SCREEN_AVERAGING, 8),
+            ALL_DEPTHS
+        );
+        // A smooth shape's samples are screened no finer than the others'.
+        for sigma in [1e-3, 4e-3, 1.6e-2] {
+            let smooth = screen_depth(7.6, sigma, 1.5, SMOOTH_SCREEN_AVERAGING, 10);
+            assert!(smooth <= screen_depth(7.6, sigma, 1.5, SCREEN_AVERAGING, 10));
+        }
+    }
 }

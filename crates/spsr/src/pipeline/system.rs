@@ -6,7 +6,7 @@ use rayon::prelude::*;
 
 use crate::bspline::Basis;
 use crate::data::DataField;
-use crate::density::cell_of;
+use crate::density::{cell_of, DepthAndArea};
 use crate::octree::{Octree, DEPTH_OFFSET};
 use crate::system::{build_clusters, Clusters};
 use crate::Params;
@@ -18,6 +18,9 @@ pub struct SamplePoints {
     pub positions: Vec<[f64; 3]>,
     /// Weights.
     pub weights: Vec<f64>,
+    /// The finest depth whose screening clusters take each sample
+    /// ([`crate::density::DepthAndArea::screen_depth`]); empty: every depth, for all.
+    pub screen_depths: Vec<u32>,
 }
 
 /// The output of [`screening`].
@@ -55,11 +58,12 @@ pub fn screening(
     let alpha = params.alpha();
     let base = params.base_depth().max(1).min(params.depth);
     let clusters = if alpha > 0.0 {
+        let screened_at = screened_nodes(tree, leaf_of, &samples.screen_depths);
         build_clusters(
             tree,
             fem,
             base + DEPTH_OFFSET,
-            &leaf_of,
+            &screened_at,
             &samples.positions,
             &samples.weights,
             alpha * mean_area,
@@ -68,6 +72,41 @@ pub fn screening(
         (0..tree.levels.len()).map(|_| Default::default()).collect()
     };
     Screening { clusters, data }
+}
+
+/// Each sample's screening depth ([`SamplePoints::screen_depths`]), empty when every sample
+/// is screened at every depth.
+pub fn screen_depths(depths: &[DepthAndArea]) -> Vec<u32> {
+    if depths.iter().any(DepthAndArea::screened_coarser) {
+        depths.iter().map(|q| q.screen_depth).collect()
+    } else {
+        Vec::new()
+    }
+}
+
+/// The node `(level, node)` whose cluster takes each sample first: its deepest node
+/// (`leaf_of`), or that node's ancestor at the sample's screening depth where that is
+/// coarser (`screen_depths`, unit depths; empty: the deepest nodes).
+pub(crate) fn screened_nodes(
+    tree: &Octree,
+    leaf_of: Vec<(u32, u32)>,
+    screen_depths: &[u32],
+) -> Vec<(u32, u32)> {
+    if screen_depths.is_empty() {
+        return leaf_of;
+    }
+    leaf_of
+        .into_par_iter()
+        .zip(screen_depths)
+        .map(|((mut t, mut n), &d)| {
+            let finest = d.saturating_add(DEPTH_OFFSET);
+            while t > finest {
+                n = tree.parent(t, n);
+                t -= 1;
+            }
+            (t, n)
+        })
+        .collect()
 }
 
 /// The deepest node `(level, node)` containing each position.

@@ -9,13 +9,24 @@ use crate::octree::{Octree, TreeRequest, DEPTH_OFFSET};
 use crate::{resources, Error, Params, Result};
 use rayon::prelude::*;
 
-/// Where one sample's normal is splatted: `(depth, fraction)` at two depths.
+/// Where one sample's normal is splatted: `(depth, fraction)` at two depths; and how deep
+/// the tree is refined around it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Splat {
     /// The depth at or above the sample's estimated depth, with the fraction splatted there,
     /// and the depth above it with the rest.
     pub levels: [(u32, f64); 2],
+    /// The finest depth the tree is refined to around the sample: the first splat depth,
+    /// except for a noisy sample held to coarser screening clusters (`pipeline::noise`),
+    /// around which the tree goes [`REFINE_BELOW_NOISY_SPLAT`] depths finer.
+    pub finest: u32,
 }
+
+/// How many depths below a noisy sample's splat the tree is refined around it (at most to
+/// the tree's depth): the splat and the screening are coarse there, so χ is smooth, and the
+/// finer functions and cells represent and extract that smooth surface more closely than
+/// cells of the splat's width would (`pipeline::noise`, *Screening depth*).
+pub const REFINE_BELOW_NOISY_SPLAT: u32 = 1;
 
 /// The output of [`build`].
 #[derive(Debug)]
@@ -64,7 +75,15 @@ pub fn splats_of(sampled: &Sampled, params: &Params) -> Vec<Option<Splat>> {
         .samples
         .par_iter()
         .zip(&sampled.depths)
-        .map(|(s, q)| (s.normal != [0.0; 3]).then(|| splat_depths(q.depth, base, depth, params)))
+        .map(|(s, q)| {
+            (s.normal != [0.0; 3]).then(|| {
+                let mut sp = splat_depths(q.depth, base, depth, params);
+                if q.screened_coarser() {
+                    sp.finest = (sp.levels[0].0 + REFINE_BELOW_NOISY_SPLAT).min(depth);
+                }
+                sp
+            })
+        })
         .collect()
 }
 
@@ -103,6 +122,11 @@ fn require_splat(req: &mut TreeRequest, s: &Sample, sp: &Splat) {
             req.require_window(d + DEPTH_OFFSET, [c[0] + n, c[1] + n, c[2] + n], 1);
         }
     }
+    if sp.finest > sp.levels[0].0 {
+        let c = cell_of(s.pos, sp.finest);
+        let n = 1i64 << sp.finest;
+        req.require_window(sp.finest + DEPTH_OFFSET, [c[0] + n, c[1] + n, c[2] + n], 1);
+    }
 }
 
 /// The two depths around a sample's estimated depth `ds` (§3.6), clamped to `base..=depth`.
@@ -124,6 +148,7 @@ fn splat_depths(ds: f64, base: u32, depth: u32, params: &Params) -> Splat {
     }
     Splat {
         levels: [(dp, f), (dp - 1, 1.0 - f)],
+        finest: dp,
     }
 }
 

@@ -418,7 +418,7 @@ impl Record for Histogram {
 
 /// A slab's samples (its own and its padding's), kept between its phases.
 impl Record for SlabSamples {
-    const TAG: &'static [u8; 8] = b"spsrSMP4";
+    const TAG: &'static [u8; 8] = b"spsrSMP5";
     fn put(&self, o: &mut Out) -> std::io::Result<()> {
         o.list(&self.samples, |o, x| {
             x.pos.iter().try_for_each(|&c| o.f64(c))?;
@@ -428,7 +428,8 @@ impl Record for SlabSamples {
         o.list(&self.depths, |o, q| {
             o.f64(q.depth)?;
             o.f64(q.area)?;
-            o.f64(q.screen)
+            o.f64(q.screen)?;
+            o.u32(q.screen_depth)
         })?;
         o.list(&self.measured, |o, m| match m {
             Some(m) => {
@@ -448,11 +449,12 @@ impl Record for SlabSamples {
                 normal: [i.f64()?, i.f64()?, i.f64()?],
             })
         })?;
-        let depths = i.list(24, |i| {
+        let depths = i.list(28, |i| {
             Ok(DepthAndArea {
                 depth: i.f64()?,
                 area: i.f64()?,
                 screen: i.f64()?,
+                screen_depth: i.u32()?,
             })
         })?;
         let measured = i.list(4, |i| {

@@ -411,16 +411,28 @@ pub fn coarse(
         .collect();
     let leaf_of = system::deepest_nodes(&tree, &positions);
     let data = own_data(&tree, &sampled, &owned, &leaf_of, &weights, plan, params);
+    let own_depths: Vec<_> = (sampled.depths.iter().zip(&owned))
+        .filter(|(_, &o)| o)
+        .map(|(q, _)| *q)
+        .collect();
+    let screened_at = system::screened_nodes(&tree, leaf_of, &system::screen_depths(&own_depths));
     let mut clusters = vec![Vec::new(); (tc.min(tree.depth_count() - 1) + 1 - tb) as usize];
-    for_each_cluster_sum(&tree, tb, &leaf_of, &positions, &weights, |t, merged| {
-        if t <= tc {
-            let level = &tree.levels[t as usize];
-            clusters[(t - tb) as usize] = merged
-                .iter()
-                .map(|&(n, w, wp)| (level.key(n), w, wp))
-                .collect();
-        }
-    });
+    for_each_cluster_sum(
+        &tree,
+        tb,
+        &screened_at,
+        &positions,
+        &weights,
+        |t, merged| {
+            if t <= tc {
+                let level = &tree.levels[t as usize];
+                clusters[(t - tb) as usize] = merged
+                    .iter()
+                    .map(|&(n, w, wp)| (level.key(n), w, wp))
+                    .collect();
+            }
+        },
+    );
     Ok(CoarsePart {
         refined: refined_keys,
         nodes,
@@ -1053,6 +1065,7 @@ pub fn solve(
     let points = system::SamplePoints {
         positions: sampled.samples.iter().map(|x| x.pos).collect(),
         weights: sampled.screening_weights(),
+        screen_depths: system::screen_depths(&sampled.depths),
     };
     drop(sampled);
     let fem = Basis::new(params.degree, params.boundary);

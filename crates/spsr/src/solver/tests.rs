@@ -207,6 +207,7 @@ impl Fixture {
         let points = system::SamplePoints {
             positions: sampled.samples.iter().map(|s| s.pos).collect(),
             weights: sampled.samples.iter().map(|s| s.weight).collect(),
+            screen_depths: Vec::new(),
         };
         let screening =
             system::screening(&tree, fem, &points, Vec::new(), 0, field.mean_area, &params);

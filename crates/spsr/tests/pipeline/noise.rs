@@ -358,7 +358,9 @@ fn a_noisy_thin_tube_keeps_its_topology() {
 /// so the same noise needs a larger factor to be averaged over as wide a patch, while its
 /// extra samples average the noise down further. Under the fixed cap, four times the samples
 /// of the same noisy thin torus landed only 7 % nearer the truth (0.00164 against 0.00176),
-/// because its splats shrank with its density.
+/// because its splats shrank with its density; with the growing cap 40 % nearer. Since the
+/// screening depth (`pipeline::noise`, *Screening depth*), which brought the sparser cloud
+/// 19 % nearer (0.00142) and the denser one hardly (0.00107), 25 % nearer.
 #[test]
 fn a_denser_sampling_of_a_noisy_thin_tube_is_smoothed_as_its_density_allows() {
     let (big, small) = (1.0, 0.25);
@@ -380,7 +382,7 @@ fn a_denser_sampling_of_a_noisy_thin_tube_is_smoothed_as_its_density_allows() {
     };
     let (sparse, dense) = (error(&noisy(100_000, 5)), error(&noisy(400_000, 6)));
     assert!(
-        dense < 0.75 * sparse,
+        dense < 0.8 * sparse,
         "400,000 points: {dense}; 100,000: {sparse}"
     );
 }
