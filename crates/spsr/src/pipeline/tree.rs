@@ -113,20 +113,23 @@ pub fn request(samples: &[Sample], splats: &[Option<Splat>], params: &Params) ->
 const REQUEST_RUN: usize = 1 << 14;
 
 /// Requires the nodes of one sample's splat: the window around its cell at each depth that
-/// receives a part of it.
+/// receives a part of it, and at its finest depth ([`Splat::finest`]) where that is finer.
 fn require_splat(req: &mut TreeRequest, s: &Sample, sp: &Splat) {
     for &(d, f) in &sp.levels {
         if f > 0.0 {
-            let c = cell_of(s.pos, d);
-            let n = 1i64 << d;
-            req.require_window(d + DEPTH_OFFSET, [c[0] + n, c[1] + n, c[2] + n], 1);
+            require_window_at(req, s.pos, d);
         }
     }
     if sp.finest > sp.levels[0].0 {
-        let c = cell_of(s.pos, sp.finest);
-        let n = 1i64 << sp.finest;
-        req.require_window(sp.finest + DEPTH_OFFSET, [c[0] + n, c[1] + n, c[2] + n], 1);
+        require_window_at(req, s.pos, sp.finest);
     }
+}
+
+/// Requires the window of B-spline support around the cell holding `p` at depth `d`.
+fn require_window_at(req: &mut TreeRequest, p: [f64; 3], d: u32) {
+    let c = cell_of(p, d);
+    let n = 1i64 << d;
+    req.require_window(d + DEPTH_OFFSET, [c[0] + n, c[1] + n, c[2] + n], 1);
 }
 
 /// The two depths around a sample's estimated depth `ds` (§3.6), clamped to `base..=depth`.
